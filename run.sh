@@ -1,0 +1,71 @@
+#!/usr/bin/env bash
+# Set up (idempotently) and run the project.
+#
+#   ./run.sh main [ARGS...]   the main job: the paper's permutation experiment on a small default
+#   ./run.sh test [ARGS...]   the test suite (pytest; ARGS go to pytest, e.g. -m slow)
+#
+# Both create or refresh the virtual environment .venv (override with SQKIT_VENV) from
+# pyproject.toml, and install the system library libosmesa6 through apt-get when it is missing.
+set -euo pipefail
+cd "$(dirname "$0")"
+
+VENV="${SQKIT_VENV:-.venv}"
+
+log() { printf '[run.sh] %s\n' "$*" >&2; }
+
+ensure_osmesa() {
+    if dpkg -s libosmesa6 >/dev/null 2>&1; then return; fi
+    log "installing libosmesa6 (off-screen OpenGL for the default renderer) with apt-get"
+    local sudo=""
+    if [ "$(id -u)" -ne 0 ]; then
+        if command -v sudo >/dev/null 2>&1; then sudo="sudo"; else
+            log "error: libosmesa6 is missing and this user cannot run apt-get; install it as root:"
+            log "       apt-get install -y libosmesa6"
+            exit 1
+        fi
+    fi
+    $sudo apt-get update -qq
+    DEBIAN_FRONTEND=noninteractive $sudo apt-get install -y -qq libosmesa6 >/dev/null
+}
+
+pick_python() {
+    for py in python3.11 python3.12 python3.13 python3.10 python3; do
+        if command -v "$py" >/dev/null 2>&1 &&
+            "$py" -c 'import sys; sys.exit(sys.version_info < (3, 10))' 2>/dev/null; then
+            echo "$py"; return
+        fi
+    done
+    log "error: Python >= 3.10 is required"; exit 1
+}
+
+ensure_venv() {
+    local stamp="$VENV/.sqkit-installed" want
+    want="$(cat pyproject.toml | sha256sum | cut -d' ' -f1)"
+    if [ ! -x "$VENV/bin/python" ]; then
+        log "creating virtual environment $VENV"
+        "$(pick_python)" -m venv "$VENV"
+    fi
+    if [ ! -f "$stamp" ] || [ "$(cat "$stamp")" != "$want" ]; then
+        log "installing Python dependencies into $VENV (first run takes a few minutes)"
+        "$VENV/bin/python" -m pip install -q --upgrade pip
+        "$VENV/bin/python" -m pip install -q -e ".[test,cluster,bench]"
+        echo "$want" > "$stamp"
+    fi
+}
+
+cmd="${1:-}"
+[ $# -gt 0 ] && shift
+case "$cmd" in
+    main)
+        ensure_osmesa; ensure_venv
+        exec "$VENV/bin/sqsim" demo "$@"
+        ;;
+    test)
+        ensure_osmesa; ensure_venv
+        exec "$VENV/bin/python" -m pytest "$@"
+        ;;
+    *)
+        sed -n '2,9p' "$0" | sed 's/^# \{0,1\}//'
+        [ -z "$cmd" ] || [ "$cmd" = "-h" ] || [ "$cmd" = "--help" ] || exit 2
+        ;;
+esac

@@ -1,0 +1,18 @@
+"""sqfit: recover superquadrics from multi-view binary instance masks.
+
+Pure numpy/scipy: importing this package never imports OpenGL or a renderer.
+
+Quick start::
+
+    import sqfit
+    cams = [sqfit.Camera(intrinsics, T_world_camera) for T_world_camera in poses]
+    obs = [sqfit.Observation.from_mask(cam, mask, rng=0) for cam, mask in zip(cams, masks)]
+"""
+
+from .camera import Camera, Intrinsics, back_project, look_at, project
+from .observation import Observation
+from .superquadric import Superquadric
+
+__version__ = "0.1.0"
+
+__all__ = ["Superquadric", "Camera", "Intrinsics", "Observation", "look_at", "project", "back_project"]

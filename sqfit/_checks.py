@@ -1,0 +1,60 @@
+"""Input coercion and validation shared by every public function.
+
+Each helper coerces first, then checks, and raises a ``ValueError`` whose message names the
+argument and what was expected, so a bad input never surfaces as a traceback deep in numpy.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+
+def check_shape(x, shape, name, dtype=np.float64, finite=True):
+    """Coerce ``x`` to an array and check its shape.
+
+    Parameters
+    ----------
+    x : array_like
+        Value to check.
+    shape : tuple of (int or None)
+        Expected shape; ``None`` matches any length along that axis.
+    name : str
+        Argument name used in error messages.
+    dtype : numpy dtype, optional
+        Target dtype (default float64).
+    finite : bool, optional
+        Also require every value to be finite (no NaN or inf).
+
+    Returns
+    -------
+    array : ndarray
+        ``x`` as an array of ``dtype`` with the checked shape.
+    """
+    try:
+        arr = np.asarray(x, dtype=dtype)
+    except (TypeError, ValueError) as exc:
+        raise ValueError(f"{name} must be numeric with shape {_fmt(shape)}: {exc}") from None
+    if arr.ndim != len(shape) or any(s is not None and s != n for s, n in zip(shape, arr.shape)):
+        raise ValueError(f"{name} must have shape {_fmt(shape)}, got {arr.shape}")
+    if finite and arr.dtype.kind == "f" and not np.all(np.isfinite(arr)):
+        raise ValueError(f"{name} contains NaN or inf values")
+    return arr
+
+
+def check_positive(value, name):
+    """Return ``value`` as a float, raising unless it is finite and > 0."""
+    value = float(value)
+    if not np.isfinite(value) or value <= 0:
+        raise ValueError(f"{name} must be a finite number > 0, got {value}")
+    return value
+
+
+def check_choice(value, choices, name):
+    """Return ``value`` unchanged, raising unless it is one of ``choices``."""
+    if value not in choices:
+        raise ValueError(f"{name} must be one of {sorted(choices)}, got {value!r}")
+    return value
+
+
+def _fmt(shape):
+    return "(" + ", ".join("n" if s is None else str(s) for s in shape) + ("," if len(shape) == 1 else "") + ")"

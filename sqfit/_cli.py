@@ -1,0 +1,49 @@
+"""A small sub-command dispatcher shared by the ``sqfit`` and ``sqsim`` command lines.
+
+Each command lives in its own module exposing ``add_arguments(parser)`` and ``run(args) -> int``;
+a module is imported only when its command runs, so ``--help`` is fast and a command never pays
+for another's imports. Expected errors (bad input, missing files) print one clear line and exit
+with status 2 instead of a traceback.
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import sys
+
+
+def dispatch(argv, commands, prog, description):
+    """Parse ``argv`` and run the chosen command.
+
+    Parameters
+    ----------
+    argv : list of str or None
+        Arguments without the program name (``None``: ``sys.argv[1:]``).
+    commands : dict
+        ``name -> (module path, one-line help)``.
+    prog, description : str
+
+    Returns
+    -------
+    status : int
+        Process exit status.
+    """
+    argv = sys.argv[1:] if argv is None else list(argv)
+    parser = argparse.ArgumentParser(prog=prog, description=description)
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND", required=True)
+    for name, (module, help_text) in commands.items():
+        p = sub.add_parser(name, help=help_text, description=help_text,
+                           formatter_class=argparse.ArgumentDefaultsHelpFormatter)
+        p.set_defaults(_module=module)
+        if argv[:1] == [name]:
+            importlib.import_module(module).add_arguments(p)
+    args = parser.parse_args(argv)
+    try:
+        return int(importlib.import_module(args._module).run(args) or 0)
+    except KeyboardInterrupt:
+        print(f"{prog} {args.command}: interrupted", file=sys.stderr)
+        return 130
+    except (ValueError, OSError) as exc:
+        print(f"{prog} {args.command}: error: {exc}", file=sys.stderr)
+        return 2

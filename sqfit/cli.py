@@ -1,0 +1,19 @@
+"""Command line of the fitter: ``sqfit COMMAND --help`` explains each command."""
+
+from __future__ import annotations
+
+import sys
+
+from ._cli import dispatch
+
+#: name -> (module with add_arguments/run, one-line help)
+COMMANDS = {}
+
+
+def main(argv=None):
+    return dispatch(argv, COMMANDS, "sqfit", "Fit superquadrics to multi-view instance masks. "
+                    "See 'sqfit COMMAND --help'.")
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,24 @@
+"""Named constants with their units, in one place."""
+
+#: Parameter vector layout (paper, section III-B): ``[ax, ay, az, e1, e2, px, py, pz, rx, ry, rz]``.
+PARAMETER_NAMES = ("ax", "ay", "az", "e1", "e2", "px", "py", "pz", "rx", "ry", "rz")
+N_PARAMS = 11
+SIZE = slice(0, 3)  #: half-axis lengths a, metres
+SHAPE = slice(3, 5)  #: shape exponents e1 (latitude), e2 (longitude), unitless
+POSITION = slice(5, 8)  #: centre in the world frame, metres
+ROTATION = slice(8, 11)  #: Euler angles, radians (convention in ``sqfit.superquadric``)
+
+#: Shape exponents a ``Superquadric`` accepts at all: convex shapes only (e <= 2); below the
+#: lower end, powers of 2/e overflow float64 even in log space handling of the mesh.
+SHAPE_DOMAIN = (0.01, 2.0)
+
+#: Bounds of the paper's soft constraint (eq. 4 and 7) used by the optimiser's penalty.
+SHAPE_BOUNDS = (0.1, 1.9)
+SIZE_MIN = 0.1  #: metres
+
+#: Penalty weights c_p of eq. 7 (paper, Table I).
+PENALTY_RIOU = 1.0
+PENALTY_ANALYTIC = 100.0
+
+#: Default number of samples N per observation (paper, Table I).
+DEFAULT_SAMPLES = 100

@@ -1,0 +1,253 @@
+"""One view of one object: a camera and a binary instance mask, reduced to what the fitter uses.
+
+From the mask, :meth:`Observation.from_mask` extracts
+
+- the outer contour, sub-pixel, with scikit-image ``find_contours`` at level 0.5, converted to
+  image coordinates (pixel ``(i, j)`` has its centre at ``(j + 0.5, i + 0.5)``, see
+  ``sqfit.camera``), so the contour runs along pixel edges and cuts convex pixel corners;
+- the centroid of the mask area (mean of pixel centres);
+- ``n`` seeded samples: ``uniform`` (paper) draws points uniformly inside the mask area,
+  ``contour`` spaces points evenly along the outer contour with a random phase, ``mixed`` takes
+  half of each.
+
+Bad masks are reported clearly:
+
+- an empty mask or a mask covering the whole image raises ``ValueError`` (nothing to fit);
+- a mask touching the image border is accepted but flagged with ``touches_border = True``:
+  its silhouette is truncated, and ``sqfit.fit`` records a warning for it.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from functools import cached_property
+
+import numpy as np
+
+from . import constants as C
+from ._checks import check_choice
+from .camera import Camera, pixel_centers
+
+__all__ = ["Observation", "SAMPLING_METHODS", "POLYGON_KINDS"]
+
+SAMPLING_METHODS = ("uniform", "contour", "mixed")
+POLYGON_KINDS = ("hull", "contour")
+
+
+@dataclass(frozen=True, eq=False)
+class Observation:
+    """A camera and what its mask says about one object.
+
+    Attributes
+    ----------
+    camera : Camera
+    samples : (n, 2) float
+        Image coordinates ``(u, v)`` sampled from the mask.
+    contour : (m, 2) float
+        Outer boundary of the mask, image coordinates, counter-clockwise in the image
+        (not repeated at the end).
+    centroid : (2,) float
+        Area centroid of the mask, image coordinates.
+    area_px : int
+        Number of mask pixels.
+    touches_border : bool
+        True if the mask reaches the first or last row or column (truncated silhouette).
+    """
+
+    camera: Camera
+    samples: np.ndarray
+    contour: np.ndarray
+    centroid: np.ndarray
+    area_px: int
+    touches_border: bool
+
+    @classmethod
+    def from_mask(cls, camera, mask, n_samples=C.DEFAULT_SAMPLES, sampling="uniform", rng=None):
+        """Build an observation from a binary mask.
+
+        Parameters
+        ----------
+        camera : Camera
+        mask : (height, width) bool or int
+            Non-zero pixels belong to the object; the shape must match the intrinsics.
+        n_samples : int
+            Number of samples, >= 3.
+        sampling : {"uniform", "contour", "mixed"}
+        rng : None, int or numpy.random.Generator
+
+        Returns
+        -------
+        observation : Observation
+
+        Raises
+        ------
+        ValueError
+            If the mask has the wrong shape, is empty or covers the whole image.
+        """
+        if not isinstance(camera, Camera):
+            raise ValueError(f"camera must be a sqfit.Camera, got {type(camera).__name__}")
+        check_choice(sampling, SAMPLING_METHODS, "sampling")
+        if int(n_samples) != n_samples or n_samples < 3:
+            raise ValueError(f"n_samples must be an integer >= 3, got {n_samples}")
+        mask = np.asarray(mask)
+        expected = (camera.intrinsics.height, camera.intrinsics.width)
+        if mask.shape != expected:
+            raise ValueError(f"mask must have shape (height, width) = {expected}, got {mask.shape}")
+        if mask.dtype.kind not in "biuf":
+            raise ValueError(f"mask must be boolean or numeric, got dtype {mask.dtype}")
+        mask = mask != 0
+        rows, cols = np.nonzero(mask)
+        if len(rows) == 0:
+            raise ValueError("mask is empty: the object is not visible in this view")
+        if len(rows) == mask.size:
+            raise ValueError("mask covers the whole image: the object's silhouette is unknown")
+        rng = np.random.default_rng(rng)
+        contour = outer_contour(mask, rows, cols)
+        touches = bool(rows.min() == 0 or cols.min() == 0 or rows.max() == expected[0] - 1
+                       or cols.max() == expected[1] - 1)
+        samples = _sample(rows, cols, contour, int(n_samples), sampling, rng)
+        return cls(
+            camera=camera,
+            samples=_readonly(samples),
+            contour=_readonly(contour),
+            centroid=_readonly(pixel_centers(rows, cols).mean(axis=0)),
+            area_px=int(len(rows)),
+            touches_border=touches,
+        )
+
+    @cached_property
+    def hull(self):
+        """``(k, 2) float``: convex hull of the samples, counter-clockwise (paper's observation).
+
+        Falls back to the hull of the contour when the samples are degenerate (collinear).
+        """
+        return convex_hull(self.samples) if _has_area(self.samples) else convex_hull(self.contour)
+
+    def polygon(self, kind="hull"):
+        """The observation polygon the R-IOU costs compare against.
+
+        Parameters
+        ----------
+        kind : {"hull", "contour"}
+            ``hull`` of the samples (paper) or the full mask ``contour``.
+
+        Returns
+        -------
+        polygon : (k, 2) float
+        """
+        check_choice(kind, POLYGON_KINDS, "polygon kind")
+        return self.hull if kind == "hull" else self.contour
+
+
+def outer_contour(mask, rows=None, cols=None):
+    """The outer boundary of a binary mask, sub-pixel, in image coordinates.
+
+    Parameters
+    ----------
+    mask : (h, w) bool
+    rows, cols : (n,) int, optional
+        ``np.nonzero(mask)``, if already computed.
+
+    Returns
+    -------
+    contour : (m, 2) float
+        ``(u, v)`` points of the longest closed iso-line at level 0.5, counter-clockwise in
+        image coordinates (positive shoelace area with v pointing down), not repeated at the end.
+    """
+    from skimage.measure import find_contours
+
+    if rows is None:
+        rows, cols = np.nonzero(mask)
+    r0, c0 = rows.min(), cols.min()
+    # Crop to the object and pad with background so every contour closes inside the crop.
+    crop = np.zeros((rows.max() - r0 + 3, cols.max() - c0 + 3), dtype=np.float64)
+    crop[rows - r0 + 1, cols - c0 + 1] = 1.0
+    lines = find_contours(crop, 0.5)
+    best = max(lines, key=lambda line: abs(_signed_area(line[:, ::-1])))
+    uv = best[:-1, ::-1] + np.array([c0 - 1 + 0.5, r0 - 1 + 0.5])
+    return uv if _signed_area(uv) > 0 else uv[::-1]
+
+
+def convex_hull(points):
+    """Convex hull by Andrew's monotone chain.
+
+    Parameters
+    ----------
+    points : (n, 2) float
+
+    Returns
+    -------
+    hull : (k, 2) float
+        Counter-clockwise in a right-handed frame (positive shoelace area), no repeated point.
+    """
+    pts = np.unique(np.asarray(points, dtype=np.float64), axis=0)
+    if len(pts) < 3:
+        return pts
+
+    def chain(seq):
+        out = []
+        for p in seq:
+            while len(out) >= 2 and _cross(out[-2], out[-1], p) <= 0:
+                out.pop()
+            out.append(p)
+        return out
+
+    lower, upper = chain(pts), chain(pts[::-1])
+    return np.array(lower[:-1] + upper[:-1])
+
+
+def _cross(o, a, b):
+    return (a[0] - o[0]) * (b[1] - o[1]) - (a[1] - o[1]) * (b[0] - o[0])
+
+
+def _signed_area(poly):
+    x, y = poly[:, 0], poly[:, 1]
+    return 0.5 * float(np.dot(x, np.roll(y, -1)) - np.dot(y, np.roll(x, -1)))
+
+
+def _has_area(points):
+    centred = points - points.mean(axis=0)
+    return len(points) >= 3 and np.linalg.svd(centred, compute_uv=False)[-1] > 1e-9
+
+
+def _sample(rows, cols, contour, n, sampling, rng):
+    if sampling == "uniform":
+        return _sample_area(rows, cols, n, rng)
+    if sampling == "contour":
+        return sample_polyline(contour, n, rng)
+    n_contour = n // 2
+    return np.concatenate([_sample_area(rows, cols, n - n_contour, rng), sample_polyline(contour, n_contour, rng)])
+
+
+def _sample_area(rows, cols, n, rng):
+    """Uniform points in the union of the mask pixels' squares."""
+    pick = rng.integers(0, len(rows), n)
+    return np.stack([cols[pick], rows[pick]], axis=1) + rng.random((n, 2))
+
+
+def sample_polyline(polygon, n, rng):
+    """``n`` points evenly spaced by arc length around a closed polygon, with a random phase.
+
+    Parameters
+    ----------
+    polygon : (m, 2) float
+    n : int
+    rng : numpy.random.Generator
+
+    Returns
+    -------
+    points : (n, 2) float
+    """
+    closed = np.vstack([polygon, polygon[:1]])
+    seg = np.linalg.norm(np.diff(closed, axis=0), axis=1)
+    cum = np.concatenate([[0.0], np.cumsum(seg)])
+    s = (rng.random() + np.arange(n)) / n * cum[-1]
+    idx = np.clip(np.searchsorted(cum, s, side="right") - 1, 0, len(seg) - 1)
+    frac = (s - cum[idx]) / np.where(seg[idx] > 0, seg[idx], 1.0)
+    return closed[idx] + frac[:, None] * (closed[idx + 1] - closed[idx])
+
+
+def _readonly(a):
+    a = np.ascontiguousarray(a, dtype=np.float64)
+    a.flags.writeable = False
+    return a

@@ -1,0 +1,15 @@
+import subprocess
+import sys
+
+
+def test_sqfit_does_not_import_opengl_or_sqsim():
+    code = ("import sys, sqfit, sqfit.cli; "
+            "bad = [m for m in ('OpenGL', 'pyrender', 'sqsim') if m in sys.modules]; "
+            "assert not bad, bad")
+    subprocess.run([sys.executable, "-c", code], check=True)
+
+
+def test_cli_help_works():
+    for prog in ("sqsim", "sqfit"):
+        out = subprocess.run([sys.executable, "-m", f"{prog}.cli", "--help"], capture_output=True, text=True)
+        assert out.returncode == 0 and "COMMAND" in out.stdout, out.stderr

@@ -1,0 +1,85 @@
+import numpy as np
+import pytest
+
+from sqfit import Camera, Intrinsics, Observation, look_at
+from sqfit.observation import convex_hull, outer_contour
+
+INTR = Intrinsics(64, 48, 40.0, 30.0, 32.0, 24.0)
+CAM = Camera(INTR, look_at([10.0, 0, 0], [0, 0, 0]))
+
+
+def rect_mask(r0=10, r1=20, c0=5, c1=30):
+    mask = np.zeros((48, 64), bool)
+    mask[r0:r1, c0:c1] = True
+    return mask
+
+
+def test_contour_runs_along_pixel_edges():
+    contour = outer_contour(rect_mask())
+    # Pixel columns 5..29 span u in [5, 30]; rows 10..19 span v in [10, 20] (corners are cut).
+    np.testing.assert_allclose([contour[:, 0].min(), contour[:, 0].max()], [5.0, 30.0])
+    np.testing.assert_allclose([contour[:, 1].min(), contour[:, 1].max()], [10.0, 20.0])
+
+
+@pytest.mark.parametrize("sampling", ["uniform", "contour", "mixed"])
+def test_samples_lie_in_the_mask(sampling):
+    obs = Observation.from_mask(CAM, rect_mask(), n_samples=200, sampling=sampling, rng=3)
+    assert obs.samples.shape == (200, 2)
+    assert np.all((obs.samples[:, 0] >= 5) & (obs.samples[:, 0] <= 30))
+    assert np.all((obs.samples[:, 1] >= 10) & (obs.samples[:, 1] <= 20))
+    on_edge = np.isclose(obs.samples, [[5, 10]]).any(1) | np.isclose(obs.samples, [[30, 20]]).any(1)
+    expected_on_edge = {"uniform": 0.0, "contour": 1.0, "mixed": 0.5}[sampling]
+    assert on_edge.mean() == pytest.approx(expected_on_edge, abs=0.05)
+
+
+def test_samples_are_seeded():
+    a = Observation.from_mask(CAM, rect_mask(), rng=7).samples
+    b = Observation.from_mask(CAM, rect_mask(), rng=7).samples
+    np.testing.assert_array_equal(a, b)
+
+
+def test_centroid_area_and_polygons():
+    obs = Observation.from_mask(CAM, rect_mask(), rng=0)
+    np.testing.assert_allclose(obs.centroid, [17.5, 15.0])
+    assert obs.area_px == 250 and not obs.touches_border
+    assert obs.polygon("contour") is obs.contour
+    hull = obs.polygon("hull")
+    assert len(hull) >= 3 and np.all(hull >= [5, 10]) and np.all(hull <= [30, 20])
+    with pytest.raises(ValueError, match="polygon kind must be one of"):
+        obs.polygon("box")
+
+
+def test_convex_hull_of_square_with_interior_points():
+    pts = np.array([[0, 0], [1, 0], [1, 1], [0, 1], [0.5, 0.5], [0.2, 0.7]])
+    hull = convex_hull(pts)
+    assert len(hull) == 4
+    x, y = hull[:, 0], hull[:, 1]
+    assert 0.5 * (np.dot(x, np.roll(y, -1)) - np.dot(y, np.roll(x, -1))) == pytest.approx(1.0)
+
+
+def test_border_flag():
+    assert Observation.from_mask(CAM, rect_mask(r0=0), rng=0).touches_border
+    assert Observation.from_mask(CAM, rect_mask(c1=64), rng=0).touches_border
+
+
+@pytest.mark.parametrize(
+    "mask, match",
+    [
+        (np.zeros((48, 64), bool), "mask is empty"),
+        (np.ones((48, 64), bool), "covers the whole image"),
+        (np.zeros((64, 48), bool), r"mask must have shape \(height, width\) = \(48, 64\)"),
+        (np.zeros((48, 64), dtype="U1"), "mask must be boolean or numeric"),
+    ],
+)
+def test_bad_masks_are_reported(mask, match):
+    with pytest.raises(ValueError, match=match):
+        Observation.from_mask(CAM, mask)
+
+
+def test_bad_arguments_are_reported():
+    with pytest.raises(ValueError, match="sampling must be one of"):
+        Observation.from_mask(CAM, rect_mask(), sampling="grid")
+    with pytest.raises(ValueError, match="n_samples must be an integer >= 3"):
+        Observation.from_mask(CAM, rect_mask(), n_samples=2)
+    with pytest.raises(ValueError, match="camera must be a sqfit.Camera"):
+        Observation.from_mask(None, rect_mask())
