@@ -1,0 +1,64 @@
+import numpy as np
+import pytest
+import trimesh
+
+from sqfit import Superquadric
+from sqfit.metrics import bounding_box, iou_3d, iou_3d_mesh, success
+from sqfit.superquadric import contains, sample_surface_uniform, to_mesh
+
+
+def random_pair(rng):
+    """A random paper-range superquadric and a perturbed copy (so the pair overlaps)."""
+    a = Superquadric(rng.uniform(0.1, 5, 3), rng.uniform(0.1, 1.9, 2), rng.uniform(-5, 5, 3), rng.uniform(-np.pi, np.pi, 3))
+    xi = a.to_vector()
+    xi[:3] *= rng.uniform(0.7, 1.3, 3)
+    xi[3:5] = np.clip(xi[3:5] + rng.uniform(-0.5, 0.5, 2), 0.1, 1.9)
+    xi[5:8] += rng.normal(0, 0.2, 3) * np.min(a.size)
+    xi[8:] += rng.normal(0, 0.2, 3)
+    return a, Superquadric.from_vector(xi)
+
+
+@pytest.mark.parametrize("seed", range(8))
+def test_iou_3d_agrees_with_manifold_boolean_within_one_percent(seed):
+    a, b = random_pair(np.random.default_rng(seed))
+    exact = iou_3d_mesh(a, to_mesh(b, 96), resolution=96)
+    assert exact > 0.05
+    assert iou_3d(a, b) == pytest.approx(exact, rel=0.01)
+
+
+@pytest.mark.parametrize("shape", [(0.1, 0.1), (1.9, 1.9), (0.1, 1.9)])
+def test_iou_3d_thin_and_edgy_shapes(shape):
+    a = Superquadric((4.0, 0.15, 0.1), shape, (1.0, 0.0, 0.0), (0.3, -0.4, 0.5))
+    b = Superquadric((4.0, 0.15, 0.12), shape, (1.05, 0.0, 0.0), (0.3, -0.4, 0.5))
+    exact = iou_3d_mesh(a, to_mesh(b, 128), resolution=128)
+    assert iou_3d(a, b) == pytest.approx(exact, rel=0.01)
+
+
+def test_iou_3d_identity_disjoint_and_symmetry():
+    a, b = random_pair(np.random.default_rng(42))
+    assert iou_3d(a, a) == pytest.approx(1.0, abs=0.01)
+    far = Superquadric(a.size, a.shape, np.asarray(a.position) + 100.0, a.rotation)
+    assert iou_3d(a, far) == 0.0 and not success(0.0)
+    assert iou_3d(a, b) == pytest.approx(iou_3d(b, a), rel=0.01)
+
+
+def test_iou_3d_rejects_non_superquadrics():
+    with pytest.raises(ValueError, match="b must be a Superquadric"):
+        iou_3d(Superquadric((1, 1, 1)), np.ones(11))
+
+
+def test_iou_3d_mesh_ground_truth_box():
+    # A near-box superquadric against the box it approximates.
+    sq = Superquadric((1.0, 2.0, 0.5), (0.1, 0.1))
+    box = trimesh.creation.box(extents=(2.0, 4.0, 1.0))
+    assert iou_3d_mesh(sq, box) == pytest.approx(1.0, abs=0.02)
+    with pytest.raises(ValueError, match="watertight"):
+        iou_3d_mesh(sq, trimesh.Trimesh(box.vertices, box.faces[:-1]))
+
+
+def test_bounding_box_contains_the_surface():
+    a, _ = random_pair(np.random.default_rng(3))
+    pts = sample_surface_uniform(a, 2000, 0)
+    lo, hi = bounding_box(a)
+    assert np.all(pts >= lo - 1e-9) and np.all(pts <= hi + 1e-9)
+    assert np.all(contains(a, (lo + hi)[None] / 2))
