@@ -1,0 +1,238 @@
+"""Read multi-view instance-mask datasets (written by ``sqsim generate``, or by hand).
+
+Pure numpy + Pillow: reading a dataset never imports OpenGL or ``sqsim``.
+
+Layout
+------
+::
+
+    DIR/dataset.json                   optional: {"format": "sqkit-dataset", "version": 1, ...}
+    DIR/annotations.json               optional: COCO instances (not needed by this reader)
+    DIR/trials/NNNNNN/cameras.json     required
+    DIR/trials/NNNNNN/masks/view_VV.png  required: one per view, uint16 instance ids, 0 = background
+    DIR/trials/NNNNNN/gt.json          optional: ground truth
+
+``cameras.json``::
+
+    {"views": [{"intrinsics": {"width": 640, "height": 480, "fx": 400.0, "fy": 300.0,
+                               "cx": 320.0, "cy": 240.0},
+                "T_world_camera": [[...4 floats...] x 4],       # pose the fitter uses
+                "T_world_camera_true": [[...] x 4],            # optional: noise-free pose
+                "mask": "masks/view_00.png"},                  # optional: default view_VV.png
+               ...]}
+
+Poses are camera -> world, OpenCV camera frame, pixel ``(i, j)`` centred at ``(j + 0.5, i + 0.5)``
+(``sqfit.camera``). ``gt.json``::
+
+    {"trial": 0, "resampled": 2, "objects": [{"id": 1, "kind": "superquadric",
+      "params": [ax, ay, az, e1, e2, px, py, pz, rx, ry, rz],   # superquadrics only
+      "size": [...], "position": [...], "rotation": [...], ...}, ...]}
+
+A real user's data needs only ``cameras.json`` (without ``_true`` poses) and the masks; a
+directory holding ``cameras.json`` directly is accepted as a single trial.
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from . import constants as C
+from .camera import Camera
+from .observation import Observation
+
+__all__ = ["Trial", "load_trial", "iter_trials", "trial_dirs", "observations", "observations_from_images",
+           "read_mask_png", "write_mask_png", "FORMAT", "FORMAT_VERSION"]
+
+FORMAT = "sqkit-dataset"
+FORMAT_VERSION = 1
+
+
+@dataclass(frozen=True, eq=False)
+class Trial:
+    """One multi-view scene read from disk.
+
+    Attributes
+    ----------
+    name : str
+        Directory name (``"000007"``).
+    path : pathlib.Path
+    cameras : list of Camera
+        Poses the fitter should use (possibly noisy).
+    true_cameras : list of Camera or None
+        Noise-free poses, if recorded.
+    images : (v, h, w) uint16
+        Instance ids, 0 = background.
+    objects : list of dict
+        Ground-truth records from ``gt.json`` (empty without it).
+    gt : dict or None
+        The whole ``gt.json``.
+    """
+
+    name: str
+    path: Path
+    cameras: list
+    true_cameras: list | None
+    images: np.ndarray
+    objects: list
+    gt: dict | None
+
+    @property
+    def object_ids(self):
+        """Sorted instance ids present in any view (ground-truth ids if ``gt.json`` exists)."""
+        if self.objects:
+            return sorted(int(o["id"]) for o in self.objects)
+        return [int(i) for i in np.unique(self.images) if i != 0]
+
+
+def read_mask_png(path):
+    """Read an instance-id PNG as ``(h, w) uint16``."""
+    from PIL import Image
+
+    try:
+        with Image.open(path) as im:
+            arr = np.array(im)
+    except FileNotFoundError:
+        raise OSError(f"mask file not found: {path}") from None
+    except Exception as exc:  # Pillow raises several types for broken files
+        raise ValueError(f"cannot read mask image {path}: {exc}") from None
+    if arr.ndim != 2:
+        raise ValueError(f"mask image {path} must be single-channel, got shape {arr.shape}")
+    if arr.dtype.kind not in "biu" or arr.min() < 0 or arr.max() > np.iinfo(np.uint16).max:
+        raise ValueError(f"mask image {path} must hold integer instance ids in [0, 65535]")
+    return arr.astype(np.uint16)
+
+
+def write_mask_png(path, image):
+    """Write ``(h, w) uint16`` ids as a 16-bit greyscale PNG; same array -> same bytes."""
+    from PIL import Image
+
+    image = np.ascontiguousarray(image, dtype=np.uint16)
+    if image.ndim != 2:
+        raise ValueError(f"image must have shape (h, w), got {image.shape}")
+    Image.fromarray(image).save(path, format="PNG", compress_level=6)
+
+
+def _read_json(path):
+    try:
+        return json.loads(Path(path).read_text(encoding="utf-8"))
+    except FileNotFoundError:
+        raise OSError(f"file not found: {path}") from None
+    except json.JSONDecodeError as exc:
+        raise ValueError(f"{path} is not valid JSON: {exc}") from None
+
+
+def load_trial(trial_dir):
+    """Load one trial directory.
+
+    Parameters
+    ----------
+    trial_dir : str or os.PathLike
+
+    Returns
+    -------
+    trial : Trial
+
+    Raises
+    ------
+    OSError
+        Missing directory, ``cameras.json`` or mask file.
+    ValueError
+        Malformed JSON, bad pose or intrinsics, mask size not matching the intrinsics.
+    """
+    path = Path(trial_dir)
+    if not path.is_dir():
+        raise OSError(f"trial directory not found: {path}")
+    meta = _read_json(path / "cameras.json")
+    views = meta.get("views") if isinstance(meta, dict) else None
+    if not isinstance(views, list) or not views:
+        raise ValueError(f"{path / 'cameras.json'} must hold a non-empty list 'views'")
+    cameras, true_cameras, images = [], [], []
+    for k, view in enumerate(views):
+        where = f"{path / 'cameras.json'} view {k}"
+        if not isinstance(view, dict):
+            raise ValueError(f"{where}: must be an object")
+        try:
+            cam = Camera.from_dict(view)
+            true = None
+            if "T_world_camera_true" in view:
+                true = Camera.from_dict({"intrinsics": view["intrinsics"],
+                                         "T_world_camera": view["T_world_camera_true"]})
+        except ValueError as exc:
+            raise ValueError(f"{where}: {exc}") from None
+        image = read_mask_png(path / view.get("mask", f"masks/view_{k:02d}.png"))
+        expected = (cam.intrinsics.height, cam.intrinsics.width)
+        if image.shape != expected:
+            raise ValueError(f"{where}: mask has shape {image.shape}, intrinsics say (height, width) = {expected}")
+        cameras.append(cam)
+        true_cameras.append(true)
+        images.append(image)
+    if len({im.shape for im in images}) != 1:
+        raise ValueError(f"{path}: all views must have the same image size")
+    gt = _read_json(path / "gt.json") if (path / "gt.json").exists() else None
+    objects = list(gt.get("objects", [])) if isinstance(gt, dict) else []
+    return Trial(name=path.name, path=path, cameras=cameras,
+                 true_cameras=true_cameras if all(t is not None for t in true_cameras) else None,
+                 images=np.stack(images), objects=objects, gt=gt)
+
+
+def trial_dirs(dataset_dir):
+    """Sorted finished trial directories of a dataset (temporary ``.tmp-*`` ones excluded)."""
+    root = Path(dataset_dir)
+    if not root.is_dir():
+        raise OSError(f"dataset directory not found: {root}")
+    if (root / "cameras.json").is_file():
+        return [root]
+    trials = root / "trials"
+    if not trials.is_dir():
+        raise OSError(f"{root} is not a dataset: it has neither trials/ nor cameras.json")
+    return sorted(p for p in trials.iterdir() if p.is_dir() and not p.name.startswith("."))
+
+
+def iter_trials(dataset_dir):
+    """Yield :class:`Trial` for every finished trial of a dataset, in name order."""
+    for path in trial_dirs(dataset_dir):
+        yield load_trial(path)
+
+
+def observations_from_images(cameras, images, object_id, n_samples=C.DEFAULT_SAMPLES, sampling="uniform",
+                             rng=None):
+    """Observations of one object in every view where its mask is not empty.
+
+    Parameters
+    ----------
+    cameras : list of Camera
+    images : (v, h, w) int
+        Instance ids.
+    object_id : int
+    n_samples : int
+    sampling : {"uniform", "contour", "mixed"}
+    rng : None, int or numpy.random.Generator
+        One generator, used view after view in order.
+
+    Returns
+    -------
+    observations : list of Observation
+        Possibly fewer than two (the fitter reports that); views without the object are skipped.
+    """
+    images = np.asarray(images)
+    if images.ndim != 3 or len(images) != len(cameras):
+        raise ValueError(f"images must have shape (v, h, w) with v = {len(cameras)} cameras, got {images.shape}")
+    rng = np.random.default_rng(rng)
+    out = []
+    for cam, image in zip(cameras, images):
+        mask = image == object_id
+        if mask.any():
+            out.append(Observation.from_mask(cam, mask, n_samples=n_samples, sampling=sampling, rng=rng))
+    return out
+
+
+def observations(trial, object_id, n_samples=C.DEFAULT_SAMPLES, sampling="uniform", rng=None):
+    """Observations of one object of a loaded trial, with the cameras the fitter should use.
+
+    See :func:`observations_from_images`; returns a list (possibly with fewer than two views).
+    """
+    return observations_from_images(trial.cameras, trial.images, object_id, n_samples, sampling, rng)
