@@ -1,0 +1,260 @@
+"""Cost functions of the fitter as residual vectors (paper, section III-C and III-D).
+
+Residual conventions (all float64):
+
+- ``xi`` is the ``(11,)`` parameter vector ``[ax, ay, az, e1, e2, px, py, pz, rx, ry, rz]``.
+- :func:`penalty` (eq. 7): ``(11,)`` residuals ``c_p * rho_i``, one per state variable (``K`` is the
+  state size in eq. 7); only ``a >= 0.1`` and ``0.1 <= e <= 1.9`` are ever non-zero. They are
+  appended to every cost, so Levenberg-Marquardt always has at least as many residuals as
+  unknowns (three views give 3 + 11 = 14 >= 11 for G2).
+- G2 (:func:`riou_residuals`): ``(v + 11,)`` = ``1 - IoU`` per view between the projected
+  superquadric (:mod:`sqfit.silhouette`) and the observation polygon, then the penalty with
+  ``c_p = 1``. Minimising ``sum r**2`` is eq. 3 with the penalty of eq. 7 as extra residuals.
+  No analytic Jacobian (paper): the stages use finite differences, batched.
+- G3 (:func:`radial_terms`): the radial distance (eq. 8) of back-projected samples, with its
+  analytic Jacobian; G4 = G3 of samples at unknown depths (eq. 10-11); G5 = ``(ax ay az + 1) G4``
+  (eq. 12). :func:`g5_residuals` returns ``(n + 11,)`` residuals (samples, then the penalty with
+  ``c_p = 100``) and the Jacobian in block form: ``A`` ``(n, 11)`` with respect to ``xi`` and
+  ``D`` ``(n,)``, the derivative of each sample's residual with respect to its own depth (the
+  depth block of the Jacobian is diagonal: each residual depends on 11 + 1 unknowns).
+
+G3 is differentiated in log space like :func:`sqfit.superquadric.log_implicit_unit`:
+``G3 = S - |y|`` with ``S = exp(log|y| - e1/2 log F)`` the surface radius along the ray, finite
+for ``e`` in ``[0.1, 1.9]`` and anywhere but the exact centre.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from . import constants as C
+from .camera import bearings
+from .observation import Observation
+from .silhouette import DEFAULT_DIRECTIONS, batch_iou, batch_silhouettes, camera_arrays
+from .superquadric import euler_derivatives, euler_to_matrix
+
+__all__ = ["ObservationSet", "penalty", "penalty_jacobian", "riou_residuals", "radial_terms",
+           "g5_residuals", "LOWER_BOUNDS", "UPPER_BOUNDS"]
+
+#: Soft bounds of eq. 7 per parameter (``-inf`` / ``inf``: unconstrained).
+LOWER_BOUNDS = np.array([C.SIZE_MIN] * 3 + [C.SHAPE_BOUNDS[0]] * 2 + [-np.inf] * 6)
+UPPER_BOUNDS = np.array([np.inf] * 3 + [C.SHAPE_BOUNDS[1]] * 2 + [np.inf] * 6)
+_TINY = 1e-300
+
+
+@dataclass(eq=False)
+class ObservationSet:
+    """Observations of one object, with the arrays every cost needs computed once.
+
+    Attributes
+    ----------
+    observations : list of Observation
+    rotations : (v, 3, 3) float
+        Camera -> world rotations.
+    centers : (v, 3) float
+        Camera centres, world frame.
+    intrinsics : (v, 4) float
+        ``fx, fy, cx, cy``.
+    view_of_sample : (n,) int
+        View index of each sample (samples of all views concatenated in order).
+    rays : (n, 3) float
+        World direction of each sample per unit depth: ``R_c @ [(u-cx)/fx, (v-cy)/fy, 1]``.
+    origins : (n, 3) float
+        Camera centre of each sample's view.
+    """
+
+    observations: list
+    rotations: np.ndarray = field(init=False)
+    centers: np.ndarray = field(init=False)
+    intrinsics: np.ndarray = field(init=False)
+    view_of_sample: np.ndarray = field(init=False)
+    rays: np.ndarray = field(init=False)
+    origins: np.ndarray = field(init=False)
+
+    def __post_init__(self):
+        obs = list(self.observations)
+        for i, o in enumerate(obs):
+            if not isinstance(o, Observation):
+                raise TypeError(f"observations[{i}] must be a sqfit.Observation, got {type(o).__name__}")
+        self.observations = obs
+        self.rotations, self.centers, self.intrinsics = camera_arrays([o.camera for o in obs])
+        counts = [len(o.samples) for o in obs]
+        self.view_of_sample = np.repeat(np.arange(len(obs)), counts)
+        self.rays = np.concatenate([bearings(o.camera, o.samples) @ o.camera.rotation.T for o in obs])
+        self.origins = self.centers[self.view_of_sample]
+        self._targets = {}
+
+    def __len__(self):
+        return len(self.observations)
+
+    def targets(self, kind):
+        """Observation polygons for :func:`sqfit.silhouette.batch_iou`: ``(targets, convex)``.
+
+        ``hull`` polygons are padded to a common length by repeating their last vertex.
+        """
+        if kind not in self._targets:
+            polys = [np.asarray(o.polygon(kind)) for o in self.observations]
+            if kind == "hull":
+                m = max(len(p) for p in polys)
+                padded = np.stack([np.vstack([p, np.repeat(p[-1:], m - len(p), axis=0)]) for p in polys])
+                self._targets[kind] = (padded, True)
+            else:
+                self._targets[kind] = (polys, False)
+        return self._targets[kind]
+
+
+def penalty(xi, weight):
+    """Constraint penalty residuals of eq. 7.
+
+    Parameters
+    ----------
+    xi : (11,) or (b, 11) float
+    weight : float
+        ``c_p``.
+
+    Returns
+    -------
+    rho : (11,) or (b, 11) float
+        ``c_p * (max(0, lo - x) + max(0, x - hi))`` per parameter.
+    """
+    xi = np.asarray(xi, dtype=np.float64)
+    return weight * (np.maximum(LOWER_BOUNDS - xi, 0.0) + np.maximum(xi - UPPER_BOUNDS, 0.0))
+
+
+def penalty_jacobian(xi, weight):
+    """``(11,) float``: diagonal of the Jacobian of :func:`penalty` (``-c_p``, ``0`` or ``c_p``)."""
+    xi = np.asarray(xi, dtype=np.float64)
+    return weight * ((xi > UPPER_BOUNDS).astype(float) - (xi < LOWER_BOUNDS).astype(float))
+
+
+def riou_residuals(xi, obs, polygon="hull", weight=C.PENALTY_RIOU, n_directions=DEFAULT_DIRECTIONS,
+                   h0=None):
+    """G2 residuals for one or several parameter vectors.
+
+    Parameters
+    ----------
+    xi : (b, 11) float
+    obs : ObservationSet
+    polygon : {"hull", "contour"}
+        Observation polygon: convex hull of the samples (paper) or the mask contour.
+    weight : float
+        ``c_p`` of the penalty.
+    n_directions : int
+        Silhouette vertices (see :func:`sqfit.silhouette.batch_silhouettes`).
+    h0 : (b, v, K) float, optional
+        Warm start of the silhouette solve.
+
+    Returns
+    -------
+    r : (b, v + 11) float
+        ``1 - IoU`` per view (1 where the silhouette does not exist), then the penalty.
+    h : (b, v, K) float
+        Support values, to warm-start a nearby evaluation.
+    """
+    xi = np.atleast_2d(np.asarray(xi, dtype=np.float64))
+    polys, valid, h = batch_silhouettes(xi, obs.rotations, obs.centers, obs.intrinsics, n_directions, h0)
+    targets, convex = obs.targets(polygon)
+    iou = batch_iou(polys, valid, targets, convex)
+    return np.concatenate([1.0 - iou, penalty(xi, weight)], axis=1), h
+
+
+def sample_points(obs, depths):
+    """``(n, 3) float``: world points of the samples at camera-frame depths ``(n,)`` (eq. 10)."""
+    return obs.origins + obs.rays * np.asarray(depths, dtype=np.float64)[:, None]
+
+
+def radial_terms(xi, points):
+    """Radial distance G3 (eq. 8) of world points and its analytic derivatives.
+
+    Parameters
+    ----------
+    xi : (11,) float
+    points : (n, 3) float
+        World coordinates.
+
+    Returns
+    -------
+    g3 : (n,) float
+        ``S - |y|``: positive inside, negative outside, 0 on the surface (metres); equals
+        :func:`sqfit.superquadric.radial_distance`.
+    d_xi : (n, 11) float
+        ``d g3 / d xi``.
+    d_point : (n, 3) float
+        ``d g3 / d point`` (world frame).
+    """
+    a, e1, e2 = xi[0:3], xi[3], xi[4]
+    p, r = xi[5:8], xi[8:11]
+    R = euler_to_matrix(r)
+    rel = points - p
+    y = rel @ R
+    y = np.where(y == 0.0, _TINY, y)  # keeps log finite; the weights of such a term are 0 anyway
+    norm = np.sqrt(np.einsum("ij,ij->i", y, y))
+    la = np.log(np.abs(y)) - np.log(np.abs(a))
+    X1, X2 = (2.0 / e2) * la[:, 0], (2.0 / e2) * la[:, 1]
+    XY = np.logaddexp(X1, X2)
+    wx, wy = np.exp(X1 - XY), np.exp(X2 - XY)
+    A, Bz = (e2 / e1) * XY, (2.0 / e1) * la[:, 2]
+    L = np.logaddexp(A, Bz)
+    wA, wB = np.exp(A - L), np.exp(Bz - L)
+    S = np.exp(np.log(norm) - 0.5 * e1 * L)
+    g3 = S - norm
+    # d L / d log|y_i| (= - d L / d log|a_i|): the power-mean weights times 2 / e1.
+    dl = (2.0 / e1) * np.stack([wA * wx, wA * wy, wB], axis=1)
+    half_e1_S = 0.5 * e1 * S
+    d_y = S[:, None] * y / norm[:, None] ** 2 - half_e1_S[:, None] * dl / y - y / norm[:, None]
+    d_xi = np.empty((len(points), C.N_PARAMS))
+    d_xi[:, 0:3] = half_e1_S[:, None] * dl / a
+    # d G3 / d e1 = -S (L - wA A - wB Bz) / 2; d G3 / d e2 = -S wA (XY - wx X1 - wy X2) / 2.
+    d_xi[:, 3] = -0.5 * S * (L - _wmul(wA, A) - _wmul(wB, Bz))
+    d_xi[:, 4] = -0.5 * S * wA * (XY - _wmul(wx, X1) - _wmul(wy, X2))
+    d_point = d_y @ R.T
+    d_xi[:, 5:8] = -d_point
+    dR = euler_derivatives(r)  # y = R^T (x - p): d y / d r_k = dR_k^T (x - p)
+    d_xi[:, 8:11] = np.einsum("nj,kji,ni->nk", rel, dR, d_y)
+    return g3, d_xi, d_point
+
+
+def _wmul(w, x):
+    """``w * x`` with ``0 * -inf = 0`` (a zero weight belongs to a zero coordinate)."""
+    return np.where(w > 0, w * np.where(np.isfinite(x), x, 0.0), 0.0)
+
+
+def g5_residuals(xi, depths, obs, weight=C.PENALTY_ANALYTIC, scaled=True):
+    """G5 (or G4) residuals of the samples at per-sample depths, with the Jacobian blocks.
+
+    Parameters
+    ----------
+    xi : (11,) float
+    depths : (n,) float
+        Camera-frame depth of every sample (all views concatenated, as ``obs.rays``).
+    obs : ObservationSet
+    weight : float
+        ``c_p`` of the penalty.
+    scaled : bool
+        G5 = ``(ax ay az + 1) G4`` if True (paper, stages 3C-3E), else G4.
+
+    Returns
+    -------
+    r : (n + 11,) float
+        Sample residuals, then the penalty.
+    A : (n, 11) float
+        ``d r_sample / d xi``.
+    D : (n,) float
+        ``d r_sample_i / d depth_i``.
+    P : (11,) float
+        Diagonal of ``d penalty / d xi``.
+    """
+    xi = np.asarray(xi, dtype=np.float64)
+    g3, d_xi, d_point = radial_terms(xi, sample_points(obs, depths))
+    D = np.einsum("ij,ij->i", d_point, obs.rays)
+    if scaled:
+        vol = xi[0] * xi[1] * xi[2]
+        scale = vol + 1.0
+        d_xi *= scale
+        d_xi[:, 0:3] += g3[:, None] * (vol / np.where(xi[0:3] == 0, _TINY, xi[0:3]))
+        D *= scale
+        g3 = g3 * scale
+    r = np.concatenate([g3, penalty(xi, weight)])
+    return r, d_xi, D, penalty_jacobian(xi, weight)

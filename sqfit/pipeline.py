@@ -1,0 +1,318 @@
+"""Chains of stages: :func:`fit`, its options and its result.
+
+A chain is a dash-joined list of stage names (``"1-2-3D-3A"``, see :mod:`sqfit.stages`). Each stage
+refines the previous state; after every stage a snapshot of the superquadric is recorded with its
+wall time, cost, optimiser status and R-IOU-M (mean over views of the IoU of the projected
+superquadric with the observation polygon, :mod:`sqfit.silhouette`).
+
+Failures never raise out of :func:`fit`: fewer than 2 observations, a singular triangulation, a
+diverging or non-finite optimiser, or any ``LinAlgError`` / floating-point error inside a stage end
+the chain with a failure ``status`` and ``message``; ``superquadric`` is then the last good
+snapshot (None if there was none). Wrong argument *types* or an unknown stage / option name are
+programming errors and raise ``TypeError`` / ``ValueError`` immediately.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import asdict, dataclass, field, fields
+
+import numpy as np
+
+from . import constants as C
+from .costs import ObservationSet
+from .observation import POLYGON_KINDS, Observation
+from .silhouette import batch_iou, batch_silhouettes
+from .stages import STAGES, FitState, StageError, default_state
+from .superquadric import Superquadric
+
+__all__ = ["fit", "FitOptions", "FitResult", "StageRecord", "PAPER_CHAINS", "DEFAULT_CHAIN",
+           "parse_chain", "to_superquadric", "r_iou_m"]
+
+#: The 13 chains of the paper's Table II, in its row order.
+PAPER_CHAINS = ("3A", "3B", "1-3A", "1-2-3A", "1-2-3B", "3E", "1-3E", "1-2-3C", "1-2-3D", "1-2-3E",
+                "1-2-3D-3E", "1-2-3D-3A", "1-2-3D-3F")
+DEFAULT_CHAIN = "1-2-3D-3A"
+
+
+@dataclass(frozen=True)
+class FitOptions:
+    """Options of :func:`fit` (a dict of these fields is accepted too).
+
+    Attributes
+    ----------
+    polygon : {"hull", "contour"}
+        Observation polygon of the R-IOU costs and R-IOU-M: convex hull of the samples (paper)
+        or the full mask contour (slower: shapely).
+    penalty_riou : float
+        ``c_p`` of the G2 penalty (paper: 1).
+    penalty_analytic : float
+        ``c_p`` of the G3-G5 penalty (paper: 100).
+    max_iterations_numeric, max_iterations_analytic : int
+        Levenberg-Marquardt step limits of the R-IOU (3A, 3B, 3F) and G5 (3C-3E) stages.
+    ftol_numeric, ftol_analytic : float
+        Relative cost-reduction tolerances.
+    xtol, gtol : float
+        Relative step and absolute gradient tolerances.
+    fd_step : float
+        Forward-difference step of the R-IOU stages, relative to ``max(1, |x_i|)``; well above
+        the silhouette solver's precision (1e-7 px).
+    silhouette_directions : int
+        Vertices of the silhouette polygons inside the R-IOU costs (R-IOU-M always uses
+        :data:`sqfit.silhouette.DEFAULT_DIRECTIONS`).
+    """
+
+    polygon: str = "hull"
+    penalty_riou: float = C.PENALTY_RIOU
+    penalty_analytic: float = C.PENALTY_ANALYTIC
+    max_iterations_numeric: int = 60
+    max_iterations_analytic: int = 100
+    ftol_numeric: float = 1e-5
+    ftol_analytic: float = 1e-6
+    xtol: float = 1e-8
+    gtol: float = 1e-10
+    fd_step: float = 1e-4
+    silhouette_directions: int = 48
+
+    def __post_init__(self):
+        if self.polygon not in POLYGON_KINDS:
+            raise ValueError(f"polygon must be one of {list(POLYGON_KINDS)}, got {self.polygon!r}")
+        for name in ("penalty_riou", "penalty_analytic"):
+            v = getattr(self, name)
+            if not (np.isfinite(v) and v >= 0):
+                raise ValueError(f"{name} must be a finite number >= 0, got {v}")
+        for name in ("max_iterations_numeric", "max_iterations_analytic"):
+            v = getattr(self, name)
+            if int(v) != v or v < 1:
+                raise ValueError(f"{name} must be an integer >= 1, got {v}")
+        for name in ("ftol_numeric", "ftol_analytic", "xtol", "gtol", "fd_step"):
+            v = getattr(self, name)
+            if not (np.isfinite(v) and v >= 0):
+                raise ValueError(f"{name} must be a finite number >= 0, got {v}")
+        if self.fd_step <= 0:
+            raise ValueError(f"fd_step must be > 0, got {self.fd_step}")
+        if int(self.silhouette_directions) != self.silhouette_directions or self.silhouette_directions < 8:
+            raise ValueError(f"silhouette_directions must be an integer >= 8, got {self.silhouette_directions}")
+
+    @classmethod
+    def coerce(cls, options):
+        """``None`` -> defaults, a dict -> FitOptions (unknown keys raise ValueError naming them)."""
+        if options is None:
+            return cls()
+        if isinstance(options, cls):
+            return options
+        if isinstance(options, dict):
+            known = {f.name for f in fields(cls)}
+            unknown = sorted(set(options) - known)
+            if unknown:
+                raise ValueError(f"unknown fit option(s) {unknown}; valid options: {sorted(known)}")
+            return cls(**options)
+        raise TypeError(f"options must be None, a dict or a FitOptions, got {type(options).__name__}")
+
+
+@dataclass
+class StageRecord:
+    """One stage of a fitted chain.
+
+    Attributes
+    ----------
+    name : str
+    superquadric : Superquadric or None
+        Snapshot after the stage (None if the stage failed).
+    seconds : float
+        Wall time of the stage.
+    cost : float or None
+        Final ``0.5 * sum r**2`` of the stage's optimiser; None for closed-form stages (1, 2).
+    status : str
+        ``"ok"`` for closed-form stages, an optimiser status (:data:`sqfit.lm.STATUS`), or a
+        failure code.
+    message : str
+    r_iou_m : float or None
+        R-IOU-M of the snapshot.
+    nfev : int
+        Cost evaluations (finite-difference columns included).
+    """
+
+    name: str
+    superquadric: Superquadric | None
+    seconds: float
+    cost: float | None
+    status: str
+    message: str
+    r_iou_m: float | None = None
+    nfev: int = 0
+
+    def to_dict(self):
+        d = asdict(self)
+        d["superquadric"] = None if self.superquadric is None else self.superquadric.to_vector().tolist()
+        return d
+
+
+@dataclass
+class FitResult:
+    """Result of :func:`fit`.
+
+    Attributes
+    ----------
+    superquadric : Superquadric or None
+        Final (or last good) superquadric.
+    stages : list of StageRecord
+    status : str
+        ``"ok"`` or the failure code of the stage that ended the chain (``too_few_views``,
+        ``singular_triangulation``, ``triangulation_behind_camera``, ``diverged``, ``nonfinite``,
+        ``numerical_error``).
+    message : str
+    cost : float or None
+        Final cost of the last optimising stage.
+    r_iou_m : float or None
+        R-IOU-M of ``superquadric``.
+    seconds : float
+        Wall time of the whole call, R-IOU-M evaluation included.
+    chain : str
+    warnings : list of str
+    """
+
+    superquadric: Superquadric | None
+    stages: list = field(default_factory=list)
+    status: str = "ok"
+    message: str = ""
+    cost: float | None = None
+    r_iou_m: float | None = None
+    seconds: float = 0.0
+    chain: str = ""
+    warnings: list = field(default_factory=list)
+
+    @property
+    def ok(self):
+        return self.status == "ok"
+
+    def to_dict(self):
+        """A JSON-serialisable dict (parameter vectors as lists)."""
+        return {
+            "chain": self.chain,
+            "status": self.status,
+            "message": self.message,
+            "params": None if self.superquadric is None else self.superquadric.to_vector().tolist(),
+            "cost": self.cost,
+            "r_iou_m": self.r_iou_m,
+            "seconds": self.seconds,
+            "warnings": list(self.warnings),
+            "stages": [s.to_dict() for s in self.stages],
+        }
+
+
+def parse_chain(chain):
+    """``"1-2-3D-3A"`` -> ``["1", "2", "3D", "3A"]``; unknown names raise ValueError listing valid ones."""
+    if isinstance(chain, (list, tuple)):
+        names = [str(s) for s in chain]
+    elif isinstance(chain, str):
+        names = [s.strip() for s in chain.split("-")]
+    else:
+        raise TypeError(f"chain must be a string like '1-2-3D-3A', got {type(chain).__name__}")
+    bad = [s for s in names if s not in STAGES]
+    if not names or bad:
+        raise ValueError(f"unknown stage(s) {bad} in chain {chain!r}; valid stages: {sorted(STAGES)}")
+    return names
+
+
+def to_superquadric(xi):
+    """A valid :class:`Superquadric` from an optimiser's vector.
+
+    ``|a|`` is used (F depends on ``|t / a|`` only), with a floor of 1e-6 m, and ``e`` is clipped to
+    ``constants.SHAPE_DOMAIN`` (the soft bounds of eq. 7 may be slightly exceeded).
+    """
+    xi = np.array(xi, dtype=np.float64)
+    xi[0:3] = np.maximum(np.abs(xi[0:3]), 1e-6)
+    xi[3:5] = np.clip(xi[3:5], *C.SHAPE_DOMAIN)
+    return Superquadric.from_vector(xi)
+
+
+def r_iou_m(superquadrics, obs, polygon="hull"):
+    """R-IOU-M of several superquadrics at once: ``(b,) float`` mean over views of the IoU."""
+    xi = np.stack([sq.to_vector() for sq in superquadrics])
+    polys, valid, _ = batch_silhouettes(xi, obs.rotations, obs.centers, obs.intrinsics)
+    targets, convex = obs.targets(polygon)
+    return batch_iou(polys, valid, targets, convex).mean(axis=1)
+
+
+def _check_observations(observations):
+    if isinstance(observations, ObservationSet):
+        return observations
+    if isinstance(observations, Observation) or not hasattr(observations, "__iter__"):
+        raise TypeError("observations must be a list of sqfit.Observation")
+    return ObservationSet(list(observations))
+
+
+_NUMERICAL_ERRORS = (np.linalg.LinAlgError, FloatingPointError, ArithmeticError, ValueError)
+
+
+def fit(observations, chain=DEFAULT_CHAIN, *, rng=None, options=None):
+    """Fit a superquadric to multi-view observations of one object with a chain of stages.
+
+    Parameters
+    ----------
+    observations : list of Observation
+        One per view, >= 2 (fewer gives status ``too_few_views``).
+    chain : str or list of str
+        Stage names joined by ``-`` (see :mod:`sqfit.stages`), e.g. ``"1-2-3D-3A"``.
+    rng : None, int or numpy.random.Generator
+        Accepted for interface stability; every stage is deterministic today.
+    options : FitOptions or dict, optional
+
+    Returns
+    -------
+    result : FitResult
+
+    Raises
+    ------
+    TypeError
+        If ``observations`` is not a list of Observation or ``options`` has the wrong type.
+    ValueError
+        For an unknown stage or option name or an invalid option value.
+    """
+    t0 = time.perf_counter()
+    names = parse_chain(chain)
+    options = FitOptions.coerce(options)
+    np.random.default_rng(rng)  # validates rng
+    obs = _check_observations(observations)
+    chain_str = "-".join(names)
+    warnings = [f"view {i}: mask touches the image border (truncated silhouette)"
+                for i, o in enumerate(obs.observations) if o.touches_border]
+    result = FitResult(None, chain=chain_str, warnings=warnings)
+    if len(obs) < 2:
+        result.status, result.message = "too_few_views", f"need >= 2 observations, got {len(obs)}"
+        result.seconds = time.perf_counter() - t0
+        return result
+    state = None
+    snapshots = []
+    for name in names:
+        ts = time.perf_counter()
+        start = state if state is not None else default_state(obs)
+        try:
+            with np.errstate(all="ignore"):
+                new = STAGES[name](start, obs, options)
+            sq = to_superquadric(new.xi)
+        except StageError as exc:
+            status, message, new, sq = exc.status, exc.message, None, None
+        except _NUMERICAL_ERRORS as exc:
+            status, message, new, sq = "numerical_error", f"stage {name}: {type(exc).__name__}: {exc}", None, None
+        else:
+            status, message = new.status, new.message
+        seconds = time.perf_counter() - ts
+        result.stages.append(StageRecord(name, sq, seconds, None if new is None else new.cost, status,
+                                         message, None, 0 if new is None else new.nfev))
+        if new is None:
+            result.status, result.message = status, message
+            break
+        state = new
+        snapshots.append(sq)
+        result.superquadric, result.cost = sq, new.cost
+    if snapshots:
+        scores = r_iou_m(snapshots, obs, options.polygon)
+        for rec, s in zip((r for r in result.stages if r.superquadric is not None), scores):
+            rec.r_iou_m = float(s)
+        result.r_iou_m = float(scores[-1])
+    if result.status == "ok":
+        result.message = f"chain {chain_str} finished: last stage {result.stages[-1].status}"
+    result.seconds = time.perf_counter() - t0
+    return result

@@ -1,0 +1,348 @@
+"""The fitting stages of the paper (section III-E), one function each, registered by name.
+
+Every stage is ``stage(state, observations, options) -> state``: it reads a :class:`FitState`
+(parameter vector and depths so far), an :class:`sqfit.costs.ObservationSet` and a
+:class:`sqfit.pipeline.FitOptions`, and returns a new state. A stage that cannot proceed raises
+:class:`StageError` with a status code; :func:`sqfit.fit` turns that into a failed result.
+
+=====  =====================================================================================
+``1``  Linear triangulation of the mask centroids (eq. 12, QR) and one depth per view.
+``2``  PCA initialisation (Algorithm 1): orientation, size, ``e = 1``, one depth per sample.
+``3A`` Levenberg-Marquardt on G2 (1 - R-IOU + penalty), all 11 parameters, finite differences.
+``3B`` As 3A with ``e`` fixed to 1 (9 parameters).
+``3C`` LM on G5 with ``e = 1`` and one depth per view (9 + v unknowns), analytic Jacobian.
+``3D`` LM on G5 with ``e = 1`` and one depth per sample (9 + n unknowns), analytic, Schur.
+``3E`` LM on G5, all 11 parameters and one depth per sample, analytic, Schur.
+``3F`` LM on G2 with only ``e`` free (2 parameters), finite differences.
+=====  =====================================================================================
+
+Stages 3B-3D set ``e = (1, 1)`` before optimising ("quadric parameters"). Depths are camera-frame
+z (as eq. 10). Depth bookkeeping between stages: a stage that needs one depth per sample and only
+has one per view repeats it; a stage that needs one per view and only has one per sample takes the
+per-view mean.
+
+Default initial guess (our choice; the paper does not state one), used when a chain starts at
+stage 3 or 2: a unit sphere-like quadric ``a = (1, 1, 1)``, ``e = (1, 1)`` at the world origin
+with zero rotation; per-view depth = depth of the world origin in that camera; per-sample depth =
+depth of the point of the sample's ray nearest to the world origin (the view depth if that point
+is behind the camera).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, replace
+
+import numpy as np
+
+from . import constants as C
+from .costs import g5_residuals, penalty_jacobian, riou_residuals
+from .lm import DenseJacobian, SchurJacobian, levenberg_marquardt
+from .silhouette import ZNEAR
+from .superquadric import matrix_to_euler
+
+__all__ = ["FitState", "StageError", "STAGES", "register", "default_state"]
+
+#: Triangulation fails when the condition number of the QR factor R exceeds this.
+_MAX_TRIANGULATION_CONDITION = 1e8
+#: A stage result with a size above this (metres) or a non-finite value is "diverged".
+_MAX_SIZE = 1e4
+_QUADRIC = np.array([1.0, 1.0])
+_SQ_NO_SHAPE = np.r_[0:3, 5:11]  # the 9 quadric parameters
+_ALL = np.arange(C.N_PARAMS)
+_SHAPE_ONLY = np.array([3, 4])
+
+
+@dataclass(frozen=True)
+class FitState:
+    """What the stages pass on.
+
+    Attributes
+    ----------
+    xi : (11,) float
+        Current parameter vector.
+    view_depths : (v,) float or None
+        One depth per view (stage 1, 3C).
+    sample_depths : (n,) float or None
+        One depth per sample, all views concatenated (stage 2, 3D, 3E).
+    cost : float or None
+        Final cost of the stage's optimiser (``0.5 * sum r**2``), None for closed-form stages.
+    status : str
+        Optimiser status (a key of :data:`sqfit.lm.STATUS`) or ``"ok"``.
+    message : str
+    nfev : int
+        Cost evaluations (a finite-difference Jacobian counts its columns).
+    """
+
+    xi: np.ndarray
+    view_depths: np.ndarray | None = None
+    sample_depths: np.ndarray | None = None
+    cost: float | None = None
+    status: str = "ok"
+    message: str = ""
+    nfev: int = 0
+
+
+class StageError(Exception):
+    """A stage cannot continue; ``status`` is a short failure code."""
+
+    def __init__(self, status, message):
+        super().__init__(message)
+        self.status = status
+        self.message = message
+
+
+STAGES = {}
+
+
+def register(name):
+    """Decorator: add a stage function to :data:`STAGES` under ``name``."""
+    def wrap(fn):
+        STAGES[name] = fn
+        return fn
+    return wrap
+
+
+def default_state(obs):
+    """The documented default starting point (see the module docstring)."""
+    xi = np.array([1.0, 1.0, 1.0, 1.0, 1.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0])
+    view = np.einsum("vj,vj->v", -obs.centers, obs.rotations[:, :, 2])
+    d = -np.einsum("nj,nj->n", obs.origins, obs.rays) / np.einsum("nj,nj->n", obs.rays, obs.rays)
+    d = np.where(d > ZNEAR, d, view[obs.view_of_sample])
+    return FitState(xi, view_depths=view, sample_depths=d)
+
+
+def _view_depths(state, obs):
+    if state.view_depths is not None:
+        return state.view_depths
+    if state.sample_depths is not None:
+        return np.bincount(obs.view_of_sample, state.sample_depths) / np.bincount(obs.view_of_sample)
+    return default_state(obs).view_depths
+
+
+def _sample_depths(state, obs):
+    if state.sample_depths is not None:
+        return state.sample_depths
+    if state.view_depths is not None:
+        return state.view_depths[obs.view_of_sample]
+    return default_state(obs).sample_depths
+
+
+@register("1")
+def triangulate(state, obs, options):
+    """Stage 1: triangulate the mask centroids (eq. 12) and give one depth per view.
+
+    ``A x = b`` with rows ``[I, -v_i]`` and ``b_i`` the camera centres, ``v_i = R_c Bp(c_i, 1)``,
+    solved by QR; ``x = [p, d_1 .. d_v]`` so the ``d_i`` are camera-frame depths. The snapshot is
+    a sphere (``e = 1``, zero rotation) at ``p`` whose radius is the mean over views of the
+    equivalent-disc radius of the mask, ``sqrt(area / pi) / sqrt(fx fy)``, back-projected at
+    ``d_i`` (floor 0.1 m), so R-IOU-M is meaningful.
+
+    Raises :class:`StageError` ``singular_triangulation`` (near-parallel rays) or
+    ``triangulation_behind_camera`` (a depth <= 0).
+    """
+    v = len(obs)
+    centroids = np.stack([o.centroid for o in obs.observations])
+    k = obs.intrinsics
+    rays = np.stack([(centroids[:, 0] - k[:, 2]) / k[:, 0], (centroids[:, 1] - k[:, 3]) / k[:, 1],
+                     np.ones(v)], axis=1)
+    bearing = np.einsum("vij,vj->vi", obs.rotations, rays)
+    A = np.zeros((3 * v, 3 + v))
+    A[:, :3] = np.tile(np.eye(3), (v, 1))
+    for i in range(v):
+        A[3 * i:3 * i + 3, 3 + i] = -bearing[i]
+    Q, R = np.linalg.qr(A)
+    diag = np.abs(np.diag(R))
+    if diag.min() <= diag.max() / _MAX_TRIANGULATION_CONDITION or not np.all(np.isfinite(R)):
+        raise StageError("singular_triangulation", "triangulation is ill-conditioned: the centroid rays "
+                         "are (nearly) parallel")
+    sol = np.linalg.solve(R, Q.T @ obs.centers.reshape(-1))
+    p, depths = sol[:3], sol[3:]
+    if np.any(depths <= ZNEAR):
+        raise StageError("triangulation_behind_camera",
+                         f"triangulated point is behind camera(s) {np.flatnonzero(depths <= ZNEAR).tolist()}")
+    area = np.array([o.area_px for o in obs.observations], dtype=float)
+    radius = np.sqrt(area / np.pi) / np.sqrt(k[:, 0] * k[:, 1]) * depths
+    r = max(float(radius.mean()), C.SIZE_MIN)
+    xi = np.array([r, r, r, 1.0, 1.0, *p, 0.0, 0.0, 0.0])
+    return FitState(xi, view_depths=depths, sample_depths=None)
+
+
+@register("2")
+def pca_init(state, obs, options):
+    """Stage 2 (Algorithm 1): PCA of the samples back-projected at one depth per view.
+
+    Orientation: the principal axes (right singular vectors of the centred points), made a proper
+    rotation (``det = +1``). Size: half the extent of the points in that frame (floor 0.1 m).
+    Shape ``e = 1``; position kept from the input state (stage 1's triangulated point, as the
+    paper). Per-sample depth: the closed-form minimiser along each ray (:func:`ellipsoid_depths`).
+    """
+    depths = _view_depths(state, obs)
+    points = obs.origins + obs.rays * depths[obs.view_of_sample][:, None]
+    centred = points - points.mean(axis=0)
+    _, _, Vt = np.linalg.svd(centred / np.sqrt(max(len(points) - 1, 1)), full_matrices=False)
+    R = Vt.T.copy()
+    if np.linalg.det(R) < 0:
+        R[:, 2] = -R[:, 2]
+    local = centred @ R
+    size = np.maximum((local.max(axis=0) - local.min(axis=0)) / 2.0, C.SIZE_MIN)
+    xi = np.concatenate([size, _QUADRIC, state.xi[5:8], matrix_to_euler(R)])
+    return FitState(xi, view_depths=None, sample_depths=ellipsoid_depths(xi, obs))
+
+
+def ellipsoid_depths(xi, obs):
+    """Per-sample depths on the quadric ``xi`` (``e`` taken as 1), closed form.
+
+    Each ray ``x(d) = o + d w`` in unit-sphere coordinates ``q(d) = q0 + d u`` meets the ellipsoid
+    where ``|q0 + d u|^2 = 1``: the near root (visible surface) is taken, or the far root if the
+    near one is behind the camera. A ray that misses gets the depth minimising ``|q(d)|^2``, the
+    point of the ray where the quadric's implicit function ``F`` is smallest. This is
+    ``argmin_d G4^2`` of Algorithm 1 exactly for hits and our closed-form stand-in for misses.
+
+    Returns
+    -------
+    depths : (n,) float
+    """
+    R = _rotation(xi)
+    a = np.abs(xi[0:3])
+    q0 = ((obs.origins - xi[5:8]) @ R) / a
+    u = (obs.rays @ R) / a
+    A = np.einsum("ij,ij->i", u, u)
+    B = np.einsum("ij,ij->i", q0, u)
+    Cc = np.einsum("ij,ij->i", q0, q0) - 1.0
+    disc = B * B - A * Cc
+    root = np.sqrt(np.maximum(disc, 0.0))
+    near, far = (-B - root) / A, (-B + root) / A
+    hit = np.where(near > ZNEAR, near, far)
+    return np.where((disc >= 0) & (hit > ZNEAR), hit, np.maximum(-B / A, ZNEAR))
+
+
+def _rotation(xi):
+    from .superquadric import euler_to_matrix
+
+    return euler_to_matrix(xi[8:11])
+
+
+def _check_result(xi, stage):
+    if not np.all(np.isfinite(xi)):
+        raise StageError("nonfinite", f"stage {stage}: the optimiser produced non-finite parameters")
+    if np.max(np.abs(xi[0:3])) > _MAX_SIZE:
+        raise StageError("diverged", f"stage {stage}: the optimiser diverged (size > {_MAX_SIZE:g} m)")
+
+
+# ----------------------------------------------------------------------------------------------
+# Numeric R-IOU stages (G2, finite differences)
+
+
+def _riou_stage(state, obs, options, free, quadric, name):
+    xi0 = np.array(state.xi, dtype=np.float64)
+    if quadric:
+        xi0[3:5] = _QUADRIC
+    steps = options.fd_step * np.maximum(1.0, np.abs(xi0[free]))
+    eye = np.eye(len(free)) * steps
+    cache = {}
+
+    def model(x):
+        full = xi0.copy()
+        full[free] = x
+        batch = np.tile(full, (len(free) + 1, 1))
+        batch[1:, free] += eye
+        h0 = cache.get("h")
+        if h0 is not None:
+            h0 = np.broadcast_to(h0[:1], (len(batch),) + h0.shape[1:])
+        r, h = riou_residuals(batch, obs, options.polygon, options.penalty_riou,
+                              options.silhouette_directions, h0)
+        cache["h"] = h
+        J = (r[1:] - r[:1]).T / steps
+        # The penalty is piecewise linear: use its exact slope rather than a difference across a kink.
+        J[len(obs):] = 0.0
+        J[len(obs) + free, np.arange(len(free))] = penalty_jacobian(full, options.penalty_riou)[free]
+        return r[0], DenseJacobian(J)
+
+    res = levenberg_marquardt(model, xi0[free], max_iterations=options.max_iterations_numeric,
+                              ftol=options.ftol_numeric, xtol=options.xtol, gtol=options.gtol)
+    xi = xi0.copy()
+    xi[free] = res.x
+    _check_result(xi, name)
+    return replace(state, xi=xi, cost=res.cost, status=res.status, message=res.message,
+                   nfev=res.nfev * (len(free) + 1))
+
+
+@register("3A")
+def riou_all(state, obs, options):
+    """Stage 3A: G2 over all 11 parameters (numeric, finite differences)."""
+    return _riou_stage(state, obs, options, _ALL, False, "3A")
+
+
+@register("3B")
+def riou_quadric(state, obs, options):
+    """Stage 3B: G2 over the 9 quadric parameters, ``e = 1``."""
+    return _riou_stage(state, obs, options, _SQ_NO_SHAPE, True, "3B")
+
+
+@register("3F")
+def riou_shape(state, obs, options):
+    """Stage 3F: G2 over the shape exponents only."""
+    return _riou_stage(state, obs, options, _SHAPE_ONLY, False, "3F")
+
+
+# ----------------------------------------------------------------------------------------------
+# Analytic G5 stages
+
+
+def _g5_stage(state, obs, options, free, quadric, per_sample, name):
+    xi0 = np.array(state.xi, dtype=np.float64)
+    if quadric:
+        xi0[3:5] = _QUADRIC
+    k = len(free)
+    cp = options.penalty_analytic
+    if per_sample:
+        d0 = np.array(_sample_depths(state, obs), dtype=np.float64)
+    else:
+        d0 = np.array(_view_depths(state, obs), dtype=np.float64)
+    view = obs.view_of_sample
+    n_views = len(obs)
+
+    def model(x):
+        full = xi0.copy()
+        full[free] = x[:k]
+        depth = x[k:] if per_sample else x[k:][view]
+        r, A, D, P = g5_residuals(full, depth, obs, cp)
+        Pm = np.zeros((C.N_PARAMS, k))
+        Pm[free, np.arange(k)] = P[free]
+        if per_sample:
+            return r, SchurJacobian(A[:, free], D, Pm)
+        J = np.zeros((len(r), k + n_views))
+        J[:len(D), :k] = A[:, free]
+        J[np.arange(len(D)), k + view] = D
+        J[len(D):, :k] = Pm
+        return r, DenseJacobian(J)
+
+    x0 = np.concatenate([xi0[free], d0])
+    res = levenberg_marquardt(model, x0, max_iterations=options.max_iterations_analytic,
+                              ftol=options.ftol_analytic, xtol=options.xtol, gtol=options.gtol)
+    xi = xi0.copy()
+    xi[free] = res.x[:k]
+    _check_result(xi, name)
+    depths = res.x[k:]
+    common = dict(xi=xi, cost=res.cost, status=res.status, message=res.message, nfev=res.nfev)
+    if per_sample:
+        return FitState(sample_depths=depths, view_depths=None, **common)
+    return FitState(view_depths=depths, sample_depths=None, **common)
+
+
+@register("3C")
+def g5_view_depth(state, obs, options):
+    """Stage 3C: G5, ``e = 1``, one depth per view (9 + v unknowns), analytic Jacobian."""
+    return _g5_stage(state, obs, options, _SQ_NO_SHAPE, True, False, "3C")
+
+
+@register("3D")
+def g5_sample_depth_quadric(state, obs, options):
+    """Stage 3D: G5, ``e = 1``, one depth per sample (9 + n unknowns), analytic, Schur complement."""
+    return _g5_stage(state, obs, options, _SQ_NO_SHAPE, True, True, "3D")
+
+
+@register("3E")
+def g5_sample_depth_all(state, obs, options):
+    """Stage 3E: G5, all 11 parameters, one depth per sample, analytic, Schur complement."""
+    return _g5_stage(state, obs, options, _ALL, False, True, "3E")
