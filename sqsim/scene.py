@@ -203,7 +203,7 @@ _CHECKS = {
                    "height": _float(), "arc_deg": _float(0, 360, lo_open=True), "look_at": _vector(3),
                    "start_deg": _float()},
     "objects": {"count": _int(1), "kind": _choice(OBJECT_KINDS), "size": _range(0, lo_open=True),
-                "position": _range(), "rotation": _range(), "shape": _range(*sqfit.constants.SHAPE_DOMAIN),
+                "position": _range(), "rotation": _range(), "shape": _range(lo=sqfit.constants.SHAPE_DOMAIN[0], hi=sqfit.constants.SHAPE_DOMAIN[1]),
                 "path": _optional_path, "mesh_resolution": _int(2), "max_attempts": _int(1)},
     "masks": {"renderer": _choice(RENDERERS), "samples": _int(3), "sampling": _choice(SAMPLING_METHODS),
               "min_area_px": _int(0)},
