@@ -113,7 +113,9 @@ class Renderer:
         ----------
         objects : sequence
             Each item is a ``trimesh.Trimesh`` in world coordinates (instance id = its position
-            + 1) or has attributes ``mesh`` (``trimesh.Trimesh``) and ``id`` (int in 1..65535).
+            + 1) or has attributes ``mesh`` (``trimesh.Trimesh``) and ``id`` (int in 1..65535),
+            and optionally ``outward`` (bool): the mesh is closed with outward-facing triangles,
+            which lets OpenGL cull back faces (faster; every object must have it).
         cameras : sequence of sqfit.Camera
             All with this renderer's intrinsics.
 
@@ -121,7 +123,7 @@ class Renderer:
         -------
         images : (v, h, w) uint16
         """
-        meshes, ids = _unpack(objects)
+        meshes, ids, outward = _unpack(objects)
         cameras = list(cameras)
         for k, cam in enumerate(cameras):
             if not isinstance(cam, Camera):
@@ -132,12 +134,12 @@ class Renderer:
         k = self.intrinsics
         images = np.zeros((len(cameras), k.height, k.width), dtype=np.uint16)
         if meshes:
-            self._render(meshes, ids, cameras, images)
+            self._render(meshes, ids, outward, cameras, images)
         return images
 
 
 def _unpack(objects):
-    meshes, ids = [], []
+    meshes, ids, outward = [], [], []
     for k, obj in enumerate(objects):
         mesh, oid = (obj, k + 1) if hasattr(obj, "faces") else (getattr(obj, "mesh", None), getattr(obj, "id", None))
         if mesh is None or not hasattr(mesh, "faces") or oid is None:
@@ -149,9 +151,10 @@ def _unpack(objects):
             raise ValueError(f"objects[{k}] mesh has NaN or inf vertices")
         meshes.append(mesh)
         ids.append(int(oid))
+        outward.append(bool(getattr(obj, "outward", False)))
     if len(set(ids)) != len(ids):
         raise ValueError(f"object ids must be unique, got {ids}")
-    return meshes, ids
+    return meshes, ids, outward
 
 
 def projection_matrix(intrinsics, znear, zfar):
@@ -191,8 +194,9 @@ def _view_box(intrinsics, pixels, depth):
         return None
     if not front.all():  # a vertex behind the camera: the silhouette may reach any pixel
         return 0, intrinsics.height, 0, intrinsics.width
-    lo = np.floor(pixels.min(axis=0) - 0.5).astype(int) - 1
-    hi = np.ceil(pixels.max(axis=0) - 0.5).astype(int) + 2
+    u, v = pixels[:, 0], pixels[:, 1]
+    lo = np.floor(np.array([u.min(), v.min()]) - 0.5).astype(int) - 1
+    hi = np.ceil(np.array([u.max(), v.max()]) - 0.5).astype(int) + 2
     j0, i0 = np.maximum(lo, 0)
     j1, i1 = np.minimum(hi, [intrinsics.width, intrinsics.height])
     if j0 >= j1 or i0 >= i1:
@@ -206,10 +210,7 @@ class GLRenderer(Renderer):
     def __init__(self, backend, intrinsics):
         super().__init__(intrinsics)
         check_choice(backend, ("osmesa", "egl"), "OpenGL backend")
-        current = os.environ.setdefault("PYOPENGL_PLATFORM", backend)
-        if current != backend:
-            raise ValueError(f"this process uses PYOPENGL_PLATFORM={current!r}; the {backend!r} "
-                             "renderer needs a separate process (OpenGL binds its platform once)")
+        _select_platform(backend)
         self.backend = backend
         self._platform = _make_platform(backend, intrinsics.width, intrinsics.height)
         self._platform.make_current()
@@ -240,7 +241,8 @@ class GLRenderer(Renderer):
         GL.glViewport(0, 0, w, h)
         GL.glEnable(GL.GL_DEPTH_TEST)
         GL.glDepthFunc(GL.GL_LESS)
-        GL.glDisable(GL.GL_CULL_FACE)
+        GL.glFrontFace(GL.GL_CCW)
+        GL.glCullFace(GL.GL_BACK)
         GL.glDisable(GL.GL_DITHER)
         GL.glEnable(GL.GL_SCISSOR_TEST)
         GL.glUseProgram(self._program)
@@ -266,13 +268,21 @@ class GLRenderer(Renderer):
         GL.glBufferData(GL.GL_ELEMENT_ARRAY_BUFFER, faces.nbytes, faces, GL.GL_STREAM_DRAW)
         return vertices.astype(np.float64), faces.size
 
-    def _render(self, meshes, ids, cameras, images):
+    def _render(self, meshes, ids, outward, cameras, images):
         from OpenGL import GL
 
         self._platform.make_current()
         GL.glBindFramebuffer(GL.GL_FRAMEBUFFER, self._fbo)
         GL.glUseProgram(self._program)
         vertices, n_indices = self._upload(meshes, ids)
+        # Closed meshes with outward faces: their front faces alone cover the silhouette and hold
+        # the nearest depth, so back faces can be culled (half the raster work). A face facing the
+        # camera is counter-clockwise in window coordinates with this projection (OpenCV frame is
+        # right-handed and window y = -v), OpenGL's default front face.
+        if all(outward):
+            GL.glEnable(GL.GL_CULL_FACE)
+        else:
+            GL.glDisable(GL.GL_CULL_FACE)
         h = self.intrinsics.height
         for image, cam in zip(images, cameras):
             pixels, depth = project(cam, vertices)
@@ -296,9 +306,21 @@ class GLRenderer(Renderer):
             image[i0:i1, j0:j1] = out[::-1]
 
 
+def _select_platform(backend):
+    """Set ``PYOPENGL_PLATFORM`` for ``backend``, or explain why this process cannot use it."""
+    current = os.environ.setdefault("PYOPENGL_PLATFORM", backend)
+    if current != backend:
+        raise ValueError(f"this process uses PYOPENGL_PLATFORM={current!r}; the {backend!r} "
+                         "renderer needs a separate process (OpenGL binds its platform once)")
+    platform = sys.modules.get("OpenGL.platform")
+    bound = type(getattr(platform, "PLATFORM", None)).__name__.lower() if platform else None
+    if bound is not None and backend not in bound:
+        raise ValueError(f"OpenGL was imported before PYOPENGL_PLATFORM was set and bound the "
+                         f"{bound!r} platform; create the {backend!r} renderer (sqsim.render.get_renderer) "
+                         "before importing OpenGL or pyrender, or set PYOPENGL_PLATFORM in the environment")
+
+
 def _make_platform(backend, width, height):
-    if "OpenGL" not in sys.modules:
-        os.environ.setdefault("PYOPENGL_PLATFORM", backend)
     try:
         if backend == "osmesa":
             from pyrender.platforms.osmesa import OSMesaPlatform
@@ -320,7 +342,7 @@ class PolygonRenderer(Renderer):
 
     backend = "polygon"
 
-    def _render(self, meshes, ids, cameras, images):
+    def _render(self, meshes, ids, outward, cameras, images):
         for image, cam in zip(images, cameras):
             projected = []
             for mesh, oid in zip(meshes, ids):

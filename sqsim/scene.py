@@ -447,6 +447,9 @@ class SceneObject:
         World-frame mesh (every kind).
     path : str or None
         Source mesh file of the ``mesh`` kind.
+    outward : bool
+        The mesh is closed with outward-facing triangles (lets the renderer cull back faces);
+        built-in kinds always are, a mesh file is checked when loaded.
     """
 
     id: int
@@ -458,6 +461,7 @@ class SceneObject:
     superquadric: object
     mesh: object
     path: str | None = None
+    outward: bool = True
 
     @property
     def pose(self):
@@ -515,8 +519,9 @@ def _load_mesh(path):
             raise ValueError(f"cannot read mesh file {path}: {exc}") from None
         if not isinstance(mesh, trimesh.Trimesh) or len(mesh.faces) == 0:
             raise ValueError(f"mesh file {path} holds no triangles")
-        _MESH_FILES[path] = mesh
-    return _MESH_FILES[path].copy()
+        outward = bool(mesh.is_watertight and mesh.is_winding_consistent and mesh.volume > 0)
+        _MESH_FILES[path] = (mesh, outward)
+    return _MESH_FILES[path][0].copy()
 
 
 def make_object(oid, kind, size, shape, position, rotation, path=None, resolution=32):
@@ -531,8 +536,9 @@ def make_object(oid, kind, size, shape, position, rotation, path=None, resolutio
     T[:3, 3] = position
     mesh.apply_transform(T)
     as_tuple = lambda v: tuple(float(x) for x in v)  # noqa: E731
+    outward = _MESH_FILES[path][1] if kind == "mesh" else True
     return SceneObject(oid, kind, as_tuple(size), as_tuple(position), as_tuple(rotation), None, None,
-                       mesh, path)
+                       mesh, path, outward)
 
 
 def sample_objects(objects, rng):

@@ -147,3 +147,16 @@ print((a & b).sum() / (a | b).sum())
         pytest.skip("EGL is not available on this machine")
     assert out.returncode == 0, out.stderr
     assert float(out.stdout.split()[-1]) > 0.98
+
+
+def test_culling_keeps_the_nearest_surface():
+    # A is nearer at its front face (depth 7) but its back face (depth 11) lies behind B's
+    # (depth 10): with the wrong faces culled B would win. Outward meshes allow culling.
+    cam = sqfit.Camera(INTR, sqfit.look_at([10.0, 0, 0], [0, 0, 0]))
+    a = trimesh.creation.box(bounds=[[-1, -2, -1], [3, 2, 1]])
+    b = trimesh.creation.box(bounds=[[0, -0.5, -0.5], [2, 0.5, 0.5]])
+    make = lambda oid, mesh, outward: type("O", (), {"id": oid, "mesh": mesh, "outward": outward})()  # noqa: E731
+    culled = get_renderer("osmesa", INTR).render([make(1, a, True), make(2, b, True)], [cam])[0]
+    plain = get_renderer("osmesa", INTR).render([make(1, a, False), make(2, b, False)], [cam])[0]
+    assert set(np.unique(culled)) == {0, 1}
+    np.testing.assert_array_equal(culled, plain)

@@ -1,0 +1,60 @@
+"""Rendering throughput of one process: 640 x 480 instance masks per second.
+
+Samples observable trials of a scene (default: scenes/paper.toml, 3 views each), then times
+``Renderer.render(objects, cameras)`` alone (the number the README quotes, target >= 150
+masks/s per process) and the whole ``simulate_trial`` (sampling, meshing, re-sampling,
+rendering, noise) for reference.
+
+    OPENBLAS_NUM_THREADS=1 .venv/bin/python benchmarks/bench_render.py [--trials 100] [--renderer osmesa]
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import time
+from pathlib import Path
+
+os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def main():
+    parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    parser.add_argument("--scene", default=str(ROOT / "scenes" / "paper.toml"))
+    parser.add_argument("--trials", type=int, default=100)
+    parser.add_argument("--renderer", default=None, help="osmesa | egl | polygon (default: the scene's)")
+    parser.add_argument("--repeat", type=int, default=3, help="timing repetitions (best is reported)")
+    args = parser.parse_args()
+
+    from sqsim.render import get_renderer
+    from sqsim.scene import load_scene
+    from sqsim.trial import sample_trial, simulate_trial
+
+    scene = load_scene(args.scene)
+    if args.renderer:
+        scene = scene.with_overrides({"masks.renderer": args.renderer})
+    renderer = get_renderer(scene.masks.renderer, scene.intrinsics)
+    k = scene.intrinsics
+    trials = [sample_trial(scene, i, renderer) for i in range(args.trials)]
+    n_masks = sum(len(cams) for _, cams, _, _ in trials)
+    best = float("inf")
+    for _ in range(args.repeat):
+        t0 = time.perf_counter()
+        for objects, cams, _, _ in trials:
+            renderer.render(objects, cams)
+        best = min(best, time.perf_counter() - t0)
+    t0 = time.perf_counter()
+    for i in range(args.trials):
+        simulate_trial(scene, i, renderer)
+    full = time.perf_counter() - t0
+    print(f"renderer={scene.masks.renderer}  image={k.width}x{k.height}  trials={args.trials}  "
+          f"masks={n_masks}")
+    print(f"render only:         {n_masks / best:8.1f} masks/s  ({1e3 * best / n_masks:.2f} ms/mask)")
+    print(f"simulate_trial (all): {n_masks / full:8.1f} masks/s  ({1e3 * full / args.trials:.1f} ms/trial, "
+          "incl. sampling, meshing, re-sampling)")
+
+
+if __name__ == "__main__":
+    main()
