@@ -16,6 +16,7 @@ Conventions (stated once, pinned by ``tests/test_superquadric.py``):
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import lru_cache
 
 import numpy as np
 from scipy.special import beta
@@ -396,6 +397,13 @@ def sample_surface_uniform(sq, n, rng=None, resolution=48):
 
 def _cube_sphere(resolution):
     """Unique lattice points and outward triangles of a cube surface subdivided ``resolution`` times."""
+    # The lattice depends on the resolution only; building it (np.unique) dominates meshing.
+    lattice, faces = _cube_sphere_cached(int(resolution))
+    return lattice.copy(), faces.copy()
+
+
+@lru_cache(maxsize=8)
+def _cube_sphere_cached(resolution):
     n = int(resolution)
     g = np.arange(n + 1)
     gi, gj = np.meshgrid(g, g, indexing="ij")
