@@ -25,6 +25,7 @@ for ``e`` in ``[0.1, 1.9]`` and anywhere but the exact centre.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -32,10 +33,10 @@ import numpy as np
 from . import constants as C
 from .camera import bearings
 from .observation import Observation
-from .silhouette import DEFAULT_DIRECTIONS, batch_iou, batch_silhouettes, camera_arrays
-from .superquadric import euler_derivatives, euler_to_matrix
+from .silhouette import DEFAULT_DIRECTIONS, batch_iou, batch_silhouettes, camera_arrays, half_planes
 
 __all__ = ["ObservationSet", "penalty", "penalty_jacobian", "riou_residuals", "radial_terms",
+           "rotation_and_derivatives",
            "g5_residuals", "LOWER_BOUNDS", "UPPER_BOUNDS"]
 
 #: Soft bounds of eq. 7 per parameter (``-inf`` / ``inf``: unconstrained).
@@ -90,19 +91,30 @@ class ObservationSet:
         return len(self.observations)
 
     def targets(self, kind):
-        """Observation polygons for :func:`sqfit.silhouette.batch_iou`: ``(targets, convex)``.
+        """Observation polygons for :func:`sqfit.silhouette.batch_iou`: ``(targets, convex, planes)``.
 
         ``hull`` polygons are padded to a common length by repeating their last vertex.
         """
         if kind not in self._targets:
-            polys = [np.asarray(o.polygon(kind)) for o in self.observations]
             if kind == "hull":
+                polys = [_hull(o) for o in self.observations]
                 m = max(len(p) for p in polys)
                 padded = np.stack([np.vstack([p, np.repeat(p[-1:], m - len(p), axis=0)]) for p in polys])
-                self._targets[kind] = (padded, True)
+                self._targets[kind] = (padded, True, half_planes(padded))
             else:
-                self._targets[kind] = (polys, False)
+                self._targets[kind] = ([np.asarray(o.contour) for o in self.observations], False, None)
         return self._targets[kind]
+
+
+def _hull(observation):
+    """Convex hull of the samples, CCW: the same polygon as ``Observation.polygon("hull")`` (up to
+    collinear points), by qhull, which is ~50x faster than the pure-Python hull there."""
+    from scipy.spatial import ConvexHull, QhullError
+
+    try:
+        return observation.samples[ConvexHull(observation.samples).vertices]
+    except (QhullError, ValueError):
+        return np.asarray(observation.polygon("hull"))
 
 
 def penalty(xi, weight):
@@ -155,14 +167,39 @@ def riou_residuals(xi, obs, polygon="hull", weight=C.PENALTY_RIOU, n_directions=
     """
     xi = np.atleast_2d(np.asarray(xi, dtype=np.float64))
     polys, valid, h = batch_silhouettes(xi, obs.rotations, obs.centers, obs.intrinsics, n_directions, h0)
-    targets, convex = obs.targets(polygon)
-    iou = batch_iou(polys, valid, targets, convex)
+    iou = batch_iou(polys, valid, *obs.targets(polygon))
     return np.concatenate([1.0 - iou, penalty(xi, weight)], axis=1), h
 
 
 def sample_points(obs, depths):
     """``(n, 3) float``: world points of the samples at camera-frame depths ``(n,)`` (eq. 10)."""
     return obs.origins + obs.rays * np.asarray(depths, dtype=np.float64)[:, None]
+
+
+def rotation_and_derivatives(r):
+    """``R`` ``(3, 3)`` (Euler convention of :mod:`sqfit.superquadric`) and ``dR / dr_k`` ``(3, 3, 3)``.
+
+    Same values as :func:`sqfit.superquadric.euler_to_matrix` and
+    :func:`sqfit.superquadric.euler_derivatives`, written out for a single angle triple (these
+    are called once per optimiser step, where numpy's per-call overhead dominates).
+    """
+    cx, cy, cz = math.cos(r[0]), math.cos(r[1]), math.cos(r[2])
+    sx, sy, sz = math.sin(r[0]), math.sin(r[1]), math.sin(r[2])
+    R = np.array([[cz * cy, cz * sy * sx - sz * cx, cz * sy * cx + sz * sx],
+                  [sz * cy, sz * sy * sx + cz * cx, sz * sy * cx - cz * sx],
+                  [-sy, cy * sx, cy * cx]])
+    dR = np.array([
+        [[0.0, cz * sy * cx + sz * sx, -cz * sy * sx + sz * cx],
+         [0.0, sz * sy * cx - cz * sx, -sz * sy * sx - cz * cx],
+         [0.0, cy * cx, -cy * sx]],
+        [[-cz * sy, cz * cy * sx, cz * cy * cx],
+         [-sz * sy, sz * cy * sx, sz * cy * cx],
+         [-cy, -sy * sx, -sy * cx]],
+        [[-sz * cy, -sz * sy * sx - cz * cx, -sz * sy * cx + cz * sx],
+         [cz * cy, cz * sy * sx - sz * cx, cz * sy * cx + sz * sx],
+         [0.0, 0.0, 0.0]],
+    ])
+    return R, dR
 
 
 def radial_terms(xi, points):
@@ -184,35 +221,40 @@ def radial_terms(xi, points):
     d_point : (n, 3) float
         ``d g3 / d point`` (world frame).
     """
-    a, e1, e2 = xi[0:3], xi[3], xi[4]
-    p, r = xi[5:8], xi[8:11]
-    R = euler_to_matrix(r)
-    rel = points - p
+    a, e1, e2 = xi[0:3], float(xi[3]), float(xi[4])
+    R, dR = rotation_and_derivatives(xi[8:11])
+    rel = points - xi[5:8]
     y = rel @ R
-    y = np.where(y == 0.0, _TINY, y)  # keeps log finite; the weights of such a term are 0 anyway
-    norm = np.sqrt(np.einsum("ij,ij->i", y, y))
+    y[y == 0.0] = _TINY  # keeps log finite; the weight of such a coordinate is 0 anyway
+    norm2 = np.einsum("ij,ij->i", y, y)
     la = np.log(np.abs(y)) - np.log(np.abs(a))
-    X1, X2 = (2.0 / e2) * la[:, 0], (2.0 / e2) * la[:, 1]
-    XY = np.logaddexp(X1, X2)
-    wx, wy = np.exp(X1 - XY), np.exp(X2 - XY)
+    X = (2.0 / e2) * la[:, :2]
+    XY = np.logaddexp(X[:, 0], X[:, 1])
+    wxy = np.exp(X - XY[:, None])
     A, Bz = (e2 / e1) * XY, (2.0 / e1) * la[:, 2]
     L = np.logaddexp(A, Bz)
-    wA, wB = np.exp(A - L), np.exp(Bz - L)
-    S = np.exp(np.log(norm) - 0.5 * e1 * L)
+    wA = np.exp(A - L)
+    wB = 1.0 - wA
+    S = np.exp(0.5 * (np.log(norm2) - e1 * L))
+    norm = np.sqrt(norm2)
     g3 = S - norm
-    # d L / d log|y_i| (= - d L / d log|a_i|): the power-mean weights times 2 / e1.
-    dl = (2.0 / e1) * np.stack([wA * wx, wA * wy, wB], axis=1)
-    half_e1_S = 0.5 * e1 * S
-    d_y = S[:, None] * y / norm[:, None] ** 2 - half_e1_S[:, None] * dl / y - y / norm[:, None]
+    # d L / d log|y_i| (= - d L / d log|a_i|): power-mean weights times 2 / e1.
+    dl = np.empty_like(y)
+    dl[:, :2] = wxy * wA[:, None]
+    dl[:, 2] = wB
+    half_S = 0.5 * S
+    # d G3 / d y = S y / |y|^2 - (e1 / 2) S dL/dy - y / |y|, with e1 dl / 2 = power-mean weights.
+    d_y = ((S - norm) / norm2)[:, None] * y - half_S[:, None] * (2.0 * dl) / y
     d_xi = np.empty((len(points), C.N_PARAMS))
-    d_xi[:, 0:3] = half_e1_S[:, None] * dl / a
+    d_xi[:, 0:3] = S[:, None] * dl / a
     # d G3 / d e1 = -S (L - wA A - wB Bz) / 2; d G3 / d e2 = -S wA (XY - wx X1 - wy X2) / 2.
-    d_xi[:, 3] = -0.5 * S * (L - _wmul(wA, A) - _wmul(wB, Bz))
-    d_xi[:, 4] = -0.5 * S * wA * (XY - _wmul(wx, X1) - _wmul(wy, X2))
+    d_xi[:, 3] = -half_S * (L - _wmul(wA, A) - _wmul(wB, Bz))
+    d_xi[:, 4] = -half_S * wA * (XY - _wmul(wxy[:, 0], X[:, 0]) - _wmul(wxy[:, 1], X[:, 1]))
     d_point = d_y @ R.T
     d_xi[:, 5:8] = -d_point
-    dR = euler_derivatives(r)  # y = R^T (x - p): d y / d r_k = dR_k^T (x - p)
-    d_xi[:, 8:11] = np.einsum("nj,kji,ni->nk", rel, dR, d_y)
+    # y = R^T (x - p): d y_i / d r_k = sum_j dR_k[j, i] rel_j.
+    outer = (rel[:, :, None] * d_y[:, None, :]).reshape(len(points), 9)
+    d_xi[:, 8:11] = outer @ dR.reshape(3, 9).T
     return g3, d_xi, d_point
 
 

@@ -10,8 +10,11 @@ acceptance and termination logic serves
   eliminated with the Schur complement, so a step costs ``O(n k^2)`` for ``k <= 11`` SQ
   parameters instead of a dense ``(n + k)^3`` solve.
 
-Damping: Marquardt's scaled form ``(J^T J + lam * diag(s)) dx = -J^T r`` with ``s`` the running
-maximum of ``diag(J^T J)`` (Moré's scaling, as MINPACK), and Nielsen's update of ``lam``
+Damping: Levenberg's form ``(J^T J + lam I) dx = -J^T r`` by default (``scaling="identity"``; our
+unknowns are metres, radians and unitless exponents of order 1). On the G5 stages it converged in
+about 3x fewer steps than Marquardt's ``diag(J^T J)`` scaling (running maximum, as MINPACK) and
+to better fits (paper scene, 10 trials, 1-2-3D: median 3D IoU 0.57 vs 0.49);
+``scaling="marquardt"`` selects the latter. ``lam`` follows Nielsen's update
 (``lam *= max(1/3, 1 - (2 rho - 1)**3)`` after a step with gain ratio ``rho > 0``, else
 ``lam *= nu; nu *= 2``). Termination codes are in :data:`STATUS`.
 """
@@ -27,6 +30,7 @@ __all__ = ["levenberg_marquardt", "LMResult", "DenseJacobian", "SchurJacobian", 
 #: status code -> message
 STATUS = {
     "gtol": "converged: gradient norm below gtol",
+    "atol": "converged: cost below atol",
     "ftol": "converged: relative cost reduction below ftol",
     "xtol": "converged: relative step size below xtol",
     "max_iterations": "stopped: iteration limit reached",
@@ -34,7 +38,7 @@ STATUS = {
     "nonfinite": "failed: residuals or Jacobian are not finite at the starting point",
 }
 #: codes that mean a local minimum was reached
-CONVERGED = ("gtol", "ftol", "xtol")
+CONVERGED = ("gtol", "atol", "ftol", "xtol")
 _LAMBDA_MAX = 1e16
 _SCALE_FLOOR = 1e-12
 
@@ -136,7 +140,8 @@ class LMResult:
         return self.status in CONVERGED
 
 
-def levenberg_marquardt(model, x0, *, max_iterations=100, ftol=1e-8, xtol=1e-8, gtol=1e-10, lam0=1e-3):
+def levenberg_marquardt(model, x0, *, max_iterations=100, ftol=1e-8, xtol=1e-8, gtol=1e-10, atol=0.0,
+                        lam0=1e-3, scaling="identity"):
     """Minimise ``0.5 * ||r(x)||**2`` by Levenberg-Marquardt.
 
     Parameters
@@ -148,8 +153,12 @@ def levenberg_marquardt(model, x0, *, max_iterations=100, ftol=1e-8, xtol=1e-8, 
         Maximum number of steps tried (accepted or not).
     ftol, xtol, gtol : float
         Relative cost reduction, relative step size and absolute gradient (inf-norm) tolerances.
+    atol : float
+        Absolute cost tolerance (zero-residual problems such as G5 with free depths).
     lam0 : float
-        Initial damping, relative to the scale ``diag(J^T J)``.
+        Initial damping (times the largest diagonal entry of ``J^T J`` for ``identity``).
+    scaling : {"identity", "marquardt"}
+        Damping matrix: ``I`` or the running maximum of ``diag(J^T J)``.
 
     Returns
     -------
@@ -163,13 +172,21 @@ def levenberg_marquardt(model, x0, *, max_iterations=100, ftol=1e-8, xtol=1e-8, 
     cost = 0.5 * float(r @ r)
     if not (np.isfinite(cost) and J.finite()):
         return LMResult(x, cost, "nonfinite", STATUS["nonfinite"], nfev, 0)
-    scale = np.maximum(J.diag(), _SCALE_FLOOR)
-    lam, nu = lam0, 2.0
+    if scaling not in ("identity", "marquardt"):
+        raise ValueError(f"scaling must be 'identity' or 'marquardt', got {scaling!r}")
+    marquardt = scaling == "marquardt"
+    diag0 = J.diag()
+    scale = np.maximum(diag0, _SCALE_FLOOR) if marquardt else np.ones_like(x)
+    lam = lam0 * (1.0 if marquardt else max(float(diag0.max()), _SCALE_FLOOR))
+    nu = 2.0
     status = "max_iterations"
     it = 0
     for it in range(1, max_iterations + 1):
         g = J.gradient(r)
-        if np.max(np.abs(g)) <= gtol or cost == 0.0:
+        if cost <= atol:
+            status = "atol"
+            break
+        if np.max(np.abs(g)) <= gtol:
             status = "gtol"
             break
         try:
@@ -191,7 +208,8 @@ def levenberg_marquardt(model, x0, *, max_iterations=100, ftol=1e-8, xtol=1e-8, 
             small_step = np.linalg.norm(dx) <= xtol * (np.linalg.norm(x) + xtol)
             small_gain = actual <= ftol * cost and predicted <= ftol * cost
             x, r, J, cost = x_new, r_new, J_new, cost_new
-            scale = np.maximum(scale, J.diag())
+            if marquardt:
+                scale = np.maximum(scale, J.diag())
             lam *= max(1.0 / 3.0, 1.0 - (2.0 * rho - 1.0) ** 3)
             nu = 2.0
             if small_gain:

@@ -52,11 +52,15 @@ class FitOptions:
         Levenberg-Marquardt step limits of the R-IOU (3A, 3B, 3F) and G5 (3C-3E) stages.
     ftol_numeric, ftol_analytic : float
         Relative cost-reduction tolerances.
+    atol_analytic : float
+        Absolute cost tolerance of the G5 stages (their minimum is 0: every sample on the surface).
     xtol, gtol : float
         Relative step and absolute gradient tolerances.
     fd_step : float
         Forward-difference step of the R-IOU stages, relative to ``max(1, |x_i|)``; well above
         the silhouette solver's precision (1e-7 px).
+    damping_numeric : {"identity", "marquardt"}
+        Damping matrix of the R-IOU stages' Levenberg-Marquardt (see :mod:`sqfit.lm`).
     silhouette_directions : int
         Vertices of the silhouette polygons inside the R-IOU costs (R-IOU-M always uses
         :data:`sqfit.silhouette.DEFAULT_DIRECTIONS`).
@@ -69,9 +73,11 @@ class FitOptions:
     max_iterations_analytic: int = 100
     ftol_numeric: float = 1e-5
     ftol_analytic: float = 1e-6
+    atol_analytic: float = 1e-12
     xtol: float = 1e-8
     gtol: float = 1e-10
     fd_step: float = 1e-4
+    damping_numeric: str = "marquardt"
     silhouette_directions: int = 48
 
     def __post_init__(self):
@@ -85,10 +91,12 @@ class FitOptions:
             v = getattr(self, name)
             if int(v) != v or v < 1:
                 raise ValueError(f"{name} must be an integer >= 1, got {v}")
-        for name in ("ftol_numeric", "ftol_analytic", "xtol", "gtol", "fd_step"):
+        for name in ("ftol_numeric", "ftol_analytic", "atol_analytic", "xtol", "gtol", "fd_step"):
             v = getattr(self, name)
             if not (np.isfinite(v) and v >= 0):
                 raise ValueError(f"{name} must be a finite number >= 0, got {v}")
+        if self.damping_numeric not in ("identity", "marquardt"):
+            raise ValueError(f"damping_numeric must be 'identity' or 'marquardt', got {self.damping_numeric!r}")
         if self.fd_step <= 0:
             raise ValueError(f"fd_step must be > 0, got {self.fd_step}")
         if int(self.silhouette_directions) != self.silhouette_directions or self.silhouette_directions < 8:
@@ -231,8 +239,7 @@ def r_iou_m(superquadrics, obs, polygon="hull"):
     """R-IOU-M of several superquadrics at once: ``(b,) float`` mean over views of the IoU."""
     xi = np.stack([sq.to_vector() for sq in superquadrics])
     polys, valid, _ = batch_silhouettes(xi, obs.rotations, obs.centers, obs.intrinsics)
-    targets, convex = obs.targets(polygon)
-    return batch_iou(polys, valid, targets, convex).mean(axis=1)
+    return batch_iou(polys, valid, *obs.targets(polygon)).mean(axis=1)
 
 
 def _check_observations(observations):

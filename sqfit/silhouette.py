@@ -219,7 +219,7 @@ def batch_silhouettes(xi, rotations, centers, intrinsics, n_directions=DEFAULT_D
             hs, grad = dual_support(w0 - h[..., None] * wz, q1, q2)
             # g(h) = n(h) . c + h_sq; g'(h) = -z* (depth of the touching point).
             g = n0c - h * cz + hs
-            zstar = cz + np.einsum("bvkj,bvkj->bvk", grad, wz)
+            zstar = cz + (grad[..., 0] * wz[..., 0] + grad[..., 1] * wz[..., 1] + grad[..., 2] * wz[..., 2])
             step = g / np.where(valid[..., None], zstar, 1.0)
             h = h + step
             if not np.any(np.abs(step[valid]) > _NEWTON_TOL):
@@ -283,35 +283,42 @@ def is_convex(polygon, tol=1e-9):
     return bool(np.all(cross >= -scale) or np.all(cross <= scale))
 
 
-def _clipped_boundary(S, Q):
-    """Twice the area contributed by the edges of S inside the convex CCW polygons Q.
+def half_planes(Q):
+    """Half-planes ``n . x <= c`` of convex CCW polygons: ``n (..., m, 2)``, ``c (..., m)``.
 
-    S : (..., k, 2), Q : (..., m, 2) (broadcast over the leading axes). Green's theorem: the area of
-    ``S n Q`` is half the sum of ``cross(a, b)`` over the pieces ``[a, b]`` of both boundaries that
-    lie inside the other polygon; each piece of an edge is found by Cyrus-Beck clipping against
-    every half-plane of Q at once.
+    Edges shorter than :data:`_MIN_EDGE` get ``n = 0, c = 0`` (no constraint): their direction is
+    rounding noise.
     """
-    s0 = S
-    d = np.roll(S, -1, axis=-2) - S
     e = np.roll(Q, -1, axis=-2) - Q
-    # Inside of edge j: n_j . x <= c_j with n_j = (e_y, -e_x).
-    elen = np.hypot(e[..., 0], e[..., 1])
-    use = elen > _MIN_EDGE
+    use = np.hypot(e[..., 0], e[..., 1]) > _MIN_EDGE
     n = np.stack([e[..., 1], -e[..., 0]], axis=-1) * use[..., None]
-    cq = np.einsum("...mj,...mj->...m", n, Q)
-    num = cq[..., None, :] - np.einsum("...mj,...kj->...km", n, s0)  # (..., k, m)
-    den = np.einsum("...mj,...kj->...km", n, d)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        t = num / den
-    t_lo = np.max(np.where(den < 0, t, 0.0), axis=-1, initial=0.0)
-    t_hi = np.min(np.where(den > 0, t, 1.0), axis=-1, initial=1.0)
-    outside = np.any((den == 0) & (num < 0), axis=-1)
-    length = np.where(outside, 0.0, np.clip(t_hi - t_lo, 0.0, None))
-    cross = s0[..., 0] * d[..., 1] - s0[..., 1] * d[..., 0]
+    return n, n[..., 0] * Q[..., 0] + n[..., 1] * Q[..., 1]
+
+
+def _clipped_boundary(S, n, c):
+    """Twice the area contributed by the edges of S inside the convex polygons ``n . x <= c``.
+
+    S : (..., k, 2); n : (..., m, 2) and c : (..., m) from :func:`half_planes` (broadcast over the
+    leading axes). Green's theorem: the area of ``S n Q`` is half the sum of ``cross(a, b)`` over
+    the pieces ``[a, b]`` of both boundaries inside the other polygon; each piece of an edge
+    ``s + t d`` is found by Cyrus-Beck clipping against all half-planes at once.
+    """
+    d = np.roll(S, -1, axis=-2) - S
+    sx, sy = S[..., :, None, 0], S[..., :, None, 1]
+    nx, ny = n[..., None, :, 0], n[..., None, :, 1]
+    num = c[..., None, :] - (sx * nx + sy * ny)  # (..., k, m)
+    # Exact zeros become -tiny: a parallel edge outside (num < 0) then gets t = +huge (empty).
+    den = (d[..., :, None, 0] * nx + d[..., :, None, 1] * ny) - 1e-300
+    t = num / den
+    neg = den < 0
+    t_lo = np.max(np.where(neg, t, 0.0), axis=-1, initial=0.0)
+    t_hi = np.min(np.where(neg, 1.0, t), axis=-1, initial=1.0)
+    length = np.maximum(t_hi - t_lo, 0.0)
+    cross = S[..., 0] * d[..., 1] - S[..., 1] * d[..., 0]
     return np.sum(length * cross, axis=-1)
 
 
-def convex_iou(S, Q):
+def convex_iou(S, Q, q_planes=None):
     """IoU of convex counter-clockwise polygons, vectorised over leading axes.
 
     Parameters
@@ -319,18 +326,20 @@ def convex_iou(S, Q):
     S : (..., k, 2) float
     Q : (..., m, 2) float
         Consecutive duplicate vertices are allowed (pad a polygon by repeating its last vertex).
+    q_planes : tuple, optional
+        :func:`half_planes` of ``Q`` if already known.
 
     Returns
     -------
     iou : (...,) float
     """
-    origin = Q.mean(axis=-2, keepdims=True)  # local origin keeps the cross products small
-    S, Q = S - origin, Q - origin
-    inter = 0.5 * (_clipped_boundary(S, Q) + _clipped_boundary(Q, S))
-    area_s = 0.5 * _clipped_area2(S)
-    area_q = 0.5 * _clipped_area2(Q)
-    union = area_s + area_q - inter
-    with np.errstate(divide="ignore", invalid="ignore"):
+    nq, cq = half_planes(Q) if q_planes is None else q_planes
+    ns, cs = half_planes(S)
+    with np.errstate(all="ignore"):
+        inter = 0.5 * (_clipped_boundary(S, nq, cq) + _clipped_boundary(Q, ns, cs))
+        area_s = 0.5 * _clipped_area2(S)
+        area_q = 0.5 * _clipped_area2(Q)
+        union = area_s + area_q - inter
         iou = np.where(union > 0, inter / union, 0.0)
     return np.clip(iou, 0.0, 1.0)
 
@@ -364,7 +373,8 @@ def polygon_iou(p, q):
     p = p if ap > 0 else p[::-1]
     q = q if aq > 0 else q[::-1]
     if is_convex(p) and is_convex(q):
-        return float(convex_iou(p, q))
+        origin = q.mean(axis=0)  # a local origin keeps the cross products small
+        return float(convex_iou(p - origin, q - origin))
     return _shapely_iou(p, q)
 
 
@@ -377,7 +387,7 @@ def _shapely_iou(p, q):
     return float(inter / union) if union > 0 else 0.0
 
 
-def batch_iou(polys, valid, targets, convex):
+def batch_iou(polys, valid, targets, convex, q_planes=None):
     """IoU of batched silhouettes with one observation polygon per view.
 
     Parameters
@@ -388,6 +398,8 @@ def batch_iou(polys, valid, targets, convex):
         v ``(m_i, 2)`` polygons
     convex : bool
         Use the vectorised convex path (hull observations) or shapely (contour observations).
+    q_planes : tuple, optional
+        ``half_planes(targets)`` if already known (convex path).
 
     Returns
     -------
@@ -395,7 +407,7 @@ def batch_iou(polys, valid, targets, convex):
         0 where not ``valid``.
     """
     if convex:
-        iou = convex_iou(polys, targets[None])
+        iou = convex_iou(polys, targets[None], q_planes)
     else:
         import shapely
 

@@ -35,10 +35,9 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from . import constants as C
-from .costs import g5_residuals, penalty_jacobian, riou_residuals
+from .costs import g5_residuals, penalty_jacobian, riou_residuals, rotation_and_derivatives
 from .lm import DenseJacobian, SchurJacobian, levenberg_marquardt
 from .silhouette import ZNEAR
-from .superquadric import matrix_to_euler
 
 __all__ = ["FitState", "StageError", "STAGES", "register", "default_state"]
 
@@ -185,7 +184,7 @@ def pca_init(state, obs, options):
         R[:, 2] = -R[:, 2]
     local = centred @ R
     size = np.maximum((local.max(axis=0) - local.min(axis=0)) / 2.0, C.SIZE_MIN)
-    xi = np.concatenate([size, _QUADRIC, state.xi[5:8], matrix_to_euler(R)])
+    xi = np.concatenate([size, _QUADRIC, state.xi[5:8], _matrix_to_euler(R)])
     return FitState(xi, view_depths=None, sample_depths=ellipsoid_depths(xi, obs))
 
 
@@ -217,9 +216,16 @@ def ellipsoid_depths(xi, obs):
 
 
 def _rotation(xi):
-    from .superquadric import euler_to_matrix
+    return rotation_and_derivatives(xi[8:11])[0]
 
-    return euler_to_matrix(xi[8:11])
+
+def _matrix_to_euler(R):
+    """Euler angles (convention of :mod:`sqfit.superquadric`) of a proper rotation, closed form."""
+    ry = -np.arcsin(np.clip(R[2, 0], -1.0, 1.0))
+    if abs(R[2, 0]) < 1.0 - 1e-12:
+        return np.array([np.arctan2(R[2, 1], R[2, 2]), ry, np.arctan2(R[1, 0], R[0, 0])])
+    # Gimbal lock: only rx - rz (or rx + rz) is defined; put it all in rx.
+    return np.array([np.arctan2(-R[1, 2], R[1, 1]), ry, 0.0])
 
 
 def _check_result(xi, stage):
@@ -259,7 +265,8 @@ def _riou_stage(state, obs, options, free, quadric, name):
         return r[0], DenseJacobian(J)
 
     res = levenberg_marquardt(model, xi0[free], max_iterations=options.max_iterations_numeric,
-                              ftol=options.ftol_numeric, xtol=options.xtol, gtol=options.gtol)
+                              ftol=options.ftol_numeric, xtol=options.xtol, gtol=options.gtol,
+                              scaling=options.damping_numeric)
     xi = xi0.copy()
     xi[free] = res.x
     _check_result(xi, name)
@@ -319,7 +326,8 @@ def _g5_stage(state, obs, options, free, quadric, per_sample, name):
 
     x0 = np.concatenate([xi0[free], d0])
     res = levenberg_marquardt(model, x0, max_iterations=options.max_iterations_analytic,
-                              ftol=options.ftol_analytic, xtol=options.xtol, gtol=options.gtol)
+                              ftol=options.ftol_analytic, xtol=options.xtol, gtol=options.gtol,
+                              atol=options.atol_analytic)
     xi = xi0.copy()
     xi[free] = res.x[:k]
     _check_result(xi, name)
