@@ -7,7 +7,9 @@ import sys
 from ._cli import dispatch
 
 #: name -> (module with add_arguments/run, one-line help)
-COMMANDS = {}
+COMMANDS = {
+    "fit": ("sqfit.fitcli", "fit every object of a dataset (sqsim generate format) with a chain of stages"),
+}
 
 
 def main(argv=None):

@@ -243,11 +243,16 @@ def r_iou_m(superquadrics, obs, polygon="hull"):
 
 
 def _check_observations(observations):
+    """A list of Observation (TypeError otherwise); an ObservationSet passes through."""
     if isinstance(observations, ObservationSet):
-        return observations
-    if isinstance(observations, Observation) or not hasattr(observations, "__iter__"):
-        raise TypeError("observations must be a list of sqfit.Observation")
-    return ObservationSet(list(observations))
+        return observations.observations
+    if isinstance(observations, (Observation, str, bytes)) or not hasattr(observations, "__iter__"):
+        raise TypeError(f"observations must be a list of sqfit.Observation, got {type(observations).__name__}")
+    obs = list(observations)
+    for i, o in enumerate(obs):
+        if not isinstance(o, Observation):
+            raise TypeError(f"observations[{i}] must be a sqfit.Observation, got {type(o).__name__}")
+    return obs
 
 
 _NUMERICAL_ERRORS = (np.linalg.LinAlgError, FloatingPointError, ArithmeticError, ValueError)
@@ -281,15 +286,16 @@ def fit(observations, chain=DEFAULT_CHAIN, *, rng=None, options=None):
     names = parse_chain(chain)
     options = FitOptions.coerce(options)
     np.random.default_rng(rng)  # validates rng
-    obs = _check_observations(observations)
+    obs_list = _check_observations(observations)
     chain_str = "-".join(names)
     warnings = [f"view {i}: mask touches the image border (truncated silhouette)"
-                for i, o in enumerate(obs.observations) if o.touches_border]
+                for i, o in enumerate(obs_list) if o.touches_border]
     result = FitResult(None, chain=chain_str, warnings=warnings)
-    if len(obs) < 2:
-        result.status, result.message = "too_few_views", f"need >= 2 observations, got {len(obs)}"
+    if len(obs_list) < 2:
+        result.status, result.message = "too_few_views", f"need >= 2 observations, got {len(obs_list)}"
         result.seconds = time.perf_counter() - t0
         return result
+    obs = observations if isinstance(observations, ObservationSet) else ObservationSet(obs_list)
     state = None
     snapshots = []
     for name in names:

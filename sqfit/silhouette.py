@@ -286,27 +286,31 @@ def is_convex(polygon, tol=1e-9):
 def half_planes(Q):
     """Half-planes ``n . x <= c`` of convex CCW polygons: ``n (..., m, 2)``, ``c (..., m)``.
 
-    Edges shorter than :data:`_MIN_EDGE` get ``n = 0, c = 0`` (no constraint): their direction is
+    Edges shorter than :data:`_MIN_EDGE` get ``n = 0, c = 1`` (no constraint): their direction is
     rounding noise.
     """
     e = np.roll(Q, -1, axis=-2) - Q
     use = np.hypot(e[..., 0], e[..., 1]) > _MIN_EDGE
     n = np.stack([e[..., 1], -e[..., 0]], axis=-1) * use[..., None]
-    return n, n[..., 0] * Q[..., 0] + n[..., 1] * Q[..., 1]
+    return n, np.where(use, n[..., 0] * Q[..., 0] + n[..., 1] * Q[..., 1], 1.0)
 
 
-def _clipped_boundary(S, n, c):
+def _clipped_boundary(S, n, c, strict=False):
     """Twice the area contributed by the edges of S inside the convex polygons ``n . x <= c``.
 
     S : (..., k, 2); n : (..., m, 2) and c : (..., m) from :func:`half_planes` (broadcast over the
     leading axes). Green's theorem: the area of ``S n Q`` is half the sum of ``cross(a, b)`` over
     the pieces ``[a, b]`` of both boundaries inside the other polygon; each piece of an edge
-    ``s + t d`` is found by Cyrus-Beck clipping against all half-planes at once.
+    ``s + t d`` is found by Cyrus-Beck clipping against all half-planes at once. Edges lying
+    exactly on a boundary line of the other polygon count as inside unless ``strict``, so an edge
+    shared by both polygons is counted once (first pass non-strict, second strict).
     """
     d = np.roll(S, -1, axis=-2) - S
     sx, sy = S[..., :, None, 0], S[..., :, None, 1]
     nx, ny = n[..., None, :, 0], n[..., None, :, 1]
     num = c[..., None, :] - (sx * nx + sy * ny)  # (..., k, m)
+    if strict:
+        num = num - 1e-300
     # Exact zeros become -tiny: a parallel edge outside (num < 0) then gets t = +huge (empty).
     den = (d[..., :, None, 0] * nx + d[..., :, None, 1] * ny) - 1e-300
     t = num / den
@@ -336,7 +340,7 @@ def convex_iou(S, Q, q_planes=None):
     nq, cq = half_planes(Q) if q_planes is None else q_planes
     ns, cs = half_planes(S)
     with np.errstate(all="ignore"):
-        inter = 0.5 * (_clipped_boundary(S, nq, cq) + _clipped_boundary(Q, ns, cs))
+        inter = 0.5 * (_clipped_boundary(S, nq, cq) + _clipped_boundary(Q, ns, cs, strict=True))
         area_s = 0.5 * _clipped_area2(S)
         area_q = 0.5 * _clipped_area2(Q)
         union = area_s + area_q - inter
