@@ -36,12 +36,6 @@ def add_arguments(parser):
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
 
 
-def _object_ids(trial):
-    if trial.objects:
-        return [int(o["id"]) for o in trial.objects if "id" in o]
-    return [int(i) for i in np.unique(trial.images) if i != 0]
-
-
 def _rng(seed, trial_name, object_id):
     key = zlib.crc32(f"{trial_name}/{object_id}".encode())
     return np.random.default_rng(np.random.SeedSequence([seed, key]))
@@ -66,7 +60,7 @@ def fit_dataset(dataset, output, chain, samples=C.DEFAULT_SAMPLES, sampling="uni
         for path in tqdm(paths, desc="sqfit fit", unit="trial", disable=not progress):
             try:
                 trial = io.load_trial(path)
-                ids = _object_ids(trial)
+                ids = trial.object_ids
             except (OSError, ValueError) as exc:
                 out.write(json.dumps({"trial": path.name, "object_id": None, "status": "error",
                                       "message": str(exc)}) + "\n")

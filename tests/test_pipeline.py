@@ -1,0 +1,127 @@
+import json
+
+import numpy as np
+import pytest
+
+import sqfit
+from sqfit import DEFAULT_CHAIN, PAPER_CHAINS, FitOptions, Observation, fit
+from sqfit.metrics import iou_3d
+from sqfit.testing import paper_trial
+
+
+@pytest.fixture(scope="module")
+def trial():
+    return paper_trial(2)
+
+
+def test_paper_chains_in_table_order():
+    assert PAPER_CHAINS == ("3A", "3B", "1-3A", "1-2-3A", "1-2-3B", "3E", "1-3E", "1-2-3C", "1-2-3D",
+                            "1-2-3E", "1-2-3D-3E", "1-2-3D-3A", "1-2-3D-3F")
+    assert DEFAULT_CHAIN == "1-2-3D-3A"
+
+
+@pytest.mark.parametrize("chain", PAPER_CHAINS)
+def test_every_paper_chain_runs(trial, chain):
+    result = fit(trial.observations, chain)
+    assert result.status == "ok", result.message
+    assert [s.name for s in result.stages] == chain.split("-")
+    for rec in result.stages:
+        assert isinstance(rec.superquadric, sqfit.Superquadric) and rec.seconds > 0
+        assert 0.0 <= rec.r_iou_m <= 1.0
+    assert result.superquadric == result.stages[-1].superquadric
+    assert result.r_iou_m == result.stages[-1].r_iou_m
+    assert result.seconds >= sum(s.seconds for s in result.stages)
+    json.dumps(result.to_dict())
+
+
+@pytest.mark.parametrize("seed", [2, 4, 7, 8, 10])
+def test_default_chain_recovers_known_superquadrics(seed):
+    t = paper_trial(seed)
+    result = fit(t.observations)
+    assert iou_3d(result.superquadric, t.gt) > 0.7
+    # Each stage refines: 3A (maximising R-IOU) never loses R-IOU-M against its input.
+    r = [s.r_iou_m for s in result.stages]
+    assert r[3] >= r[2] - 0.01 and r[3] > 0.85
+
+
+@pytest.mark.parametrize("chain", ["1-2-3B", "1-2-3D-3F"])
+def test_riou_stages_never_lose_riou_m(chain):
+    for seed in (0, 5):
+        r = [s.r_iou_m for s in fit(paper_trial(seed).observations, chain).stages]
+        assert r[-1] >= r[-2] - 0.01
+
+
+def test_options_as_dict_and_contour_polygon(trial):
+    result = fit(trial.observations, "1-2-3D-3F", options={"polygon": "contour"})
+    assert result.status == "ok" and result.r_iou_m > 0.8
+
+
+@pytest.mark.parametrize("options, error, match", [
+    ({"bogus": 1}, ValueError, r"unknown fit option\(s\) \['bogus'\]"),
+    ({"polygon": "box"}, ValueError, "polygon must be one of"),
+    ({"penalty_riou": -1.0}, ValueError, "penalty_riou must be a finite number >= 0"),
+    ({"max_iterations_numeric": 0}, ValueError, "max_iterations_numeric must be an integer >= 1"),
+    ({"fd_step": 0.0}, ValueError, "fd_step must be > 0"),
+    ({"silhouette_directions": 4}, ValueError, "silhouette_directions must be an integer >= 8"),
+    ({"damping_numeric": "x"}, ValueError, "damping_numeric must be"),
+    ("fast", TypeError, "options must be None, a dict or a FitOptions"),
+])
+def test_bad_options(trial, options, error, match):
+    with pytest.raises(error, match=match):
+        fit(trial.observations, options=options)
+
+
+@pytest.mark.parametrize("chain, match", [("1-2-3Z", r"unknown stage\(s\) \['3Z'\]"), ("", "valid stages"),
+                                          ("1--2", "unknown stage")])
+def test_bad_chain(trial, chain, match):
+    with pytest.raises(ValueError, match=match):
+        fit(trial.observations, chain)
+
+
+def test_bad_observation_types(trial):
+    with pytest.raises(TypeError, match="observations must be a list of sqfit.Observation"):
+        fit(trial.observations[0])
+    with pytest.raises(TypeError, match=r"observations\[1\] must be a sqfit.Observation"):
+        fit([trial.observations[0], np.zeros((480, 640))])
+    with pytest.raises(TypeError, match="chain must be a string"):
+        fit(trial.observations, 3)
+
+
+@pytest.mark.parametrize("n", [0, 1])
+def test_too_few_views_is_a_status_not_an_exception(trial, n):
+    result = fit(trial.observations[:n])
+    assert result.status == "too_few_views" and result.superquadric is None
+    assert "need >= 2 observations" in result.message and result.stages == []
+
+
+def test_singular_triangulation_ends_the_chain_keeping_the_last_snapshot(trial):
+    o = trial.observations[0]
+    twin = Observation.from_mask(o.camera, trial.masks[0], 100, rng=5)
+    result = fit([o, twin], "1-2-3D")
+    assert result.status == "singular_triangulation" and result.superquadric is None
+    assert len(result.stages) == 1 and result.stages[0].superquadric is None
+    result = fit([o, twin], "3F-1-2")
+    assert result.status == "singular_triangulation"
+    assert result.superquadric == result.stages[0].superquadric is not None
+    json.dumps(result.to_dict())
+
+
+def test_numerical_error_inside_a_stage_is_caught(monkeypatch, trial):
+    def broken(state, obs, options):
+        raise np.linalg.LinAlgError("Singular matrix")
+
+    monkeypatch.setitem(sqfit.STAGES, "3D", broken)
+    result = fit(trial.observations, "1-2-3D-3A")
+    assert result.status == "numerical_error" and "LinAlgError" in result.message
+    assert [s.name for s in result.stages] == ["1", "2", "3D"]
+    assert result.superquadric == result.stages[1].superquadric
+
+
+def test_border_warning():
+    t = paper_trial(1)
+    mask = t.masks[0].copy()
+    mask[0, 300:310] = True
+    obs = [Observation.from_mask(t.cameras[0], mask, 100, rng=0)] + t.observations[1:]
+    result = fit(obs, "1-2")
+    assert result.warnings == ["view 0: mask touches the image border (truncated silhouette)"]
+    assert fit(t.observations, "1-2").warnings == []
