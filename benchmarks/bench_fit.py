@@ -1,0 +1,74 @@
+"""Median wall seconds per object for each chain of the paper's Table II, single process.
+
+    OPENBLAS_NUM_THREADS=1 .venv/bin/python benchmarks/bench_fit.py [--trials 20] [--chains 1-2-3D,1-2-3D-3A]
+
+Trials are the paper's permutation experiment rendered without OpenGL (``sqfit.testing.paper_trial``:
+3 views x 100 uniform samples). Prints, per chain, median / mean seconds per object (whole
+``sqfit.fit`` call, R-IOU-M evaluation included), median 3D IoU against the ground truth, median
+R-IOU-M, success rate (IoU > 0) and the paper's figures for comparison. ``--profile CHAIN`` prints a
+pyinstrument profile of that chain instead.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import platform
+import time
+
+os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
+
+import numpy as np  # noqa: E402
+
+import sqfit  # noqa: E402
+from sqfit.metrics import iou_3d  # noqa: E402
+from sqfit.testing import paper_trial  # noqa: E402
+
+#: Table II of the paper: chain -> (median IoU, median R-IOU-M, median time s).
+PAPER = {"3A": (0.401, 0.770, 2.669), "3B": (0.282, 0.773, 1.963), "1-3A": (0.686, 0.920, 6.607),
+         "1-2-3A": (0.741, 0.919, 5.183), "1-2-3B": (0.739, 0.897, 3.184), "3E": (0.000, 0.007, 1.075),
+         "1-3E": (0.009, 0.103, 1.009), "1-2-3C": (0.012, 0.123, 0.514), "1-2-3D": (0.516, 0.668, 0.876),
+         "1-2-3E": (0.435, 0.649, 1.350), "1-2-3D-3E": (0.516, 0.668, 0.877),
+         "1-2-3D-3A": (0.760, 0.924, 5.688), "1-2-3D-3F": (0.622, 0.793, 1.895)}
+
+
+def main(argv=None):
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--trials", type=int, default=20)
+    parser.add_argument("--seed", type=int, default=0, help="first trial seed")
+    parser.add_argument("--chains", default=",".join(sqfit.PAPER_CHAINS))
+    parser.add_argument("--profile", metavar="CHAIN", help="profile one chain with pyinstrument")
+    args = parser.parse_args(argv)
+    trials = [paper_trial(args.seed + i) for i in range(args.trials)]
+    fit_args = dict(observations=trials[0].observations, chain="1-2-3D-3A")
+    sqfit.fit(**fit_args)  # warm-up: imports and caches
+    if args.profile:
+        from pyinstrument import Profiler
+
+        profiler = Profiler(interval=0.0005)
+        profiler.start()
+        for t in trials:
+            sqfit.fit(t.observations, args.profile)
+        profiler.stop()
+        print(profiler.output_text(unicode=False))
+        return
+    print(f"# {len(trials)} paper trials (seeds {args.seed}..{args.seed + len(trials) - 1}), 3 views x 100 samples, "
+          f"{platform.processor() or platform.machine()}, python {platform.python_version()}, "
+          f"OPENBLAS_NUM_THREADS={os.environ.get('OPENBLAS_NUM_THREADS')}")
+    print("| chain | median s | mean s | paper median s | median IoU | paper IoU | median R-IOU-M | paper R-IOU-M | success |")
+    print("|---|---|---|---|---|---|---|---|---|")
+    for chain in args.chains.split(","):
+        seconds, ious, riou = [], [], []
+        for t in trials:
+            t0 = time.perf_counter()
+            result = sqfit.fit(t.observations, chain)
+            seconds.append(time.perf_counter() - t0)
+            ious.append(iou_3d(result.superquadric, t.gt) if result.superquadric is not None else 0.0)
+            riou.append(result.r_iou_m or 0.0)
+        p = PAPER.get(chain, (np.nan,) * 3)
+        print(f"| {chain} | {np.median(seconds):.4f} | {np.mean(seconds):.4f} | {p[2]:.3f} | {np.median(ious):.3f} | "
+              f"{p[0]:.3f} | {np.median(riou):.3f} | {p[1]:.3f} | {np.mean(np.array(ious) > 0):.0%} |", flush=True)
+
+
+if __name__ == "__main__":
+    main()
