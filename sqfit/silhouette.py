@@ -21,7 +21,7 @@ point sample of the surface, so it has no discretisation noise and is smooth in 
   counter-clockwise (positive shoelace area in image coordinates ``(u, v)``). For a round
   silhouette the relative area error is about ``(2 pi / K)**2 / 6`` (0.16 % at ``K = 64``).
 
-A superquadric with any point at camera depth ``<= constants``-level :data:`ZNEAR` (behind or
+A superquadric with any point at camera depth <= :data:`ZNEAR` (1 mm; behind or
 straddling the camera plane) has no bounded silhouette: :func:`silhouette` returns an empty
 ``(0, 2)`` array, and :func:`polygon_iou` of an empty polygon is 0. Nothing raises.
 """
