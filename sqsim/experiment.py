@@ -235,6 +235,7 @@ def _run_parallel(scene_dict, pending, workers, scheduler, write):
 
         # spawn: no OpenGL context or thread state is inherited from this process.
         executor = ProcessPoolExecutor(int(workers), mp_context=multiprocessing.get_context("spawn"))
+    futures = set()
     try:
         futures = {executor.submit(fit_trial, scene_dict, i, c) for i, c in pending.items()}
         while futures:
@@ -268,7 +269,7 @@ def fit_trial(scene_dict, index, chains):
         One per (object, chain), as written to ``trials.jsonl``.
     """
     import sqfit
-    from sqfit.metrics import iou_3d, iou_3d_mesh, r_iou
+    from sqfit.metrics import IOU_GRID_CELLS, iou_3d, iou_3d_mesh, r_iou
 
     from .render import get_renderer
     from .scene import parse_scene, trial_seed
@@ -307,17 +308,17 @@ def fit_trial(scene_dict, index, chains):
             if obs_error is not None:
                 records.append({**base, "status": "bad_observation", "message": obs_error, "warnings": [],
                                 "params": None, "stages": [], "time_s": 0.0,
-                                "metrics": {**score(None, 0), "success": False}})
+                                "metrics": {**score(None, IOU_GRID_CELLS), "success": False}})
                 continue
             result = sqfit.fit(obs, chain, rng=np.random.default_rng(chain_seed(seed, chain)), options=options)
             stages = []
             for k, st in enumerate(result.stages):
                 final = k == len(result.stages) - 1
-                metrics = score(st.superquadric, None if final else STAGE_IOU_CELLS) if st.superquadric else score(None, 0)
+                metrics = score(st.superquadric, IOU_GRID_CELLS if final else STAGE_IOU_CELLS)
                 stages.append({"name": st.name, "status": st.status, "seconds": st.seconds,
                                "params": None if st.superquadric is None else st.superquadric.to_vector().tolist(),
                                **metrics})
-            final_metrics = score(result.superquadric, None)
+            final_metrics = score(result.superquadric, IOU_GRID_CELLS)
             records.append({**base, "status": result.status, "message": result.message,
                             "warnings": list(result.warnings),
                             "params": None if result.superquadric is None else result.superquadric.to_vector().tolist(),
