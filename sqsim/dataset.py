@@ -92,6 +92,12 @@ def write_trial(scene, index, root, renderer=None):
     return sim.resampled
 
 
+def _ignore_sigint():
+    import signal
+
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+
+
 def _worker(scene_dict, index, root):
     # Runs in a fresh (spawned) process: the renderer and its OpenGL context are created here.
     return index, write_trial(scene_dict, index, root)
@@ -184,18 +190,17 @@ def _run(scene, todo, root, workers, progress):
         from concurrent.futures import ProcessPoolExecutor, as_completed
 
         scene_dict = scene.to_dict()
-        if scene.objects.path is not None:
-            scene_dict["objects"]["path"] = scene.objects.path
-        with ProcessPoolExecutor(workers, mp_context=multiprocessing.get_context("spawn")) as pool:
+        pool = ProcessPoolExecutor(workers, mp_context=multiprocessing.get_context("spawn"),
+                                   initializer=_ignore_sigint)
+        try:
             futures = [pool.submit(_worker, scene_dict, i, str(root)) for i in todo]
-            try:
-                for fut in as_completed(futures):
-                    results.append(fut.result()[1])
-                    bar.update()
-            except BaseException:
-                for fut in futures:
-                    fut.cancel()
-                raise
+            for fut in as_completed(futures):
+                results.append(fut.result()[1])
+                bar.update()
+        finally:
+            # On Ctrl-C or an error: drop queued trials, let each worker finish (and rename) the
+            # trial it is writing; workers ignore SIGINT so none dies half-way through a trial.
+            pool.shutdown(wait=True, cancel_futures=True)
         return results
     finally:
         bar.close()

@@ -208,3 +208,23 @@ def test_reader_errors(tmp_path):
         load_trial(d)
     with pytest.raises(OSError, match="mask file not found"):
         read_mask_png(d / "masks" / "view_01.png")
+
+
+def test_ctrl_c_with_workers_stops_cleanly(scene_file, tmp_path):
+    # Ctrl-C reaches the whole process group: the run must stop (no hang), exit 130, and leave only
+    # complete trials that a re-run accepts.
+    scene_file.write_text(SCENE.replace("trials = 4", "trials = 400"))
+    out = tmp_path / "d"
+    cmd = [sys.executable, "-m", "sqsim.cli", "generate", str(scene_file), "-o", str(out), "--workers", "2",
+           "--no-progress"]
+    proc = subprocess.Popen(cmd, stderr=subprocess.PIPE, text=True, start_new_session=True)
+    deadline = time.time() + 60
+    while time.time() < deadline and not list((out / "trials").glob("0*")):
+        time.sleep(0.05)
+    os.killpg(proc.pid, signal.SIGINT)
+    _, err = proc.communicate(timeout=60)
+    assert proc.returncode == 130 and "interrupted" in err
+    names = [p.name for p in (out / "trials").iterdir()]
+    assert 1 <= len(names) < 400 and not [n for n in names if n.startswith(".")]
+    for name in names:
+        load_trial(out / "trials" / name)
