@@ -15,10 +15,15 @@ import numpy as np
 
 from .superquadric import Superquadric, log_implicit_unit, to_local, volume
 
-__all__ = ["IOU_GRID_CELLS", "bounding_box", "iou_3d", "iou_3d_mesh", "r_iou", "success"]
+__all__ = ["IOU_GRID_CELLS", "METRIC_SILHOUETTE_DIRECTIONS", "bounding_box", "iou_3d", "iou_3d_mesh", "r_iou", "success"]
 
 #: Grid cells (over the bounding-box intersection) used by :func:`iou_3d`.
 IOU_GRID_CELLS = 2**18
+
+#: Silhouette directions for the 2D metrics: the exact silhouette polygon with 256 tangent
+#: directions is within 0.1 % IoU of a dense-mesh hull (64 directions, the fitter's working
+#: resolution, can be 1.2 % off), for ~25 % more time.
+METRIC_SILHOUETTE_DIRECTIONS = 256
 
 
 def bounding_box(sq):
@@ -160,7 +165,8 @@ def r_iou(sq, cameras, polygons):
 
     if len(cameras) != len(polygons) or len(cameras) == 0:
         raise ValueError(f"need one polygon per camera, got {len(polygons)} polygons for {len(cameras)} cameras")
-    return float(np.mean([polygon_iou(silhouette(sq, cam), poly) for cam, poly in zip(cameras, polygons)]))
+    return float(np.mean([polygon_iou(silhouette(sq, cam, METRIC_SILHOUETTE_DIRECTIONS), poly)
+                          for cam, poly in zip(cameras, polygons)]))
 
 
 def success(iou):

@@ -330,11 +330,12 @@ def fit_trial(scene_dict, index, chains):
 
 def _ground_truth_polygons(obj, sim):
     """True silhouettes in the true cameras: analytic for superquadrics, the clean mask otherwise."""
+    from sqfit.metrics import METRIC_SILHOUETTE_DIRECTIONS
     from sqfit.observation import outer_contour
     from sqfit.silhouette import silhouette
 
     if obj.superquadric is not None:
-        return [silhouette(obj.superquadric, cam) for cam in sim.true_cameras]
+        return [silhouette(obj.superquadric, cam, METRIC_SILHOUETTE_DIRECTIONS) for cam in sim.true_cameras]
     polygons = []
     for image in sim.clean_images:
         mask = image == obj.id

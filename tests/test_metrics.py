@@ -62,3 +62,19 @@ def test_bounding_box_contains_the_surface():
     lo, hi = bounding_box(a)
     assert np.all(pts >= lo - 1e-9) and np.all(pts <= hi + 1e-9)
     assert np.all(contains(a, (lo + hi)[None] / 2))
+
+
+def test_r_iou_of_the_truth_is_one_and_drops_with_error():
+    from sqfit.metrics import r_iou
+    from sqfit.silhouette import silhouette
+    from sqfit.testing import paper_trial
+
+    trial = paper_trial(5)
+    truth = [silhouette(trial.gt, cam, 256) for cam in trial.cameras]
+    assert r_iou(trial.gt, trial.cameras, truth) == pytest.approx(1.0, abs=1e-9)
+    xi = trial.gt.to_vector()
+    xi[:3] *= 1.2  # 20 % larger in every axis: projected areas grow ~1.44x
+    worse = r_iou(Superquadric.from_vector(xi), trial.cameras, truth)
+    assert 1 / 1.44 - 0.05 < worse < 0.95
+    with pytest.raises(ValueError, match="need one polygon per camera"):
+        r_iou(trial.gt, trial.cameras, truth[:2])
