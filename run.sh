@@ -2,6 +2,8 @@
 # Set up (idempotently) and run the project.
 #
 #   ./run.sh main [ARGS...]   the main job: the paper's permutation experiment on a small default
+#                             (10 trials, 4 chains, into runs/paper-small; ARGS override, e.g.
+#                             --trials 100 --chains paper -o runs/paper)
 #   ./run.sh test [ARGS...]   the test suite (pytest; ARGS go to pytest, e.g. -m slow)
 #
 # Both create or refresh the virtual environment .venv (override with SQKIT_VENV) from
@@ -58,14 +60,15 @@ cmd="${1:-}"
 case "$cmd" in
     main)
         ensure_osmesa; ensure_venv
-        exec "$VENV/bin/sqsim" demo "$@"
+        exec "$VENV/bin/sqsim" experiment scenes/paper.toml -o runs/paper-small --trials 10 \
+            --chains 1-2-3D,1-2-3A,1-2-3D-3F,default --workers 2 "$@"
         ;;
     test)
         ensure_osmesa; ensure_venv
         exec "$VENV/bin/python" -m pytest "$@"
         ;;
     *)
-        sed -n '2,9p' "$0" | sed 's/^# \{0,1\}//'
+        sed -n '2,11p' "$0" | sed 's/^# \{0,1\}//'
         [ -z "$cmd" ] || [ "$cmd" = "-h" ] || [ "$cmd" = "--help" ] || exit 2
         ;;
 esac

@@ -214,6 +214,6 @@ def example_figure(record, cameras, path):
         ax.set_title(f"after stage {stage['name']}\nIOU {stage['iou']:.2f}  R-IOU {stage['r_iou']:.2f}",
                      fontsize=8)
     fig.suptitle(f"trial {record['trial']}, chain {_chain_label(record['chain'])}")
-    fig.tight_layout()
+    fig.tight_layout(rect=(0, 0, 1, 0.9))
     fig.savefig(path, dpi=130)
     plt.close(fig)
