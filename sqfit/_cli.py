@@ -13,6 +13,17 @@ import importlib
 import sys
 
 
+class _HelpFormatter(argparse.RawDescriptionHelpFormatter):
+    """Appends ``(default: X)`` where it tells something: not for None/False/[] or help that says it."""
+
+    def _get_help_string(self, action):
+        text = action.help or ""
+        if ("default" not in text and action.default not in (None, False, [], argparse.SUPPRESS)
+                and action.option_strings):
+            text += f" (default: {action.default})"
+        return text
+
+
 def dispatch(argv, commands, prog, description):
     """Parse ``argv`` and run the chosen command.
 
@@ -34,7 +45,7 @@ def dispatch(argv, commands, prog, description):
     sub = parser.add_subparsers(dest="command", metavar="COMMAND", required=True)
     for name, (module, help_text) in commands.items():
         p = sub.add_parser(name, help=help_text, description=help_text,
-                           formatter_class=argparse.ArgumentDefaultsHelpFormatter)
+                           formatter_class=_HelpFormatter)
         p.set_defaults(_module=module)
         if argv[:1] == [name]:
             importlib.import_module(module).add_arguments(p)

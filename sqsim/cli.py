@@ -15,6 +15,7 @@ from sqfit._cli import dispatch  # noqa: E402
 COMMANDS = {
     "demo": ("sqsim.demo", "sample a superquadric, project it into three cameras, print a summary"),
     "experiment": ("sqsim.experiment", "run the permutation experiment: simulate, fit chains, evaluate, report"),
+    "sweep": ("sqsim.sweep", "run the experiment over a grid of scene values; degradation curves"),
     "generate": ("sqsim.dataset", "render a scene's trials to a mask dataset (resumable, COCO annotations)"),
 }
 

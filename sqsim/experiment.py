@@ -100,7 +100,7 @@ def parse_chains(text):
 # --------------------------------------------------------------------------- driver
 
 def run_experiment(scene, output, *, trials=None, chains=None, seed=None, workers=1, scheduler=None,
-                   progress=True):
+                   progress=True, figures=True):
     """Run (or resume) an experiment and write all outputs.
 
     Parameters
@@ -115,6 +115,8 @@ def run_experiment(scene, output, *, trials=None, chains=None, seed=None, worker
         Dask scheduler address; trials run on that cluster.
     progress : bool
         Show a progress bar with an ETA.
+    figures : bool
+        Also draw ``violin.png`` and ``example.png``.
 
     Returns
     -------
@@ -132,7 +134,7 @@ def run_experiment(scene, output, *, trials=None, chains=None, seed=None, worker
         overrides["experiment.chains"] = list(chains)
     if overrides:
         scene = scene.with_overrides(overrides)
-    chains = [sqfit.DEFAULT_CHAIN if c == "default" else c for c in scene.experiment.chains]
+    chains = list(dict.fromkeys(sqfit.DEFAULT_CHAIN if c == "default" else c for c in scene.experiment.chains))
     for chain in chains:
         check_chain(chain)
     if int(workers) < 1:
@@ -150,7 +152,7 @@ def run_experiment(scene, output, *, trials=None, chains=None, seed=None, worker
 
     new = _map_trials(scene_dict, pending, jsonl, workers, scheduler, progress)
     records += new
-    return write_reports(out, scene, chains, records)
+    return write_reports(out, scene, chains, records, figures)
 
 
 def _check_or_write_config(out, scene, chains):
@@ -347,7 +349,7 @@ def _ground_truth_polygons(obj, sim):
 
 # --------------------------------------------------------------------------- outputs
 
-def write_reports(out, scene, chains, records):
+def write_reports(out, scene, chains, records, figures=True):
     """Write summary.json, table.md, table.tex, violin.png and example.png from all records."""
     from . import report
 
@@ -362,7 +364,7 @@ def write_reports(out, scene, chains, records):
     _atomic_write(out / "table.md", report.table_markdown(summary))
     _atomic_write(out / "table.tex", report.table_latex(summary))
     best = report.best_chain(summary) if records else None
-    if best is not None:
+    if best is not None and figures:
         _atomic_figure(report.violin_figure, out / "violin.png", records, best)
         example = _typical_record(records, best)
         if example is not None:
