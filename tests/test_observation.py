@@ -83,3 +83,19 @@ def test_bad_arguments_are_reported():
         Observation.from_mask(CAM, rect_mask(), n_samples=2)
     with pytest.raises(ValueError, match="camera must be a sqfit.Camera"):
         Observation.from_mask(None, rect_mask())
+
+
+def test_cleanup_keeps_the_largest_component_and_fills_holes():
+    from sqfit.observation import clean_mask
+
+    mask = rect_mask()
+    mask[14:16, 15:18] = False  # a hole (a missed part)
+    mask[40:43, 50:53] = True  # a false-positive blob
+    cleaned = clean_mask(mask)
+    np.testing.assert_array_equal(cleaned, rect_mask())
+    assert not clean_mask(np.zeros((4, 4), bool)).any()
+    raw = Observation.from_mask(CAM, mask, rng=1)
+    tidy = Observation.from_mask(CAM, mask, rng=1, cleanup=True)
+    assert raw.area_px == 250 - 6 + 9 and tidy.area_px == 250
+    assert np.all(tidy.samples[:, 1] <= 20)  # no sample lands on the blob
+    assert np.any(raw.samples[:, 1] > 40)
