@@ -14,6 +14,7 @@ from .camera import Camera, Intrinsics, back_project, look_at, project
 from .observation import Observation
 from .pipeline import DEFAULT_CHAIN, PAPER_CHAINS, FitOptions, FitResult, StageRecord, fit
 from .stages import STAGES
+from . import stage3g  # noqa: F401  (registers stage 3G)
 from .superquadric import Superquadric
 
 __version__ = "0.1.0"

@@ -1,0 +1,389 @@
+"""Two-sided silhouette residuals from rays through image points (stage 3G, "beyond the paper").
+
+G4/G5 (:mod:`sqfit.costs`) pull back-projected samples onto the surface, so they cannot see a
+superquadric that is *larger* than the mask; the numeric R-IOU (G2) sees both sides but has no
+gradient without overlap. Here each image point ``s`` of a view gives a ray ``x(d) = c + d b``
+(camera centre ``c``, world bearing ``b`` with unit camera depth, as eq. 10), and the residual
+asks whether that ray meets the superquadric:
+
+- The *gauge* of the superquadric, ``g(t) = F(t / a) ** (e1 / 2)`` in superquadric coordinates, is
+  1-homogeneous, ``<= 1`` exactly inside, and convex for ``e <= 2`` (its sublevel sets are the
+  superquadric scaled about its centre).
+- Along a ray, ``m(xi) = min_{d >= ZNEAR} g(x(d))``: the ray meets the superquadric iff
+  ``m <= 1``; ``m`` is the scale of the smallest copy of the superquadric the ray touches.
+- Envelope theorem: ``dm / dxi = dg / dxi`` at the fixed world point ``x(d*)``, so no derivative of
+  the minimiser ``d*`` is needed. We take the derivatives of ``g`` from the radial distance G3 of
+  :func:`sqfit.costs.radial_terms` (``G3 = |y| / g - |y|`` with ``y`` the point in superquadric
+  coordinates), i.e. the same analytic machinery as G3-G5.
+
+Residual of a ray (``mode``; a weight per ray, e.g. ``1 / sqrt(rays in its view)``):
+
+- ``CONTOUR`` (points on the mask outline): ``phi(m)`` with ``phi(m) = log m`` for ``m >= 1`` and
+  ``m - 1`` below, C1 at ``m = 1``: positive when the ray misses (superquadric too small there),
+  negative when it passes through (too large), zero when it grazes the superquadric. Scale-free,
+  and finite when a ray passes through the centre (``m = 0``).
+- ``INSIDE`` (points inside the mask): ``max(0, phi(m))`` -- the ray must meet the superquadric.
+- ``OUTSIDE`` (points in a band outside the mask): ``max(0, -phi(m))`` -- the ray must miss it.
+
+The minimiser ``d*`` is found for all rays at once by a safeguarded Newton iteration on ``g`` (convex
+along a line) inside a bracket from the bounding geometry (:func:`ray_minima`).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from . import constants as C
+from ._checks import check_shape
+from .camera import bearings
+from .costs import penalty, penalty_jacobian, radial_terms, rotation_and_derivatives
+from .observation import Observation, sample_polyline
+from .silhouette import ZNEAR
+
+__all__ = ["RaySet", "CONTOUR", "INSIDE", "OUTSIDE", "contour_rays", "ray_minima", "ray_residuals",
+           "outward_normals"]
+
+#: Ray modes (see the module docstring).
+CONTOUR, INSIDE, OUTSIDE = 0, 1, 2
+#: Newton iterations of :func:`ray_minima` at most, and its relative stopping tolerance on ``d``.
+_MAX_NEWTON = 30
+#: Newton iterations at most for a ray whose warm-start bracket held (LM steps are small).
+_MAX_NEWTON_WARM = 6
+_D_RTOL = 1e-10
+#: A ray is converged once ``|d log g / dd|`` times its bracket width is below this.
+_LG_TOL = 1e-12
+#: Grid points of the initial bracket search, and the relative half-width of a warm-start bracket.
+_GRID = 24
+#: Newton runs on ``g ** _NEWTON_POWER`` (2: exact in one step for ellipsoids).
+_NEWTON_POWER = 2.0
+_WARM_BRACKET = 0.05
+_TINY = 1e-300
+
+
+@dataclass(frozen=True)
+class RaySet:
+    """Rays through image points, with what each residual asks of them.
+
+    Attributes
+    ----------
+    origins : (n, 3) float
+        Camera centre of each ray, world frame, metres.
+    directions : (n, 3) float
+        World direction per unit camera depth (``R_c @ [(u - cx) / fx, (v - cy) / fy, 1]``).
+    modes : (n,) int
+        :data:`CONTOUR`, :data:`INSIDE` or :data:`OUTSIDE`.
+    weights : (n,) float
+        Residual weights, >= 0.
+    view : (n,) int
+        View index of each ray.
+    """
+
+    origins: np.ndarray
+    directions: np.ndarray
+    modes: np.ndarray
+    weights: np.ndarray
+    view: np.ndarray
+
+    def __post_init__(self):
+        origins = check_shape(self.origins, (None, 3), "origins")
+        n = len(origins)
+        object.__setattr__(self, "origins", origins)
+        object.__setattr__(self, "directions", check_shape(self.directions, (n, 3), "directions"))
+        modes = check_shape(self.modes, (n,), "modes", dtype=np.int64)
+        if not np.all(np.isin(modes, (CONTOUR, INSIDE, OUTSIDE))):
+            raise ValueError("modes must be CONTOUR (0), INSIDE (1) or OUTSIDE (2)")
+        object.__setattr__(self, "modes", modes)
+        weights = check_shape(self.weights, (n,), "weights")
+        if np.any(weights < 0):
+            raise ValueError("weights must be >= 0")
+        object.__setattr__(self, "weights", weights)
+        object.__setattr__(self, "view", check_shape(self.view, (n,), "view", dtype=np.int64))
+
+    def __len__(self):
+        return len(self.origins)
+
+
+def outward_normals(contour):
+    """Unit outward normals at the vertices of a counter-clockwise image polygon.
+
+    Image coordinates have ``v`` pointing down, and "counter-clockwise" means a positive shoelace
+    area in ``(u, v)`` (as :attr:`sqfit.Observation.contour`); for such a polygon the outward normal
+    of an edge with direction ``(du, dv)`` is ``(dv, -du)``.
+
+    Parameters
+    ----------
+    contour : (m, 2) float
+
+    Returns
+    -------
+    normals : (m, 2) float
+        Average of the two adjacent edge normals, normalised.
+    """
+    contour = check_shape(contour, (None, 2), "contour")
+    if len(contour) < 3:
+        raise ValueError(f"contour must have at least 3 vertices, got {len(contour)}")
+    edge = np.roll(contour, -1, axis=0) - contour
+    edge_n = np.stack([edge[:, 1], -edge[:, 0]], axis=1)
+    edge_n /= np.maximum(np.linalg.norm(edge_n, axis=1, keepdims=True), _TINY)
+    normal = edge_n + np.roll(edge_n, 1, axis=0)
+    return normal / np.maximum(np.linalg.norm(normal, axis=1, keepdims=True), _TINY)
+
+
+def contour_rays(observations, n_contour=64, band_px=0.0, n_inside=0):
+    """Rays of the 3G residuals for a list of observations.
+
+    Parameters
+    ----------
+    observations : list of Observation
+    n_contour : int
+        Points per view, evenly spaced by arc length along ``Observation.contour`` (fixed phase,
+        deterministic), >= 3.
+    band_px : float
+        0: the contour points give :data:`CONTOUR` rays. > 0: each contour point gives an
+        :data:`INSIDE` ray ``band_px`` pixels inward and an :data:`OUTSIDE` ray ``band_px`` pixels
+        outward (along the outward normal).
+    n_inside : int
+        Extra :data:`INSIDE` rays per view through the observation's samples (the first
+        ``n_inside``; all of them if fewer), >= 0.
+
+    Returns
+    -------
+    rays : RaySet
+        Each view's rays weighted ``1 / sqrt(rays in that view)``, so every view counts equally.
+    """
+    if int(n_contour) != n_contour or n_contour < 3:
+        raise ValueError(f"n_contour must be an integer >= 3, got {n_contour}")
+    if not (np.isfinite(band_px) and band_px >= 0):
+        raise ValueError(f"band_px must be a finite number >= 0, got {band_px}")
+    if int(n_inside) != n_inside or n_inside < 0:
+        raise ValueError(f"n_inside must be an integer >= 0, got {n_inside}")
+    parts = []
+    for i, o in enumerate(observations):
+        if not isinstance(o, Observation):
+            raise TypeError(f"observations[{i}] must be a sqfit.Observation, got {type(o).__name__}")
+        points, modes = _view_points(o, int(n_contour), float(band_px), int(n_inside))
+        cam = o.camera
+        directions = bearings(cam, points) @ cam.rotation.T
+        weights = np.full(len(points), 1.0 / np.sqrt(len(points)))
+        parts.append((np.broadcast_to(cam.center, directions.shape), directions, modes, weights,
+                      np.full(len(points), i)))
+    if not parts:
+        raise ValueError("observations must not be empty")
+    return RaySet(*(np.concatenate(col) for col in zip(*parts)))
+
+
+def _view_points(observation, n_contour, band_px, n_inside):
+    rng = np.random.default_rng(0)  # fixed phase: the rays are a deterministic function of the mask
+    on = sample_polyline(observation.contour, n_contour, rng)
+    if band_px > 0:
+        # Normals at the sample points: those of the nearest contour vertices.
+        normals = outward_normals(observation.contour)
+        nearest = np.argmin(((on[:, None, :] - observation.contour[None]) ** 2).sum(-1), axis=1)
+        nrm = normals[nearest]
+        points = [on - band_px * nrm, on + band_px * nrm]
+        modes = [np.full(n_contour, INSIDE), np.full(n_contour, OUTSIDE)]
+    else:
+        points, modes = [on], [np.full(n_contour, CONTOUR)]
+    if n_inside:
+        inner = observation.samples[:n_inside]
+        points.append(inner)
+        modes.append(np.full(len(inner), INSIDE))
+    return np.concatenate(points), np.concatenate(modes)
+
+
+def _line_log_gauge(q0, u, d, e1, e2):
+    """``log g`` along lines ``q0 + d u`` (unit-size superquadric coordinates) and its first two
+    derivatives in ``d``.
+
+    ``q0``, ``u`` are ``(3, n)`` (coordinate-major, for speed), ``d`` is ``(n,)``. With
+    ``s_i = log|q_i|``, ``k_i = u_i / q_i``, ``L = log F`` (a nested log-sum-exp of ``2/e2 s_x``,
+    ``2/e2 s_y`` and ``2/e1 s_z``) and ``log g = e1 / 2 L``, the chain rule through the two
+    log-sum-exps gives ``lg' = wA K1 + wB k_z`` and
+    ``lg'' = wA ((p2 - 1) sum_j w_j k_j^2 - p2 K1^2) - wB k_z^2 + p1 wA wB (K1 - k_z)^2`` with
+    ``K1 = sum_j w_j k_j`` over ``j = x, y`` and the softmax weights ``w`` of each log-sum-exp.
+    """
+    q = q0 + d * u
+    q[q == 0.0] = _TINY
+    p1, p2 = 2.0 / e1, 2.0 / e2
+    s = np.log(np.abs(q))
+    k = u / q
+    dx = p2 * (s[0] - s[1])
+    # softmax weight of x in the x-y log-sum-exp, and that log-sum-exp, without overflow
+    wx = 0.5 * (1.0 + np.tanh(0.5 * dx))
+    XY = p2 * np.maximum(s[0], s[1]) + np.log1p(np.exp(-np.abs(dx)))
+    A, Bz = (p1 / p2) * XY, p1 * s[2]
+    dA = A - Bz
+    wA = 0.5 * (1.0 + np.tanh(0.5 * dA))
+    L = np.maximum(A, Bz) + np.log1p(np.exp(-np.abs(dA)))
+    wB = 1.0 - wA
+    kx, ky, kz = k
+    K1 = ky + wx * (kx - ky)
+    K2 = ky * ky + wx * (kx * kx - ky * ky)
+    lg1 = kz + wA * (K1 - kz)
+    lg2 = wA * ((p2 - 1.0) * K2 - p2 * K1 * K1) - wB * kz * kz + p1 * wA * wB * (K1 - kz) ** 2
+    return L / p1, lg1, lg2
+
+
+def ray_minima(xi, origins, directions, d0=None):
+    """Minimiser and minimum of the superquadric's gauge along rays.
+
+    Parameters
+    ----------
+    xi : (11,) float
+        Parameter vector (``|a|`` is used).
+    origins, directions : (n, 3) float
+        Rays ``x(d) = origin + d * direction``, ``d >= ZNEAR``.
+    d0 : (n,) float, optional
+        Starting points (e.g. the minimisers at a nearby ``xi``): where ``g'`` changes sign within
+        :data:`_WARM_BRACKET` (relative) of ``d0``, that is the bracket; the other rays use the grid.
+
+    Returns
+    -------
+    d : (n,) float
+        ``argmin_{d >= ZNEAR} g(x(d))``.
+    log_m : (n,) float
+        ``log g`` at ``d``; the ray meets the superquadric iff ``log_m <= 0``.
+
+    Notes
+    -----
+    ``g`` is convex along a line, so ``g'`` changes sign once. The bracket: with ``rho`` the
+    distance of the line from the centre, ``g(y) >= max_i |y_i| / a_i >= |y| / (sqrt(3) a_max)`` and
+    ``g(y) <= sum_i |y_i| / a_i <= sqrt(3) |y| / a_min`` (the superquadric lies between the
+    octahedron ``e = 2`` and the box ``e = 0``), so the minimiser is within
+    ``3 rho a_max / a_min`` of the point of the line nearest the centre. That bracket is cut to two
+    cells of a :data:`_GRID`-point grid around the grid minimum (one vectorised evaluation), then
+    Newton steps on ``g ** 2`` (exact in one step for ellipsoids) that leave the bracket, which
+    shrinks at every evaluation, are replaced by bisection.
+    """
+    a = np.maximum(np.abs(xi[0:3]), _TINY)
+    e1, e2 = float(xi[3]), float(xi[4])
+    R = rotation_and_derivatives(xi[8:11])[0]
+    rel0 = (origins - xi[5:8]) @ R
+    ul = directions @ R
+    q0, u = np.ascontiguousarray((rel0 / a).T), np.ascontiguousarray((ul / a).T)
+    bb = np.einsum("ij,ij->i", ul, ul)
+    dc = -np.einsum("ij,ij->i", rel0, ul) / bb
+    rho = np.linalg.norm(rel0 + dc[:, None] * ul, axis=1)
+    half = 1.01 * 3.0 * rho * (a.max() / a.min()) / np.sqrt(bb) + 1e-9 * (np.abs(dc) + 1.0)
+    lo = np.maximum(dc - half, ZNEAR)
+    hi = np.maximum(dc + half, 2.0 * ZNEAR)
+    n = len(lo)
+    tol = _D_RTOL * (np.abs(dc) + 1.0)
+    cold = np.ones(n, dtype=bool)
+    if d0 is not None:
+        d0 = np.clip(np.asarray(d0, dtype=np.float64), lo, hi)
+        delta = _WARM_BRACKET * (np.abs(d0) + 1.0)
+        probe = np.concatenate([np.maximum(d0 - delta, lo), np.minimum(d0 + delta, hi)])
+        slope = _line_log_gauge(np.tile(q0, 2), np.tile(u, 2), probe, e1, e2)[1]
+        ok = (slope[:n] <= 0) & (slope[n:] >= 0)
+        lo = np.where(ok, probe[:n], lo)
+        hi = np.where(ok, probe[n:], hi)
+        cold = ~ok
+    d = 0.5 * (lo + hi)
+    idx = np.flatnonzero(cold)
+    if len(idx):
+        t = np.linspace(0.0, 1.0, _GRID)
+        grid = lo[idx, None] + (hi[idx] - lo[idx])[:, None] * t  # (k, G)
+        lg = _line_log_gauge(np.repeat(q0[:, idx], _GRID, 1), np.repeat(u[:, idx], _GRID, 1), grid.ravel(),
+                             e1, e2)[0]
+        best = np.argmin(lg.reshape(len(idx), _GRID), axis=1)
+        rows = np.arange(len(idx))
+        d[idx] = grid[rows, best]
+        lo[idx] = grid[rows, np.maximum(best - 1, 0)]
+        hi[idx] = grid[rows, np.minimum(best + 1, _GRID - 1)]
+    # rtsafe (Numerical Recipes): Newton, but bisect when the step leaves the bracket or does not
+    # shrink to half the step before last (Newton overshoots at kinks, where g'' is unbounded).
+    idx = np.arange(n)
+    dd, lo_a, hi_a, tola = d.copy(), lo, hi, tol
+    dx = dx_old = hi - lo
+    qa, ua = q0, u
+    budget = np.where(cold, _MAX_NEWTON, _MAX_NEWTON_WARM)
+    for it in range(1, _MAX_NEWTON + 1):
+        _, lg1, lg2 = _line_log_gauge(qa, ua, dd, e1, e2)
+        neg = lg1 < 0
+        lo_a = np.where(neg, dd, lo_a)
+        hi_a = np.where(neg, hi_a, dd)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            step = -lg1 / (lg2 + _NEWTON_POWER * lg1 * lg1)
+        new = dd + step
+        bad = ~np.isfinite(new) | (new < lo_a) | (new > hi_a) | (np.abs(step) > 0.5 * np.abs(dx_old))
+        new = np.where(bad, 0.5 * (lo_a + hi_a), new)
+        dx_old, dx = dx, np.abs(new - dd)
+        d[idx] = new
+        keep = (dx > tola) & (hi_a - lo_a > tola) & (budget > it)
+        if not keep.any():
+            break
+        if not keep.all():
+            idx, new, lo_a, hi_a, tola, budget = idx[keep], new[keep], lo_a[keep], hi_a[keep], tola[keep], budget[keep]
+            dx, dx_old, qa, ua = dx[keep], dx_old[keep], qa[:, keep], ua[:, keep]
+        dd = new
+    log_m = _line_log_gauge(q0, u, d, e1, e2)[0]
+    return d, log_m
+
+
+def _phi(log_m):
+    """``phi(m)``: ``log m`` for ``m >= 1``, ``m - 1`` below; and ``d phi / d log m``."""
+    m = np.exp(np.minimum(log_m, 0.0))
+    inside = log_m < 0
+    return np.where(inside, m - 1.0, log_m), np.where(inside, m, 1.0)
+
+
+def log_gauge_jacobian(xi, points):
+    """``d log g / d xi`` at fixed world points, from :func:`sqfit.costs.radial_terms`.
+
+    ``G3 = S - |y|`` with ``S = |y| / g``, so ``log g = log|y| - log S``; ``|y| = |x - p|`` depends on
+    ``p`` only (``d|y| / dp = -(x - p) / |y|``).
+
+    Returns
+    -------
+    log_g : (n,) float
+    d_xi : (n, 11) float
+    """
+    g3, d_g3, _ = radial_terms(xi, points)
+    rel = points - xi[5:8]
+    norm = np.linalg.norm(rel, axis=1)
+    norm = np.where(norm > 0, norm, _TINY)
+    S = g3 + norm
+    d_norm_p = -rel / norm[:, None]
+    d_xi = -d_g3 / S[:, None]
+    d_xi[:, 5:8] = d_norm_p / norm[:, None] - (d_g3[:, 5:8] + d_norm_p) / S[:, None]
+    return np.log(norm) - np.log(S), d_xi
+
+
+def ray_residuals(xi, rays, weight=C.PENALTY_ANALYTIC, d0=None):
+    """3G residuals (see the module docstring) and their analytic Jacobian.
+
+    Parameters
+    ----------
+    xi : (11,) float
+    rays : RaySet
+    weight : float
+        ``c_p`` of the penalty rows (eq. 7).
+    d0 : (n,) float, optional
+        Warm start of the ray minimisers.
+
+    Returns
+    -------
+    r : (n + 11,) float
+        Weighted ray residuals, then the penalty.
+    J : (n + 11, 11) float
+        ``d r / d xi``.
+    d : (n,) float
+        Ray minimisers (pass back as ``d0`` at a nearby ``xi``).
+    """
+    xi = np.asarray(xi, dtype=np.float64)
+    d, _ = ray_minima(xi, rays.origins, rays.directions, d0)
+    log_m, d_log_m = log_gauge_jacobian(xi, rays.origins + d[:, None] * rays.directions)
+    phi, dphi = _phi(log_m)
+    modes = rays.modes
+    active = np.ones(len(phi), dtype=bool)
+    active[modes == INSIDE] = phi[modes == INSIDE] > 0
+    active[modes == OUTSIDE] = phi[modes == OUTSIDE] < 0
+    scale = rays.weights * active
+    r_rays = scale * phi
+    J_rays = (scale * dphi)[:, None] * d_log_m
+    r = np.concatenate([r_rays, penalty(xi, weight)])
+    J = np.vstack([J_rays, np.diag(penalty_jacobian(xi, weight))])
+    return r, J, d
