@@ -88,6 +88,8 @@ def get_renderer(backend="osmesa", intrinsics=None):
     ------
     ValueError
         Unknown backend, or an OpenGL backend other than the one this process already uses.
+    OSError
+        No off-screen OpenGL context can be created (e.g. libOSMesa missing).
     """
     check_choice(backend, BACKENDS, "renderer backend")
     if not isinstance(intrinsics, Intrinsics):
@@ -331,7 +333,7 @@ def _make_platform(backend, width, height):
             platform = egl.EGLPlatform(width, height, device=device)
         platform.init_context()
     except Exception as exc:  # missing libOSMesa / libEGL surfaces here as many exception types
-        raise RuntimeError(f"cannot create an off-screen OpenGL context with the {backend!r} backend "
+        raise OSError(f"cannot create an off-screen OpenGL context with the {backend!r} backend "
                            f"({type(exc).__name__}: {exc}); for OSMesa install libosmesa6, or use "
                            "renderer = \"polygon\"") from exc
     return platform

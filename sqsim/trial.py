@@ -69,7 +69,7 @@ def sample_trial(scene, index, renderer=None):
 
     Raises
     ------
-    RuntimeError
+    ValueError
         No observable draw in ``objects.max_attempts`` attempts (the scene is impossible).
     """
     if renderer is None:
@@ -86,7 +86,7 @@ def sample_trial(scene, index, renderer=None):
         areas = (images[:, None] == ids[None, :, None, None]).sum(axis=(2, 3))
         if areas.min() >= min_area:
             return objects, cameras, images, attempt
-    raise RuntimeError(f"{scene.source}: no observable trial in {scene.objects.max_attempts} draws "
+    raise ValueError(f"{scene.source}: no observable trial in {scene.objects.max_attempts} draws "
                        "(objects too large or too far out for the cameras?); adjust [objects] or [trajectory]")
 
 

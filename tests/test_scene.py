@@ -183,7 +183,7 @@ def test_resampled_trials_are_observable():
 
 def test_impossible_scene_is_reported():
     s = parse_scene({"objects": {"size": [20.0, 30.0], "max_attempts": 5}, "masks": {"renderer": "polygon"}})
-    with pytest.raises(RuntimeError, match="no observable trial in 5 draws"):
+    with pytest.raises(ValueError, match="no observable trial in 5 draws"):
         sample_trial(s, 0)
 
 
