@@ -32,6 +32,8 @@ def add_arguments(parser):
     parser.add_argument("--sampling", default="uniform", choices=SAMPLING_METHODS)
     parser.add_argument("--polygon", default="hull", choices=POLYGON_KINDS,
                         help="observation polygon of the R-IOU costs")
+    parser.add_argument("--cleanup", action="store_true",
+                        help="keep each mask's largest component and fill its holes before sampling")
     parser.add_argument("--seed", type=int, default=0, help="seed of the mask sampling")
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
 
@@ -42,7 +44,7 @@ def _rng(seed, trial_name, object_id):
 
 
 def fit_dataset(dataset, output, chain, samples=C.DEFAULT_SAMPLES, sampling="uniform", polygon="hull",
-                seed=0, progress=True):
+                seed=0, progress=True, cleanup=False):
     """Fit every object of every trial; returns ``(records written, errors)``."""
     from tqdm import tqdm
 
@@ -70,7 +72,7 @@ def fit_dataset(dataset, output, chain, samples=C.DEFAULT_SAMPLES, sampling="uni
             for oid in ids:
                 record = {"trial": trial.name, "object_id": oid}
                 try:
-                    obs = io.observations(trial, oid, samples, sampling, _rng(seed, trial.name, oid))
+                    obs = io.observations(trial, oid, samples, sampling, _rng(seed, trial.name, oid), cleanup)
                     record.update(fit(obs, chain, options=options).to_dict())
                 except (OSError, ValueError, TypeError) as exc:
                     record.update({"chain": chain, "status": "error", "message": str(exc)})
@@ -82,6 +84,6 @@ def fit_dataset(dataset, output, chain, samples=C.DEFAULT_SAMPLES, sampling="uni
 
 def run(args):
     n, errors = fit_dataset(args.dataset, args.output, args.chain, args.samples, args.sampling, args.polygon,
-                            args.seed, progress=not args.no_progress)
+                            args.seed, progress=not args.no_progress, cleanup=args.cleanup)
     print(f"wrote {n} fit record(s) to {args.output}; {errors} not ok")
     return 0

@@ -199,7 +199,7 @@ def iter_trials(dataset_dir):
 
 
 def observations_from_images(cameras, images, object_id, n_samples=C.DEFAULT_SAMPLES, sampling="uniform",
-                             rng=None):
+                             rng=None, cleanup=False):
     """Observations of one object in every view where its mask is not empty.
 
     Parameters
@@ -212,6 +212,8 @@ def observations_from_images(cameras, images, object_id, n_samples=C.DEFAULT_SAM
     sampling : {"uniform", "contour", "mixed"}
     rng : None, int or numpy.random.Generator
         One generator, used view after view in order.
+    cleanup : bool
+        Keep each mask's largest component and fill its holes (``sqfit.observation.clean_mask``).
 
     Returns
     -------
@@ -226,13 +228,14 @@ def observations_from_images(cameras, images, object_id, n_samples=C.DEFAULT_SAM
     for cam, image in zip(cameras, images):
         mask = image == object_id
         if mask.any():
-            out.append(Observation.from_mask(cam, mask, n_samples=n_samples, sampling=sampling, rng=rng))
+            out.append(Observation.from_mask(cam, mask, n_samples=n_samples, sampling=sampling, rng=rng,
+                                             cleanup=cleanup))
     return out
 
 
-def observations(trial, object_id, n_samples=C.DEFAULT_SAMPLES, sampling="uniform", rng=None):
+def observations(trial, object_id, n_samples=C.DEFAULT_SAMPLES, sampling="uniform", rng=None, cleanup=False):
     """Observations of one object of a loaded trial, with the cameras the fitter should use.
 
     See :func:`observations_from_images`; returns a list (possibly with fewer than two views).
     """
-    return observations_from_images(trial.cameras, trial.images, object_id, n_samples, sampling, rng)
+    return observations_from_images(trial.cameras, trial.images, object_id, n_samples, sampling, rng, cleanup)

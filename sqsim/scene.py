@@ -90,6 +90,12 @@ def _choice(choices):
     return check
 
 
+def _bool(v):
+    if not isinstance(v, bool):
+        raise ValueError(f"must be true or false, got {v!r}")
+    return v
+
+
 def _string(v):
     if not isinstance(v, str) or not v:
         raise ValueError(f"must be a non-empty string, got {v!r}")
@@ -175,6 +181,7 @@ class MasksConfig:
     samples: int = 100
     sampling: str = "uniform"
     min_area_px: int = 200
+    cleanup: bool = False
 
 
 @dataclass(frozen=True)
@@ -206,7 +213,7 @@ _CHECKS = {
                 "position": _range(), "rotation": _range(), "shape": _range(lo=sqfit.constants.SHAPE_DOMAIN[0], hi=sqfit.constants.SHAPE_DOMAIN[1]),
                 "path": _optional_path, "mesh_resolution": _int(2), "max_attempts": _int(1)},
     "masks": {"renderer": _choice(RENDERERS), "samples": _int(3), "sampling": _choice(SAMPLING_METHODS),
-              "min_area_px": _int(0)},
+              "min_area_px": _int(0), "cleanup": _bool},
     "noise": {"erosion_px": _int(0), "dilation_px": _int(0), "boundary_jitter_px": _float(0),
               "dropout": _float(0, 1, hi_open=True), "false_blobs": _int(0),
               "pose_rotation_deg": _float(0), "pose_translation_m": _float(0)},

@@ -69,8 +69,10 @@ def run(args):
 
 
 def parse_value(text):
-    """A command-line value: int if it looks like one, then float, else the string itself."""
+    """A command-line value: true/false, an int if it looks like one, then float, else the string."""
     text = text.strip()
+    if text.lower() in ("true", "false"):
+        return text.lower() == "true"
     for kind in (int, float):
         try:
             return kind(text)

@@ -123,7 +123,7 @@ def simulate_trial(scene, index, renderer=None):
 def observations(sim_trial, object_id, scene):
     """Observations of one object for the fitter: noisy masks, noisy cameras.
 
-    Uses ``scene.masks.samples`` and ``scene.masks.sampling``, seeded from the trial seed and the
+    Uses ``scene.masks.samples``, ``scene.masks.sampling`` and ``scene.masks.cleanup``, seeded from the trial seed and the
     object id; views where the object's noisy mask is empty are skipped.
 
     Returns
@@ -139,7 +139,8 @@ def observations(sim_trial, object_id, scene):
     seed = child_seed(child_seed(trial_seed(scene.experiment.seed, sim_trial.index), SEED_STREAMS["samples"]),
                       int(object_id))
     obs = observations_from_images(sim_trial.cameras, sim_trial.images, int(object_id),
-                                   scene.masks.samples, scene.masks.sampling, np.random.default_rng(seed))
+                                   scene.masks.samples, scene.masks.sampling, np.random.default_rng(seed),
+                                   cleanup=scene.masks.cleanup)
     if len(obs) < 2:
         raise ValueError(f"object {object_id} of trial {sim_trial.index} is visible in {len(obs)} view(s) "
                          "after mask noise; fitting needs at least 2")

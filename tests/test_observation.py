@@ -99,3 +99,14 @@ def test_cleanup_keeps_the_largest_component_and_fills_holes():
     assert raw.area_px == 250 - 6 + 9 and tidy.area_px == 250
     assert np.all(tidy.samples[:, 1] <= 20)  # no sample lands on the blob
     assert np.any(raw.samples[:, 1] > 40)
+
+
+def test_dataset_reader_passes_cleanup_through():
+    from sqfit.io import observations_from_images
+
+    image = rect_mask().astype(np.uint16)
+    image[40:43, 50:53] = 1  # a false-positive blob with the object's id
+    images = np.stack([image, image])
+    raw = observations_from_images([CAM, CAM], images, 1, rng=0)
+    tidy = observations_from_images([CAM, CAM], images, 1, rng=0, cleanup=True)
+    assert [o.area_px for o in raw] == [259, 259] and [o.area_px for o in tidy] == [250, 250]

@@ -92,3 +92,10 @@ def test_cli_needs_something_to_sweep(tmp_path):
     out = subprocess.run([sys.executable, "-m", "sqsim.cli", "sweep", str(scene), "-o", str(tmp_path / "o")],
                          capture_output=True, text=True)
     assert out.returncode == 2 and "nothing to sweep" in out.stderr
+
+
+def test_boolean_scene_keys_can_be_swept():
+    assert parse_value("true") is True and parse_value("False") is False
+    assert tiny_scene().with_overrides({"masks.cleanup": True}).masks.cleanup is True
+    with pytest.raises(ValueError, match="masks.cleanup must be true or false"):
+        tiny_scene().with_overrides({"masks.cleanup": "yes"})
