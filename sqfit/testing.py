@@ -17,6 +17,7 @@ import numpy as np
 
 from .camera import Camera, Intrinsics, look_at
 from .observation import Observation
+from .raster import fill_convex_polygon
 from .silhouette import silhouette
 from .superquadric import Superquadric
 
@@ -41,17 +42,11 @@ def random_superquadric(rng):
 
 def polygon_mask(sq, camera, n_directions=256):
     """``(h, w) bool`` mask of the superquadric's silhouette, by pixel centre; None if behind the camera."""
-    from skimage.draw import polygon
-
     poly = silhouette(sq, camera, n_directions)
-    k = camera.intrinsics
-    mask = np.zeros((k.height, k.width), dtype=bool)
     if len(poly) == 0:
         return None
-    # skimage tests integer (row, col) lattice points: shift by half a pixel for pixel centres.
-    rr, cc = polygon(poly[:, 1] - 0.5, poly[:, 0] - 0.5, shape=mask.shape)
-    mask[rr, cc] = True
-    return mask
+    k = camera.intrinsics
+    return fill_convex_polygon(poly, (k.height, k.width))
 
 
 @dataclass

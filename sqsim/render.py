@@ -40,6 +40,7 @@ import numpy as np
 
 from sqfit import Camera, Intrinsics, project
 from sqfit._checks import check_choice
+from sqfit.raster import fill_convex_polygon
 
 __all__ = ["BACKENDS", "Renderer", "GLRenderer", "PolygonRenderer", "get_renderer",
            "projection_matrix", "instance_masks"]
@@ -365,12 +366,14 @@ def _hull(pixels):
 
 
 def polygon_mask(polygon, shape):
-    """Pixels whose centres lie inside a polygon given in image coordinates.
+    """Pixels whose centres lie inside a convex polygon given in image coordinates.
+
+    See ``sqfit.raster.fill_convex_polygon`` (exact scanline fill, half-open pixel-centre rule).
 
     Parameters
     ----------
     polygon : (m, 2) float
-        ``(u, v)`` vertices, image coordinates (``sqfit.camera`` convention).
+        ``(u, v)`` vertices of a convex polygon, image coordinates (``sqfit.camera`` convention).
     shape : (2,) int
         ``(height, width)``.
 
@@ -378,13 +381,7 @@ def polygon_mask(polygon, shape):
     -------
     mask : (h, w) bool
     """
-    from skimage.draw import polygon as draw_polygon
-
-    mask = np.zeros(shape, dtype=bool)
-    # scikit-image puts integer (row, col) at pixel centres; ours are at (j + 0.5, i + 0.5).
-    rr, cc = draw_polygon(polygon[:, 1] - 0.5, polygon[:, 0] - 0.5, shape=shape)
-    mask[rr, cc] = True
-    return mask
+    return fill_convex_polygon(polygon, shape)
 
 
 def instance_masks(image, ids=None):
