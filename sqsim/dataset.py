@@ -247,7 +247,7 @@ def build_annotations(root):
 # --- command line -----------------------------------------------------------------------------------
 
 def add_arguments(parser):
-    parser.add_argument("scene", help="scene TOML file (see DESIGN.md)")
+    parser.add_argument("scene", help="scene TOML file (keys: README, \"Scene files\"; example: scenes/paper.toml)")
     parser.add_argument("-o", "--output", required=True, help="dataset directory (created; re-running resumes)")
     parser.add_argument("--trials", type=int, default=None, help="number of trials (default: experiment.trials)")
     parser.add_argument("--seed", type=int, default=None, help="seed (default: experiment.seed)")

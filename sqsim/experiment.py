@@ -13,7 +13,12 @@ Output directory:
 - ``trials.jsonl``: one record per (trial, object, chain): ground truth, fitted parameters and
   metrics after every stage, seconds, status. A line cut short by a kill is dropped on resume.
 - ``summary.json``, ``table.md``, ``table.tex``, ``violin.png``, ``example.png``: rebuilt from
-  all records at the end of every run.
+  all records at the end of every run. ``summary.json`` is the stable interface::
+
+    {"scene": "paper", "trials": 100, "resampled": 7, "seed": 0,
+     "chains": {"1-2-3D-3A": {"iou": {"median": .., "mean": .., "std": ..}, "r_iou": {..},
+                              "r_iou_m": {..}, "r_iou_m_contour": {..}, "time_s": {..},
+                              "success_rate": 1.0, "errors": 0, "fits": 100}}}
 
 Metrics (``sqfit.metrics``): IOU = 3D IoU with the ground truth; R-IOU = mean 2D IoU of the
 fitted and true silhouettes in the true cameras; R-IOU-M = mean 2D IoU of the fitted silhouette

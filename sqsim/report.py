@@ -39,7 +39,7 @@ def stats(values):
 
 
 def summarize(records, chains, scene_name, seed, trials, resampled):
-    """The ``summary.json`` dictionary (DESIGN.md) from experiment records.
+    """The ``summary.json`` dictionary from experiment records (shape: ``sqsim.experiment`` docstring).
 
     Parameters
     ----------

@@ -1,7 +1,7 @@
 """Scene files: a validated, immutable description of a simulation, and seeded trial sampling.
 
 A scene is a TOML file with the sections ``[experiment]``, ``[camera]``, ``[trajectory]``,
-``[objects]``, ``[masks]``, ``[noise]`` and ``[fit]`` (keys and example values in DESIGN.md).
+``[objects]``, ``[masks]``, ``[noise]`` and ``[fit]`` (keys and defaults: README, "Scene files"; example: scenes/paper.toml).
 Every section and key is optional (defaults are the paper's values, Table I); an unknown section
 or key, a malformed file or a bad value raises ``ValueError`` naming the file, the key and the
 problem.
