@@ -43,6 +43,7 @@ _LAMBDA_MAX = 1e16
 _SCALE_FLOOR = 1e-12
 
 
+
 class DenseJacobian:
     """A dense ``(m, n)`` Jacobian."""
 
@@ -124,8 +125,11 @@ class LMResult:
         A key of :data:`STATUS`.
     message : str
     nfev : int
-        Model evaluations (each returns residuals and Jacobian).
+        Model evaluations (each returns residuals and a Jacobian, possibly lazy).
     iterations : int
+    njev : int
+        Jacobians built: every evaluation for an eager model, only accepted points (and the start)
+        for a lazy one.
     """
 
     x: np.ndarray
@@ -134,6 +138,7 @@ class LMResult:
     message: str
     nfev: int
     iterations: int
+    njev: int = 0
 
     @property
     def converged(self):
@@ -141,13 +146,16 @@ class LMResult:
 
 
 def levenberg_marquardt(model, x0, *, max_iterations=100, ftol=1e-8, xtol=1e-8, gtol=1e-10, atol=0.0,
-                        lam0=1e-3, scaling="identity"):
+                        lam0=1e-3, scaling="identity", hessian="gauss-newton"):
     """Minimise ``0.5 * ||r(x)||**2`` by Levenberg-Marquardt.
 
     Parameters
     ----------
     model : callable
-        ``model(x) -> (r, J)``: residuals ``(m,)`` and a Jacobian operator at ``x`` ``(n,)``.
+        ``model(x) -> (r, J)``: residuals ``(m,)`` and a Jacobian operator at ``x`` ``(n,)``, or a
+        zero-argument callable returning that operator (a *lazy* Jacobian: it is only called at
+        the start and at accepted points, so an expensive finite-difference Jacobian is not paid
+        for at trial points that are rejected).
     x0 : (n,) float
     max_iterations : int
         Maximum number of steps tried (accepted or not).
@@ -159,6 +167,9 @@ def levenberg_marquardt(model, x0, *, max_iterations=100, ftol=1e-8, xtol=1e-8, 
         Initial damping (times the largest diagonal entry of ``J^T J`` for ``identity``).
     scaling : {"identity", "marquardt"}
         Damping matrix: ``I`` or the running maximum of ``diag(J^T J)``.
+    hessian : {"gauss-newton", "secant"}
+        Model Hessian ``J^T J``, or ``J^T J + S`` with ``S`` a structured secant estimate of the
+        second-order term ``sum r_i H_i`` (:class:`SecantTerm`; dense Jacobians only).
 
     Returns
     -------
@@ -168,12 +179,16 @@ def levenberg_marquardt(model, x0, *, max_iterations=100, ftol=1e-8, xtol=1e-8, 
     """
     x = np.array(x0, dtype=np.float64)
     r, J = model(x)
-    nfev = 1
+    nfev = njev = 1
     cost = 0.5 * float(r @ r)
-    if not (np.isfinite(cost) and J.finite()):
-        return LMResult(x, cost, "nonfinite", STATUS["nonfinite"], nfev, 0)
+    J = _operator(J) if np.isfinite(cost) else None
+    if J is None or not J.finite():
+        return LMResult(x, cost, "nonfinite", STATUS["nonfinite"], nfev, 0, njev)
     if scaling not in ("identity", "marquardt"):
         raise ValueError(f"scaling must be 'identity' or 'marquardt', got {scaling!r}")
+    if hessian not in ("gauss-newton", "secant"):
+        raise ValueError(f"hessian must be 'gauss-newton' or 'secant', got {hessian!r}")
+    secant = SecantTerm(len(x)) if hessian == "secant" else None
     marquardt = scaling == "marquardt"
     diag0 = J.diag()
     scale = np.maximum(diag0, _SCALE_FLOOR) if marquardt else np.ones_like(x)
@@ -190,7 +205,7 @@ def levenberg_marquardt(model, x0, *, max_iterations=100, ftol=1e-8, xtol=1e-8, 
             status = "gtol"
             break
         try:
-            dx = J.solve(g, lam, scale)
+            dx = J.solve(g, lam, scale) if secant is None else secant.solve(J, g, lam, scale)
         except np.linalg.LinAlgError:
             dx = np.full_like(x, np.nan)
         x_new = x + dx
@@ -202,11 +217,18 @@ def levenberg_marquardt(model, x0, *, max_iterations=100, ftol=1e-8, xtol=1e-8, 
             cost_new = np.inf
         Jdx = J.apply(dx) if np.all(np.isfinite(dx)) else np.zeros_like(r)
         predicted = -float(g @ dx) - 0.5 * float(Jdx @ Jdx)
+        if secant is not None and np.all(np.isfinite(dx)):
+            predicted -= 0.5 * float(dx @ secant.S @ dx)
         actual = cost - cost_new
         rho = actual / predicted if predicted > 0 else -1.0
+        if np.isfinite(cost_new) and rho > 0:
+            J_new = _operator(J_new)
+            njev += 1
         if np.isfinite(cost_new) and rho > 0 and J_new.finite():
             small_step = np.linalg.norm(dx) <= xtol * (np.linalg.norm(x) + xtol)
             small_gain = actual <= ftol * cost and predicted <= ftol * cost
+            if secant is not None:
+                secant.update(dx, J, J_new, r, r_new)
             x, r, J, cost = x_new, r_new, J_new, cost_new
             if marquardt:
                 scale = np.maximum(scale, J.diag())
@@ -227,4 +249,46 @@ def levenberg_marquardt(model, x0, *, max_iterations=100, ftol=1e-8, xtol=1e-8, 
             if np.linalg.norm(dx) <= xtol * (np.linalg.norm(x) + xtol):
                 status = "xtol"
                 break
-    return LMResult(x, cost, status, STATUS[status], nfev, it)
+    return LMResult(x, cost, status, STATUS[status], nfev, it, njev)
+
+
+class SecantTerm:
+    """Structured secant estimate ``S`` of ``sum_i r_i * Hessian(r_i)`` (Dennis, Gay & Welsch 1981,
+    NL2SOL).
+
+    Gauss-Newton drops that term; it matters when residuals stay large at the optimum or when
+    there are fewer residuals than unknowns, as in G2 (3 views for 11 parameters: ``J^T J`` has
+    rank 3 away from the penalty bounds, so plain LM crawls along the other directions). After
+    an accepted step ``s`` the update makes ``S_new s = y#`` with ``y# = (J_new - J)^T r_new``,
+    symmetric, rank 2, after shrinking ``S`` by ``min(1, |s^T y#| / |s^T S s|)``.
+    """
+
+    def __init__(self, n):
+        self.S = np.zeros((n, n))
+
+    def solve(self, J, g, lam, scale):
+        """LM step ``-(J^T J + S + lam diag(scale))^-1 g``; the Gauss-Newton step where that
+        matrix is not positive definite."""
+        H = J._H + np.diag(lam * scale)
+        try:
+            L = np.linalg.cholesky(H + self.S)
+        except np.linalg.LinAlgError:
+            return -np.linalg.solve(H, g)
+        return -np.linalg.solve(L.T, np.linalg.solve(L, g))
+
+    def update(self, s, J_old, J_new, r_old, r_new):
+        y = J_new.gradient(r_new) - J_old.gradient(r_old)
+        ys = float(y @ s)
+        if not ys > 0:
+            return
+        y_sharp = J_new.gradient(r_new) - J_old.gradient(r_new)
+        sSs = float(s @ self.S @ s)
+        if sSs != 0:
+            self.S *= min(1.0, abs(float(s @ y_sharp)) / abs(sSs))
+        w = y_sharp - self.S @ s
+        self.S += (np.outer(w, y) + np.outer(y, w)) / ys - (float(w @ s) / ys ** 2) * np.outer(y, y)
+
+
+def _operator(J):
+    """The Jacobian operator of a model's answer (calls a lazy one)."""
+    return J() if callable(J) else J

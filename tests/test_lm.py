@@ -90,3 +90,38 @@ def test_nonfinite_start_and_iteration_limit():
     assert res.status == "max_iterations" and res.iterations == 2
     with pytest.raises(ValueError, match="scaling must be 'identity' or 'marquardt'"):
         levenberg_marquardt(rosenbrock, [0.0, 0.0], scaling="bogus")
+    with pytest.raises(ValueError, match="hessian must be 'gauss-newton' or 'secant'"):
+        levenberg_marquardt(rosenbrock, [0.0, 0.0], hessian="bogus")
+
+
+def few_residuals(x):
+    """Two residuals in four unknowns that stay large at the optimum x = (0, 0, 1, -2): there
+    ``J = 0``, so Gauss-Newton's ``J^T J`` carries no curvature at all."""
+    r = np.array([x[0] ** 2 + x[1] ** 2 + 1.0, (x[2] - 1.0) ** 2 + 2.0 * (x[3] + 2.0) ** 2 + 0.5])
+    J = np.array([[2 * x[0], 2 * x[1], 0.0, 0.0], [0.0, 0.0, 2 * (x[2] - 1.0), 4.0 * (x[3] + 2.0)]])
+    return r, DenseJacobian(J)
+
+
+def test_secant_hessian_on_a_large_residual_problem():
+    x0 = [0.8, -0.5, 2.0, -1.0]
+    gn = levenberg_marquardt(few_residuals, x0, max_iterations=500, ftol=1e-14, xtol=1e-14, scaling="marquardt")
+    sec = levenberg_marquardt(few_residuals, x0, max_iterations=500, ftol=1e-14, xtol=1e-14, scaling="marquardt",
+                              hessian="secant")
+    np.testing.assert_allclose(sec.x, [0.0, 0.0, 1.0, -2.0], atol=1e-5)
+    assert sec.cost == pytest.approx(0.5 * (1.0 + 0.25), abs=1e-9)
+    assert sec.iterations < gn.iterations / 2
+
+
+@pytest.mark.parametrize("hessian", ["gauss-newton", "secant"])
+def test_lazy_jacobian_is_built_only_at_accepted_points(hessian):
+    built = []
+
+    def lazy(x):
+        r, J = rosenbrock(x)
+        return r, lambda: built.append(1) or J
+
+    eager = levenberg_marquardt(rosenbrock, [-1.2, 1.0], max_iterations=200, hessian=hessian)
+    res = levenberg_marquardt(lazy, [-1.2, 1.0], max_iterations=200, hessian=hessian)
+    np.testing.assert_array_equal(res.x, eager.x)
+    assert res.iterations == eager.iterations and res.nfev == eager.nfev
+    assert res.njev == len(built) < res.nfev
