@@ -61,6 +61,10 @@ class FitOptions:
         the silhouette solver's precision (1e-7 px).
     damping_numeric : {"identity", "marquardt"}
         Damping matrix of the R-IOU stages' Levenberg-Marquardt (see :mod:`sqfit.lm`).
+    hessian_numeric : {"secant", "gauss-newton"}
+        Model Hessian of the R-IOU stages: ``J^T J`` plus a structured secant estimate of the
+        second-order term (default; G2 has 3 view residuals for up to 11 unknowns, so ``J^T J``
+        alone has rank 3 and plain LM crawls), or ``J^T J`` alone (plain LM, as before).
     silhouette_directions : int
         Vertices of the silhouette polygons inside the R-IOU costs (R-IOU-M always uses
         :data:`sqfit.silhouette.DEFAULT_DIRECTIONS`).
@@ -71,13 +75,14 @@ class FitOptions:
     penalty_analytic: float = C.PENALTY_ANALYTIC
     max_iterations_numeric: int = 60
     max_iterations_analytic: int = 100
-    ftol_numeric: float = 1e-5
+    ftol_numeric: float = 1e-3
     ftol_analytic: float = 1e-6
     atol_analytic: float = 1e-12
     xtol: float = 1e-8
     gtol: float = 1e-10
     fd_step: float = 1e-4
     damping_numeric: str = "marquardt"
+    hessian_numeric: str = "secant"
     silhouette_directions: int = 48
 
     def __post_init__(self):
@@ -97,6 +102,8 @@ class FitOptions:
                 raise ValueError(f"{name} must be a finite number >= 0, got {v}")
         if self.damping_numeric not in ("identity", "marquardt"):
             raise ValueError(f"damping_numeric must be 'identity' or 'marquardt', got {self.damping_numeric!r}")
+        if self.hessian_numeric not in ("secant", "gauss-newton"):
+            raise ValueError(f"hessian_numeric must be 'secant' or 'gauss-newton', got {self.hessian_numeric!r}")
         if self.fd_step <= 0:
             raise ValueError(f"fd_step must be > 0, got {self.fd_step}")
         if int(self.silhouette_directions) != self.silhouette_directions or self.silhouette_directions < 8:

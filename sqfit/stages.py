@@ -8,7 +8,8 @@ Every stage is ``stage(state, observations, options) -> state``: it reads a :cla
 =====  =====================================================================================
 ``1``  Linear triangulation of the mask centroids (eq. 12, QR) and one depth per view.
 ``2``  PCA initialisation (Algorithm 1): orientation, size, ``e = 1``, one depth per sample.
-``3A`` Levenberg-Marquardt on G2 (1 - R-IOU + penalty), all 11 parameters, finite differences.
+``3A`` Levenberg-Marquardt on G2 (1 - R-IOU + penalty), all 11 parameters, finite differences
+       (by default with a secant estimate of the second-order term: see ``FitOptions.hessian_numeric``).
 ``3B`` As 3A with ``e`` fixed to 1 (9 parameters).
 ``3C`` LM on G5 with ``e = 1`` and one depth per view (9 + v unknowns), analytic Jacobian.
 ``3D`` LM on G5 with ``e = 1`` and one depth per sample (9 + n unknowns), analytic, Schur.
@@ -240,38 +241,55 @@ def _check_result(xi, stage):
 
 
 def _riou_stage(state, obs, options, free, quadric, name):
+    """LM on G2 over the parameters ``free``, forward-difference Jacobian.
+
+    The Jacobian is lazy (see :func:`sqfit.lm.levenberg_marquardt`): a trial point costs one
+    evaluation of G2; only accepted points pay for the ``len(free)`` difference columns, which
+    reuse the point's residuals and start their silhouette solves from its support values (so
+    Newton needs fewer steps than from the quadric's ellipse). The model Hessian is
+    ``options.hessian_numeric`` (default: Gauss-Newton plus a structured secant term, see
+    :class:`sqfit.lm.SecantTerm`); the cost and its Jacobian are the same either way.
+    """
     xi0 = np.array(state.xi, dtype=np.float64)
     if quadric:
         xi0[3:5] = _QUADRIC
+    k = len(free)
     steps = options.fd_step * np.maximum(1.0, np.abs(xi0[free]))
-    eye = np.eye(len(free)) * steps
-    cache = {}
+    eye = np.eye(k) * steps
+    penalty_rows = len(obs) + free
+    accepted = {}  # support values at the last point whose Jacobian was built
+
+    def g2(batch, h0):
+        if h0 is not None:
+            h0 = np.broadcast_to(h0, (len(batch),) + h0.shape[1:])
+        return riou_residuals(batch, obs, options.polygon, options.penalty_riou,
+                              options.silhouette_directions, h0)
 
     def model(x):
         full = xi0.copy()
         full[free] = x
-        batch = np.tile(full, (len(free) + 1, 1))
-        batch[1:, free] += eye
-        h0 = cache.get("h")
-        if h0 is not None:
-            h0 = np.broadcast_to(h0[:1], (len(batch),) + h0.shape[1:])
-        r, h = riou_residuals(batch, obs, options.polygon, options.penalty_riou,
-                              options.silhouette_directions, h0)
-        cache["h"] = h
-        J = (r[1:] - r[:1]).T / steps
-        # The penalty is piecewise linear: use its exact slope rather than a difference across a kink.
-        J[len(obs):] = 0.0
-        J[len(obs) + free, np.arange(len(free))] = penalty_jacobian(full, options.penalty_riou)[free]
-        return r[0], DenseJacobian(J)
+        r, h = g2(full[None], accepted.get("h"))
+
+        def jacobian():
+            accepted["h"] = h
+            batch = np.tile(full, (k, 1))
+            batch[:, free] += eye
+            J = (g2(batch, h)[0] - r).T / steps
+            # The penalty is piecewise linear: use its exact slope rather than a difference across a kink.
+            J[len(obs):] = 0.0
+            J[penalty_rows, np.arange(k)] = penalty_jacobian(full, options.penalty_riou)[free]
+            return DenseJacobian(J)
+
+        return r[0], jacobian
 
     res = levenberg_marquardt(model, xi0[free], max_iterations=options.max_iterations_numeric,
                               ftol=options.ftol_numeric, xtol=options.xtol, gtol=options.gtol,
-                              scaling=options.damping_numeric)
+                              scaling=options.damping_numeric, hessian=options.hessian_numeric)
     xi = xi0.copy()
     xi[free] = res.x
     _check_result(xi, name)
     return replace(state, xi=xi, cost=res.cost, status=res.status, message=res.message,
-                   nfev=res.nfev * (len(free) + 1))
+                   nfev=res.nfev + res.njev * k)
 
 
 @register("3A")

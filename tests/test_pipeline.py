@@ -34,20 +34,32 @@ def test_every_paper_chain_runs(trial, chain):
     json.dumps(result.to_dict())
 
 
-@pytest.mark.parametrize("seed", [2, 4, 7, 8, 10])
-def test_default_chain_recovers_known_superquadrics(seed):
-    t = paper_trial(seed)
-    result = fit(t.observations, "1-2-3D-3A")  # the paper's best chain (no longer the default)
-    assert iou_3d(result.superquadric, t.gt) > 0.7
-    # Each stage refines: 3A (maximising R-IOU) never loses R-IOU-M against its input.
-    r = [s.r_iou_m for s in result.stages]
-    assert r[3] >= r[2] - 0.01 and r[3] > 0.85
+#: A block of consecutive seeds (not picked to pass): the accuracy tests run over all of them.
+SEEDS = range(10)
+
+
+@pytest.fixture(scope="module")
+def block():
+    return [paper_trial(seed) for seed in SEEDS]
+
+
+def test_paper_best_chain_recovers_known_superquadrics(block):
+    ious = []
+    for t in block:
+        result = fit(t.observations, "1-2-3D-3A")  # the paper's best chain (no longer the default)
+        assert result.status == "ok", result.message
+        ious.append(iou_3d(result.superquadric, t.gt))
+        # 3A maximises R-IOU: it never loses R-IOU-M against its input (up to the polygon resolution).
+        r = [s.r_iou_m for s in result.stages]
+        assert r[3] >= r[2] - 0.01
+    assert min(ious) > 0.0  # every trial succeeds (the paper's criterion)
+    assert np.median(ious) > 0.7
 
 
 @pytest.mark.parametrize("chain", ["1-2-3B", "1-2-3D-3F"])
-def test_riou_stages_never_lose_riou_m(chain):
-    for seed in (0, 5):
-        r = [s.r_iou_m for s in fit(paper_trial(seed).observations, chain).stages]
+def test_riou_stages_never_lose_riou_m(block, chain):
+    for t in block:
+        r = [s.r_iou_m for s in fit(t.observations, chain).stages]
         assert r[-1] >= r[-2] - 0.01
 
 
@@ -64,6 +76,7 @@ def test_options_as_dict_and_contour_polygon(trial):
     ({"fd_step": 0.0}, ValueError, "fd_step must be > 0"),
     ({"silhouette_directions": 4}, ValueError, "silhouette_directions must be an integer >= 8"),
     ({"damping_numeric": "x"}, ValueError, "damping_numeric must be"),
+    ({"hessian_numeric": "bfgs"}, ValueError, "hessian_numeric must be 'secant' or 'gauss-newton'"),
     ("fast", TypeError, "options must be None, a dict or a FitOptions"),
 ])
 def test_bad_options(trial, options, error, match):

@@ -22,7 +22,8 @@ def obs(trial):
 
 
 def test_registry_has_the_paper_stages():
-    assert set(S.STAGES) == {"1", "2", "3A", "3B", "3C", "3D", "3E", "3F"}
+    # Stages beyond the paper's (e.g. 3G) may be registered too.
+    assert {"1", "2", "3A", "3B", "3C", "3D", "3E", "3F"} <= set(S.STAGES)
 
 
 def test_triangulation_recovers_position_and_depths(trial, obs):
