@@ -9,7 +9,7 @@ Every stage is ``stage(state, observations, options) -> state``: it reads a :cla
 ``1``  Linear triangulation of the mask centroids (eq. 12, QR) and one depth per view.
 ``2``  PCA initialisation (Algorithm 1): orientation, size, ``e = 1``, one depth per sample.
 ``3A`` Levenberg-Marquardt on G2 (1 - R-IOU + penalty), all 11 parameters, finite differences
-       (by default with a secant estimate of the second-order term: see ``FitOptions.hessian_numeric``).
+       (optionally with a secant estimate of the second-order term: ``FitOptions.hessian_numeric``).
 ``3B`` As 3A with ``e`` fixed to 1 (9 parameters).
 ``3C`` LM on G5 with ``e = 1`` and one depth per view (9 + v unknowns), analytic Jacobian.
 ``3D`` LM on G5 with ``e = 1`` and one depth per sample (9 + n unknowns), analytic, Schur.
@@ -247,7 +247,7 @@ def _riou_stage(state, obs, options, free, quadric, name):
     evaluation of G2; only accepted points pay for the ``len(free)`` difference columns, which
     reuse the point's residuals and start their silhouette solves from its support values (so
     Newton needs fewer steps than from the quadric's ellipse). The model Hessian is
-    ``options.hessian_numeric`` (default: Gauss-Newton plus a structured secant term, see
+    ``options.hessian_numeric`` (Gauss-Newton by default, or with a structured secant term, see
     :class:`sqfit.lm.SecantTerm`); the cost and its Jacobian are the same either way.
     """
     xi0 = np.array(state.xi, dtype=np.float64)
