@@ -12,7 +12,8 @@ Output directory:
   (trial, chain) pairs missing from ``trials.jsonl`` (resume after Ctrl-C or a kill).
 - ``trials.jsonl``: one record per (trial, object, chain): ground truth, fitted parameters and
   metrics after every stage, seconds, status. A line cut short by a kill is dropped on resume.
-- ``summary.json``, ``table.md``, ``table.tex``, ``violin.png``, ``example.png``: rebuilt from
+- ``summary.json``, ``table.md``, ``table.tex``, ``comparison.md`` (medians beside the paper's
+  Table II), ``violin.png``, ``example.png``: rebuilt from
   all records at the end of every run. ``summary.json`` is the stable interface::
 
     {"scene": "paper", "trials": 100, "resampled": 7, "seed": 0,
@@ -286,7 +287,7 @@ def fit_trial(scene_dict, index, chains):
     sim = simulate_trial(scene, index, get_renderer(scene.masks.renderer, scene.intrinsics))
     seed = trial_seed(scene.experiment.seed, index)
     options = {"polygon": scene.fit.polygon, "penalty_riou": scene.fit.penalty_riou,
-               "penalty_analytic": scene.fit.penalty_analytic}
+               "penalty_analytic": scene.fit.penalty_analytic, "pose_sigma_deg": scene.fit.pose_sigma_deg}
     records = []
     for obj in sim.objects:
         gt_polygons = _ground_truth_polygons(obj, sim)
@@ -368,6 +369,7 @@ def write_reports(out, scene, chains, records, figures=True):
     _atomic_write(out / "summary.json", json.dumps(summary, indent=1))
     _atomic_write(out / "table.md", report.table_markdown(summary))
     _atomic_write(out / "table.tex", report.table_latex(summary))
+    _atomic_write(out / "comparison.md", report.paper_comparison(summary))
     best = report.best_chain(summary) if records else None
     if best is not None and figures:
         _atomic_figure(report.violin_figure, out / "violin.png", records, best)

@@ -87,6 +87,25 @@ def table_markdown(summary, with_paper=True):
     return "\n".join(lines) + "\n"
 
 
+def paper_comparison(summary):
+    """Markdown: medians of each chain next to the paper's Table II, with the IOU difference.
+
+    Chains the paper did not run get an empty paper column.
+    """
+    lines = ["| chain | IOU M (paper) | ΔIOU | R-IOU M (paper) | R-IOU-M M (paper) | time M [s] (paper) | σ (paper) |",
+             "|---|---|---|---|---|---|---|"]
+    for chain, e in summary["chains"].items():
+        ref = PAPER_TABLE_II.get(chain)
+        def cell(ours, k, fmt="{:.3f}"):
+            return fmt.format(ours) + ("" if ref is None else " (" + fmt.format(ref[k]) + ")")
+        delta = "" if ref is None else f"{e['iou']['median'] - ref[0]:+.3f}"
+        lines.append(f"| {_chain_label(chain)} | {cell(e['iou']['median'], 0)} | {delta} | "
+                     f"{cell(e['r_iou']['median'], 3)} | {cell(e['r_iou_m']['median'], 6)} | "
+                     f"{cell(e['time_s']['median'], 9)} | "
+                     f"{100 * e['success_rate']:.0f} %" + ("" if ref is None else f" ({100 * ref[12]:.0f} %)") + " |")
+    return "\n".join(lines) + "\n"
+
+
 def table_latex(summary):
     """Table II layout as a LaTeX ``table*`` (booktabs), values after the last stage."""
     lines = [

@@ -48,6 +48,9 @@ def test_summary_has_every_chain_with_design_keys(reference):
     assert all(len(r["stages"]) == len(r["chain"].split("-")) for r in records if r["status"] == "ok")
     table = (out / "table.md").read_text()
     assert "1 → 2 → 3D → 3A" in table and "*paper*" in table
+    comparison = (out / "comparison.md").read_text()
+    iou = summary["chains"]["1-2-3D-3A"]["iou"]["median"]
+    assert f"| 1 → 2 → 3D → 3A | {iou:.3f} (0.760) | {iou - 0.760:+.3f} |" in comparison
 
 
 def test_the_staged_fitter_recovers_the_objects(reference):
