@@ -133,3 +133,14 @@ def test_cli_reports_bad_scene_cleanly(tmp_path):
                          capture_output=True, text=True)
     assert out.returncode == 2
     assert "bad.toml" in out.stderr and "Traceback" not in out.stderr
+
+
+def test_mesh_ground_truths_are_scored_by_mesh_boolean(tmp_path):
+    scene = parse_scene({"experiment": {"name": "boxes", "seed": 2, "trials": 2, "chains": ["default"]},
+                         "objects": {"kind": "box"}, "masks": {"renderer": "polygon"}}, source="<test>")
+    summary = run_experiment(scene, tmp_path, progress=False)
+    records = [json.loads(line) for line in (tmp_path / "trials.jsonl").read_text().splitlines()]
+    assert [r["gt"]["kind"] for r in records] == ["box", "box"]
+    assert all(r["status"] == "ok" and r["metrics"]["iou"] > 0.5 for r in records)
+    assert summary["chains"][sqfit.DEFAULT_CHAIN]["success_rate"] == 1.0
+    assert not (tmp_path / "example.png").exists()  # the example figure needs a superquadric ground truth
