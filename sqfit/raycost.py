@@ -43,7 +43,7 @@ from .observation import Observation, sample_polyline
 from .silhouette import ZNEAR
 
 __all__ = ["RaySet", "CONTOUR", "INSIDE", "OUTSIDE", "contour_rays", "ray_minima", "ray_residuals",
-           "outward_normals"]
+           "posed_ray_residuals", "outward_normals"]
 
 #: Ray modes (see the module docstring).
 CONTOUR, INSIDE, OUTSIDE = 0, 1, 2
@@ -352,6 +352,19 @@ def log_gauge_jacobian(xi, points):
     return np.log(norm) - np.log(S), d_xi
 
 
+def _ray_terms(xi, rays, directions, d0):
+    """Weighted ray residuals, ``d r / d log m``, ``d log m / d xi`` at the minimisers, and ``d``."""
+    d, _ = ray_minima(xi, rays.origins, directions, d0)
+    log_m, d_log_m = log_gauge_jacobian(xi, rays.origins + d[:, None] * directions)
+    phi, dphi = _phi(log_m)
+    modes = rays.modes
+    active = np.ones(len(phi), dtype=bool)
+    active[modes == INSIDE] = phi[modes == INSIDE] > 0
+    active[modes == OUTSIDE] = phi[modes == OUTSIDE] < 0
+    scale = rays.weights * active
+    return scale * phi, scale * dphi, d_log_m, d
+
+
 def ray_residuals(xi, rays, weight=C.PENALTY_ANALYTIC, d0=None):
     """3G residuals (see the module docstring) and their analytic Jacobian.
 
@@ -374,16 +387,62 @@ def ray_residuals(xi, rays, weight=C.PENALTY_ANALYTIC, d0=None):
         Ray minimisers (pass back as ``d0`` at a nearby ``xi``).
     """
     xi = np.asarray(xi, dtype=np.float64)
-    d, _ = ray_minima(xi, rays.origins, rays.directions, d0)
-    log_m, d_log_m = log_gauge_jacobian(xi, rays.origins + d[:, None] * rays.directions)
-    phi, dphi = _phi(log_m)
-    modes = rays.modes
-    active = np.ones(len(phi), dtype=bool)
-    active[modes == INSIDE] = phi[modes == INSIDE] > 0
-    active[modes == OUTSIDE] = phi[modes == OUTSIDE] < 0
-    scale = rays.weights * active
-    r_rays = scale * phi
-    J_rays = (scale * dphi)[:, None] * d_log_m
+    r_rays, coef, d_log_m, d = _ray_terms(xi, rays, rays.directions, d0)
     r = np.concatenate([r_rays, penalty(xi, weight)])
-    J = np.vstack([J_rays, np.diag(penalty_jacobian(xi, weight))])
+    J = np.vstack([coef[:, None] * d_log_m, np.diag(penalty_jacobian(xi, weight))])
+    return r, J, d
+
+
+def posed_ray_residuals(x, rays, sigma_rad, weight=C.PENALTY_ANALYTIC, d0=None):
+    """3G residuals with a small rotation correction per view, and their analytic Jacobian.
+
+    View ``v``'s rays are turned by the world-frame rotation vector ``w_v`` to first order: a
+    direction ``b`` becomes ``b + w_v x b``. As the ray minimum ``m`` only depends on the ray's line,
+    not on the length of ``b``, this is the rotation ``exp([w_v]x)`` up to ``O(|w_v|^2)`` (0.02 px
+    per px of image shift at 1 degree), and it is linear in ``w_v``. In the camera's own frame the
+    correction is ``delta_v = R_v^T w_v`` (``R_v' = R_v exp([delta_v]x)``, the model of a noisy
+    camera rotation); an isotropic prior has the same value in both frames. By the envelope
+    theorem ``d log m / d b = d* grad_x log g(x*)``, so ``d log m / d w_v = d* (b x grad_x log g)``
+    (``grad_x log g = -d log g / d p``).
+
+    Parameters
+    ----------
+    x : (11 + 3 v,) float
+        Parameter vector, then ``w_0 .. w_{v-1}`` (radians), ``v = rays.view.max() + 1``.
+    rays : RaySet
+    sigma_rad : float
+        Scale of the prior rows ``w_v / sigma_rad``, radians, > 0.
+    weight : float
+        ``c_p`` of the penalty rows (eq. 7).
+    d0 : (n,) float, optional
+        Warm start of the ray minimisers.
+
+    Returns
+    -------
+    r : (n + 11 + 3 v,) float
+        Weighted ray residuals, the penalty, then the prior.
+    J : (n + 11 + 3 v, 11 + 3 v) float
+        ``d r / d x``.
+    d : (n,) float
+        Ray minimisers.
+    """
+    x = np.asarray(x, dtype=np.float64)
+    v = int(rays.view.max()) + 1
+    x = check_shape(x, (C.N_PARAMS + 3 * v,), "x")
+    if not (np.isfinite(sigma_rad) and sigma_rad > 0):
+        raise ValueError(f"sigma_rad must be a finite number > 0, got {sigma_rad}")
+    xi, w = x[:C.N_PARAMS], x[C.N_PARAMS:].reshape(v, 3)
+    b = rays.directions
+    directions = b + np.cross(w[rays.view], b)
+    r_rays, coef, d_log_m, d = _ray_terms(xi, rays, directions, d0)
+    n, k = len(rays), C.N_PARAMS
+    J = np.zeros((n + k + 3 * v, k + 3 * v))
+    J[:n, :k] = coef[:, None] * d_log_m
+    # d log m / d w = d* b x grad_x log g, with grad_x log g = -d log g / d p
+    d_w = (coef * d)[:, None] * np.cross(d_log_m[:, 5:8], b)
+    cols = k + 3 * rays.view[:, None] + np.arange(3)
+    J[np.arange(n)[:, None], cols] = d_w
+    J[n:n + k, :k] = np.diag(penalty_jacobian(xi, weight))
+    J[n + k:, k:] = np.eye(3 * v) / sigma_rad
+    r = np.concatenate([r_rays, penalty(xi, weight), w.ravel() / sigma_rad])
     return r, J, d

@@ -10,6 +10,14 @@ Unlike G5 it needs no volume factor against over-size, and unlike the numeric R-
 gradient when the superquadric and the mask do not overlap.
 
 The rays are computed once per :class:`sqfit.costs.ObservationSet` and cached with it.
+
+Pose refinement (``options.pose_sigma_deg > 0``): the cameras' rotations are not trusted exactly.
+Each view gets a small rotation correction, estimated jointly with the 11 parameters
+(:func:`sqfit.raycost.posed_ray_residuals`, ``11 + 3 v`` unknowns) and held near zero by prior rows
+``w_v / sigma``. All views turning together is nearly the same as moving the superquadric; that
+freedom is held by the prior only. The corrections are used inside this stage only (later stages
+and R-IOU-M see the given cameras); the stage message lists them, in degrees, as rotation vectors
+``delta_v`` in each camera's frame (corrected pose rotation ``R_v exp([delta_v]x)``).
 """
 
 from __future__ import annotations
@@ -20,10 +28,10 @@ from dataclasses import replace
 import numpy as np
 
 from .lm import DenseJacobian, levenberg_marquardt
-from .raycost import contour_rays, ray_residuals
+from .raycost import contour_rays, posed_ray_residuals, ray_residuals
 from .stages import StageError, register
 
-__all__ = ["N_CONTOUR", "BAND_PX", "silhouette_stage"]
+__all__ = ["N_CONTOUR", "BAND_PX", "silhouette_stage", "camera_corrections"]
 
 #: Contour points (rays) per view.
 N_CONTOUR = 64
@@ -46,19 +54,50 @@ def silhouette_stage(state, obs, options, name="3G"):
     """Levenberg-Marquardt on the 3G residuals from ``state.xi``; returns the new state."""
     rays = _rays(obs)
     xi0 = np.array(state.xi, dtype=np.float64)
+    sigma = np.radians(options.pose_sigma_deg)
     warm = {}
 
     def model(x):
-        r, J, d = ray_residuals(x, rays, options.penalty_analytic, warm.get("d"))
+        if sigma > 0:
+            r, J, d = posed_ray_residuals(x, rays, sigma, options.penalty_analytic, warm.get("d"))
+        else:
+            r, J, d = ray_residuals(x, rays, options.penalty_analytic, warm.get("d"))
         warm["d"] = d
         return r, DenseJacobian(J)
 
-    res = levenberg_marquardt(model, xi0, max_iterations=options.max_iterations_analytic,
+    x0 = np.concatenate([xi0, np.zeros(3 * len(obs))]) if sigma > 0 else xi0
+    res = levenberg_marquardt(model, x0, max_iterations=options.max_iterations_analytic,
                               ftol=options.ftol_analytic, xtol=options.xtol, gtol=options.gtol)
-    xi = res.x
-    if not np.all(np.isfinite(xi)) or np.max(np.abs(xi[0:3])) > 1e4:
+    xi = res.x[:len(xi0)]
+    if not np.all(np.isfinite(res.x)) or np.max(np.abs(xi[0:3])) > 1e4:
         raise StageError("diverged", f"stage {name}: the optimiser diverged")
-    return replace(state, xi=xi, cost=res.cost, status=res.status, message=res.message, nfev=res.nfev)
+    message = res.message
+    if sigma > 0:
+        message += "; " + _describe_corrections(camera_corrections(res.x[len(xi0):], obs.rotations))
+    return replace(state, xi=xi, cost=res.cost, status=res.status, message=message, nfev=res.nfev)
+
+
+def camera_corrections(w, rotations):
+    """Per-view rotation corrections in each camera's frame.
+
+    Parameters
+    ----------
+    w : (3 v,) float
+        World-frame rotation vectors (radians), as estimated by 3G with pose refinement.
+    rotations : (v, 3, 3) float
+        Camera-to-world rotations ``R_v``.
+
+    Returns
+    -------
+    delta : (v, 3) float
+        ``R_v^T w_v``, radians: the corrected camera rotation is ``R_v exp([delta_v]x)``.
+    """
+    return np.einsum("vji,vj->vi", rotations, np.reshape(w, (len(rotations), 3)))
+
+
+def _describe_corrections(delta):
+    views = ", ".join("(" + ", ".join(f"{c:+.3f}" for c in np.degrees(dv)) + ")" for dv in delta)
+    return f"camera rotation corrections [deg, camera frame]: {views}"
 
 
 @register("3G")

@@ -200,6 +200,7 @@ class FitConfig:
     polygon: str = "hull"
     penalty_riou: float = 1.0
     penalty_analytic: float = 100.0
+    pose_sigma_deg: float = sqfit.FitOptions.pose_sigma_deg
 
 
 _CHECKS = {
@@ -218,7 +219,7 @@ _CHECKS = {
               "dropout": _float(0, 1, hi_open=True), "false_blobs": _int(0),
               "pose_rotation_deg": _float(0), "pose_translation_m": _float(0)},
     "fit": {"polygon": _choice(POLYGON_KINDS), "penalty_riou": _float(0, lo_open=True),
-            "penalty_analytic": _float(0, lo_open=True)},
+            "penalty_analytic": _float(0, lo_open=True), "pose_sigma_deg": _float(0)},
 }
 _SECTIONS = {"experiment": ExperimentConfig, "camera": CameraConfig, "trajectory": TrajectoryConfig,
              "objects": ObjectsConfig, "masks": MasksConfig, "noise": NoiseConfig, "fit": FitConfig}

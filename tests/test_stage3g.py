@@ -3,8 +3,8 @@ import pytest
 
 import sqfit
 from sqfit.metrics import iou_3d
-from sqfit.raycost import (CONTOUR, INSIDE, OUTSIDE, RaySet, contour_rays, outward_normals, ray_minima,
-                           ray_residuals)
+from sqfit.raycost import (CONTOUR, INSIDE, OUTSIDE, RaySet, contour_rays, outward_normals, posed_ray_residuals,
+                           ray_minima, ray_residuals)
 from sqfit.superquadric import Superquadric, implicit
 from sqfit.testing import paper_trial
 
@@ -154,3 +154,94 @@ def test_chain_1_2_3g_recovers_paper_trials(seed):
     result = sqfit.fit(trial.observations, "1-2-3G")
     assert result.ok
     assert iou_3d(result.superquadric, trial.gt) > 0.8
+
+
+# --------------------------------------------------------------------------- pose refinement
+
+def posed(xi, seed, scale=0.02):
+    return np.r_[xi, np.random.default_rng(seed).normal(size=9) * scale]
+
+
+@pytest.mark.parametrize("shape", [(0.11, 0.11), (1.89, 0.11), (1.0, 1.0), (0.5, 1.5)])
+def test_posed_ray_residual_jacobian_matches_central_differences(trial, shape):
+    rays = contour_rays(trial.observations, 16)
+    x = posed(perturbed(trial, shape, 4), 5)
+    r, J, _ = posed_ray_residuals(x, rays, 0.01)
+    assert r.shape == (len(rays) + 11 + 9,) and J.shape == (len(rays) + 11 + 9, 20)
+    f = lambda y: posed_ray_residuals(y, rays, 0.01)[0]  # noqa: E731
+    num, fine = central_difference(f, x), central_difference(f, x, h=1e-7)
+    smooth = np.all(np.abs(num - fine) < 1e-4 * max(1.0, np.abs(num).max()), axis=1)
+    assert smooth.mean() > 0.7
+    assert np.abs(J[:len(rays), 11:]).max() > 1e-2  # the rotation columns are not trivially zero
+    np.testing.assert_allclose(J[smooth], num[smooth], atol=1e-5 * max(1.0, np.abs(num).max()))
+
+
+def test_posed_residuals_at_zero_correction_are_the_plain_ones(trial):
+    rays = contour_rays(trial.observations, 16)
+    xi = perturbed(trial, (0.5, 1.5), 6)
+    r0, J0, _ = ray_residuals(xi, rays)
+    r, J, _ = posed_ray_residuals(np.r_[xi, np.zeros(9)], rays, 0.02)
+    np.testing.assert_allclose(r[:len(r0)], r0)
+    np.testing.assert_allclose(J[:len(r0), :11], J0)
+    np.testing.assert_allclose(r[len(r0):], 0.0)
+
+
+def test_posed_correction_turns_rays_like_the_camera_rotation(trial):
+    """A correction ``w`` equals the first-order camera rotation ``R' = exp([w]x) R``, camera frame
+    ``delta = R^T w`` (the model of ``sqsim.noise.perturb_pose``)."""
+    from sqfit.stage3g import camera_corrections
+
+    delta = np.array([[0.01, -0.02, 0.005], [0.0, 0.0, 0.0], [-0.01, 0.01, 0.02]])
+    rotated = [sqfit.Observation(sqfit.Camera(o.camera.intrinsics, _turned(o.camera.pose, dv)), o.samples,
+                                 o.contour, o.centroid, o.area_px, o.touches_border)
+               for o, dv in zip(trial.observations, delta)]
+    xi = trial.gt.to_vector()
+    plain = ray_residuals(xi, contour_rays(rotated, 32))[0][:96]
+    rotations = np.stack([o.camera.rotation for o in trial.observations])
+    w = np.einsum("vij,vj->vi", rotations, delta).ravel()
+    np.testing.assert_allclose(camera_corrections(w, rotations), delta, atol=1e-15)
+    corrected = posed_ray_residuals(np.r_[xi, w], contour_rays(trial.observations, 32), 1.0)[0][:96]
+    uncorrected = ray_residuals(xi, contour_rays(trial.observations, 32))[0][:96]
+    change = np.abs(plain - uncorrected).max()
+    assert change > 0.01  # the rotation matters ...
+    assert np.abs(corrected - plain).max() < 0.02 * change  # ... and the correction reproduces it
+
+
+def _turned(pose, delta):
+    from scipy.spatial.transform import Rotation
+
+    out = np.array(pose, dtype=np.float64)
+    out[:3, :3] = out[:3, :3] @ Rotation.from_rotvec(delta).as_matrix()
+    return out
+
+
+@pytest.mark.parametrize("x, sigma, match", [
+    (np.zeros(11), 0.01, r"x must have shape \(20,\)"),
+    (np.zeros(20), 0.0, "sigma_rad must be a finite number > 0"),
+    (np.zeros(20), np.inf, "sigma_rad must be a finite number > 0"),
+])
+def test_posed_ray_residuals_validation(trial, x, sigma, match):
+    with pytest.raises(ValueError, match=match):
+        posed_ray_residuals(x, contour_rays(trial.observations, 8), sigma)
+
+
+@pytest.mark.parametrize("value", [-1.0, np.nan])
+def test_pose_sigma_option_validation(value):
+    with pytest.raises(ValueError, match="pose_sigma_deg must be a finite number >= 0"):
+        sqfit.FitOptions(pose_sigma_deg=value)
+
+
+def test_pose_refinement_explains_a_rotated_camera():
+    """One camera turned by 1 degree: with pose refinement 3G reaches a lower cost (the views
+    become consistent) and reports the corrections."""
+    trial = paper_trial(1)
+    obs = list(trial.observations)
+    o = obs[0]
+    obs[0] = sqfit.Observation(sqfit.Camera(o.camera.intrinsics, _turned(o.camera.pose, np.radians([0, 1, 0]))),
+                               o.samples, o.contour, o.centroid, o.area_px, o.touches_border)
+    plain = sqfit.fit(obs, "1-2-3G")
+    refined = sqfit.fit(obs, "1-2-3G", options={"pose_sigma_deg": 10.0})
+    assert plain.ok and refined.ok
+    assert "camera rotation corrections [deg, camera frame]" in refined.stages[-1].message
+    assert "corrections" not in plain.stages[-1].message
+    assert refined.cost < 0.9 * plain.cost  # the prior rows included
