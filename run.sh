@@ -61,7 +61,7 @@ case "$cmd" in
     main)
         ensure_osmesa; ensure_venv
         exec "$VENV/bin/sqsim" experiment scenes/paper.toml -o runs/paper-small --trials 10 \
-            --chains 1-2-3D,1-2-3A,1-2-3D-3F,default --workers 2 "$@"
+            --chains 1-2-3D,1-2-3D-3A,1-2-3D-3F,default --workers 2 "$@"
         ;;
     test)
         ensure_osmesa; ensure_venv
