@@ -169,10 +169,17 @@ def _check_or_write_config(out, scene, chains):
             old = json.loads(path.read_text())
         except json.JSONDecodeError as exc:
             raise ValueError(f"{path} is not valid JSON ({exc}); remove it or use another --output") from None
+        from .scene import parse_scene
+
         fixed = lambda s: {k: v for k, v in s.items() if k != "experiment"}  # noqa: E731
-        old_scene = old.get("scene", {})
-        same = (old.get("format") == FORMAT and fixed(old_scene) == fixed(config["scene"])
-                and old_scene.get("experiment", {}).get("seed") == scene.experiment.seed)
+        try:
+            # Through the parser, so keys added to the scene format since then take their defaults.
+            old_scene = parse_scene(old.get("scene", {}), source=str(path)).to_dict()
+        except ValueError:
+            old_scene = None
+        same = (old.get("format") == FORMAT and old_scene is not None
+                and fixed(old_scene) == fixed(config["scene"])
+                and old_scene["experiment"]["seed"] == scene.experiment.seed)
         if not same:
             raise ValueError(f"{out} holds a different experiment (scene or seed differ); "
                              "use another --output directory or delete it")

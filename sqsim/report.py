@@ -142,9 +142,11 @@ def screen_summary(summary):
 
 
 def best_chain(summary):
-    """The chain with the highest median 3D IoU (ties: faster median time)."""
-    return max(summary["chains"], key=lambda c: (summary["chains"][c]["iou"]["median"],
-                                                 -summary["chains"][c]["time_s"]["median"]))
+    """The most reliable chain: highest success rate, then highest median 3D IoU, then fastest."""
+    def key(chain):
+        e = summary["chains"][chain]
+        return (e["success_rate"], e["iou"]["median"], -e["time_s"]["median"])
+    return max(summary["chains"], key=key)
 
 
 def violin_figure(records, chain, path):

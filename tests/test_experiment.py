@@ -144,3 +144,22 @@ def test_mesh_ground_truths_are_scored_by_mesh_boolean(tmp_path):
     assert all(r["status"] == "ok" and r["metrics"]["iou"] > 0.5 for r in records)
     assert summary["chains"][sqfit.DEFAULT_CHAIN]["success_rate"] == 1.0
     assert not (tmp_path / "example.png").exists()  # the example figure needs a superquadric ground truth
+
+
+def test_best_chain_prefers_reliability():
+    from sqsim.report import best_chain
+
+    entry = lambda success, iou: {"success_rate": success, "iou": {"median": iou}, "time_s": {"median": 0.1}}  # noqa: E731
+    assert best_chain({"chains": {"a": entry(0.99, 0.93), "b": entry(1.0, 0.91), "c": entry(1.0, 0.80)}}) == "b"
+
+
+def test_resume_accepts_configs_written_before_a_scene_key_existed(reference, tmp_path):
+    import shutil
+
+    out, summary = reference
+    copy = tmp_path / "copy"
+    shutil.copytree(out, copy)
+    config = json.loads((copy / "experiment.json").read_text())
+    del config["scene"]["masks"]["cleanup"]  # as written by a version without that key
+    (copy / "experiment.json").write_text(json.dumps(config))
+    assert without_time(run_experiment(small_scene(), copy, progress=False)) == without_time(summary)
