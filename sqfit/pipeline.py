@@ -74,7 +74,7 @@ class FitOptions:
         Stage 3G: > 0 estimates a small rotation correction per camera with the superquadric,
         held near zero by prior rows ``delta / pose_sigma_deg`` (degrees, relative to 3G's
         per-view-normalised residuals: a stiffness, not a calibrated noise level); 0 trusts the
-        poses (see :mod:`sqfit.stage3g`).
+        poses (see :mod:`sqfit.stage3g`). Default 20: measured, README "Robustness".
     """
 
     polygon: str = "hull"
@@ -91,7 +91,7 @@ class FitOptions:
     damping_numeric: str = "marquardt"
     hessian_numeric: str = "gauss-newton"
     silhouette_directions: int = 48
-    pose_sigma_deg: float = 0.0
+    pose_sigma_deg: float = 20.0
 
     def __post_init__(self):
         if self.polygon not in POLYGON_KINDS:
