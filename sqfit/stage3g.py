@@ -11,10 +11,10 @@ gradient when the superquadric and the mask do not overlap.
 
 The rays are computed once per :class:`sqfit.costs.ObservationSet` and cached with it.
 
-Pose refinement (``options.pose_sigma_deg > 0``): the cameras' rotations are not trusted exactly.
-Each view gets a small rotation correction, estimated jointly with the 11 parameters
-(:func:`sqfit.raycost.posed_ray_residuals`, ``11 + 3 v`` unknowns) and held near zero by prior rows
-``w_v / sigma``. All views turning together is nearly the same as moving the superquadric; that
+Pose refinement (``options.pose_sigma_deg > 0``, the default): the cameras' rotations are not
+trusted exactly. After the plain run above converges, a second run estimates a small rotation
+correction per view jointly with the 11 parameters (:func:`sqfit.raycost.posed_ray_residuals`,
+``11 + 3 v`` unknowns), held near zero by prior rows ``w_v / sigma``. All views turning together is nearly the same as moving the superquadric; that
 freedom is held by the prior only. The corrections are used inside this stage only (later stages
 and R-IOU-M see the given cameras); the stage message lists them, in degrees, as rotation vectors
 ``delta_v`` in each camera's frame (corrected pose rotation ``R_v exp([delta_v]x)``).
@@ -55,6 +55,25 @@ def silhouette_stage(state, obs, options, name="3G"):
     rays = _rays(obs)
     xi0 = np.array(state.xi, dtype=np.float64)
     sigma = np.radians(options.pose_sigma_deg)
+    res = _minimise(rays, xi0, options, 0.0)
+    nfev = res.nfev
+    if sigma > 0:
+        # A second run, from the plain optimum: started from stage 2 the extra unknowns change
+        # Levenberg-Marquardt's path and sometimes its basin, which cost clean fits accuracy.
+        res = _minimise(rays, np.concatenate([res.x, np.zeros(3 * len(obs))]), options, sigma)
+        nfev += res.nfev
+    xi = res.x[:len(xi0)]
+    if not np.all(np.isfinite(res.x)) or np.max(np.abs(xi[0:3])) > 1e4:
+        raise StageError("diverged", f"stage {name}: the optimiser diverged")
+    message = res.message
+    if sigma > 0:
+        message += "; " + _describe_corrections(camera_corrections(res.x[len(xi0):], obs.rotations))
+    return replace(state, xi=xi, cost=res.cost, status=res.status, message=message, nfev=nfev)
+
+
+def _minimise(rays, x0, options, sigma):
+    """LM on the 3G residuals from ``x0``: ``(11,)`` if ``sigma == 0``, else ``(11 + 3 v,)`` with
+    pose corrections and prior scale ``sigma`` (radians)."""
     warm = {}
 
     def model(x):
@@ -65,16 +84,8 @@ def silhouette_stage(state, obs, options, name="3G"):
         warm["d"] = d
         return r, DenseJacobian(J)
 
-    x0 = np.concatenate([xi0, np.zeros(3 * len(obs))]) if sigma > 0 else xi0
-    res = levenberg_marquardt(model, x0, max_iterations=options.max_iterations_analytic,
-                              ftol=options.ftol_analytic, xtol=options.xtol, gtol=options.gtol)
-    xi = res.x[:len(xi0)]
-    if not np.all(np.isfinite(res.x)) or np.max(np.abs(xi[0:3])) > 1e4:
-        raise StageError("diverged", f"stage {name}: the optimiser diverged")
-    message = res.message
-    if sigma > 0:
-        message += "; " + _describe_corrections(camera_corrections(res.x[len(xi0):], obs.rotations))
-    return replace(state, xi=xi, cost=res.cost, status=res.status, message=message, nfev=res.nfev)
+    return levenberg_marquardt(model, x0, max_iterations=options.max_iterations_analytic,
+                               ftol=options.ftol_analytic, xtol=options.xtol, gtol=options.gtol)
 
 
 def camera_corrections(w, rotations):
