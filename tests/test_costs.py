@@ -6,6 +6,7 @@ from sqfit.costs import (ObservationSet, g5_residuals, penalty, penalty_jacobian
                          rotation_and_derivatives, sample_points)
 from sqfit.superquadric import euler_derivatives, euler_to_matrix, radial_distance
 from sqfit.testing import paper_trial
+from _numeric import central_difference
 
 SHAPES = [(0.1, 0.1), (0.1, 1.9), (1.9, 0.1), (1.9, 1.9), (1.0, 1.0), (0.37, 1.42)]
 
@@ -13,16 +14,6 @@ SHAPES = [(0.1, 0.1), (0.1, 1.9), (1.9, 0.1), (1.9, 1.9), (1.0, 1.0), (0.37, 1.4
 @pytest.fixture(scope="module")
 def trial():
     return paper_trial(3)
-
-
-def central_difference(f, x, h=1e-6):
-    cols = []
-    for k in range(len(x)):
-        xp, xm = x.copy(), x.copy()
-        xp[k] += h
-        xm[k] -= h
-        cols.append((f(xp) - f(xm)) / (2 * h))
-    return np.stack(cols, axis=-1)
 
 
 @pytest.mark.parametrize("shape", SHAPES)

@@ -7,6 +7,7 @@ from sqfit.raycost import (CONTOUR, INSIDE, OUTSIDE, RaySet, contour_rays, outwa
                            ray_minima, ray_residuals)
 from sqfit.superquadric import Superquadric, implicit
 from sqfit.testing import paper_trial
+from _numeric import central_difference
 
 # Shapes near the ends of the soft bounds, but not on them (the penalty has a kink there).
 SHAPES = [(0.11, 0.11), (0.11, 1.89), (1.89, 0.11), (1.89, 1.89), (1.0, 1.0), (0.5, 1.5)]
@@ -49,16 +50,6 @@ def test_ray_minima_warm_start_agrees(trial):
     _, cold = ray_minima(xi2, rays.origins, rays.directions)
     _, warm = ray_minima(xi2, rays.origins, rays.directions, d0=d)
     np.testing.assert_allclose(warm, cold, atol=1e-6)
-
-
-def central_difference(f, x, h=1e-6):
-    cols = []
-    for k in range(len(x)):
-        xp, xm = x.copy(), x.copy()
-        xp[k] += h
-        xm[k] -= h
-        cols.append((f(xp) - f(xm)) / (2 * h))
-    return np.stack(cols, axis=-1)
 
 
 # Known limitation: for e2 near 1.9 (octahedron-like sections) rays grazing an edge are nearly
