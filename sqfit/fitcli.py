@@ -32,8 +32,8 @@ def add_arguments(parser):
     parser.add_argument("--sampling", default="uniform", choices=SAMPLING_METHODS)
     parser.add_argument("--polygon", default="hull", choices=POLYGON_KINDS,
                         help="observation polygon of the R-IOU costs")
-    parser.add_argument("--cleanup", action="store_true",
-                        help="keep each mask's largest component and fill its holes before sampling")
+    parser.add_argument("--no-cleanup", dest="cleanup", action="store_false",
+                        help="use masks as given (default: keep each mask's largest component and fill its holes)")
     parser.add_argument("--seed", type=int, default=0, help="seed of the mask sampling")
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
 
@@ -44,7 +44,7 @@ def _rng(seed, trial_name, object_id):
 
 
 def fit_dataset(dataset, output, chain, samples=C.DEFAULT_SAMPLES, sampling="uniform", polygon="hull",
-                seed=0, progress=True, cleanup=False):
+                seed=0, progress=True, cleanup=True):
     """Fit every object of every trial; returns ``(records written, errors)``."""
     from tqdm import tqdm
 

@@ -199,7 +199,7 @@ def iter_trials(dataset_dir):
 
 
 def observations_from_images(cameras, images, object_id, n_samples=C.DEFAULT_SAMPLES, sampling="uniform",
-                             rng=None, cleanup=False):
+                             rng=None, cleanup=True):
     """Observations of one object in every view where its mask is not empty.
 
     Parameters
@@ -233,7 +233,7 @@ def observations_from_images(cameras, images, object_id, n_samples=C.DEFAULT_SAM
     return out
 
 
-def observations(trial, object_id, n_samples=C.DEFAULT_SAMPLES, sampling="uniform", rng=None, cleanup=False):
+def observations(trial, object_id, n_samples=C.DEFAULT_SAMPLES, sampling="uniform", rng=None, cleanup=True):
     """Observations of one object of a loaded trial, with the cameras the fitter should use.
 
     See :func:`observations_from_images`; returns a list (possibly with fewer than two views).

@@ -10,9 +10,11 @@ From the mask, :meth:`Observation.from_mask` extracts
   ``contour`` spaces points evenly along the outer contour with a random phase, ``mixed`` takes
   half of each.
 
-Optional clean-up (``cleanup=True``, see :func:`clean_mask`) keeps only the largest connected
+Clean-up (``cleanup=True``, the default; see :func:`clean_mask`) keeps only the largest connected
 component and fills its holes before anything is extracted: spurious false-positive blobs and
-holes from missed parts then no longer reach the contour or the samples.
+holes from missed parts then no longer reach the contour or the samples. It is the identity on
+a clean single-region mask; on the paper scene one false blob per mask drops the default chain's
+median 3D IoU from 0.88 to 0.32 without it and leaves it at 0.88 with it (README, "Robustness").
 
 Bad masks are reported clearly:
 
@@ -66,7 +68,7 @@ class Observation:
     touches_border: bool
 
     @classmethod
-    def from_mask(cls, camera, mask, n_samples=C.DEFAULT_SAMPLES, sampling="uniform", rng=None, cleanup=False):
+    def from_mask(cls, camera, mask, n_samples=C.DEFAULT_SAMPLES, sampling="uniform", rng=None, cleanup=True):
         """Build an observation from a binary mask.
 
         Parameters
@@ -79,7 +81,8 @@ class Observation:
         sampling : {"uniform", "contour", "mixed"}
         rng : None, int or numpy.random.Generator
         cleanup : bool
-            Keep the largest connected component and fill its holes first (:func:`clean_mask`).
+            Keep the largest connected component and fill its holes first (:func:`clean_mask`);
+            False uses the mask as given.
 
         Returns
         -------

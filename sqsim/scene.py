@@ -181,7 +181,7 @@ class MasksConfig:
     samples: int = 100
     sampling: str = "uniform"
     min_area_px: int = 200
-    cleanup: bool = False
+    cleanup: bool = True
 
 
 @dataclass(frozen=True)

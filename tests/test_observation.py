@@ -94,8 +94,8 @@ def test_cleanup_keeps_the_largest_component_and_fills_holes():
     cleaned = clean_mask(mask)
     np.testing.assert_array_equal(cleaned, rect_mask())
     assert not clean_mask(np.zeros((4, 4), bool)).any()
-    raw = Observation.from_mask(CAM, mask, rng=1)
-    tidy = Observation.from_mask(CAM, mask, rng=1, cleanup=True)
+    raw = Observation.from_mask(CAM, mask, rng=1, cleanup=False)
+    tidy = Observation.from_mask(CAM, mask, rng=1)  # clean-up is the default
     assert raw.area_px == 250 - 6 + 9 and tidy.area_px == 250
     assert np.all(tidy.samples[:, 1] <= 20)  # no sample lands on the blob
     assert np.any(raw.samples[:, 1] > 40)
@@ -107,6 +107,6 @@ def test_dataset_reader_passes_cleanup_through():
     image = rect_mask().astype(np.uint16)
     image[40:43, 50:53] = 1  # a false-positive blob with the object's id
     images = np.stack([image, image])
-    raw = observations_from_images([CAM, CAM], images, 1, rng=0)
-    tidy = observations_from_images([CAM, CAM], images, 1, rng=0, cleanup=True)
+    raw = observations_from_images([CAM, CAM], images, 1, rng=0, cleanup=False)
+    tidy = observations_from_images([CAM, CAM], images, 1, rng=0)
     assert [o.area_px for o in raw] == [259, 259] and [o.area_px for o in tidy] == [250, 250]

@@ -133,8 +133,11 @@ def test_numerical_error_inside_a_stage_is_caught(monkeypatch, trial):
 def test_border_warning():
     t = paper_trial(1)
     mask = t.masks[0].copy()
-    mask[0, 300:310] = True
-    obs = [Observation.from_mask(t.cameras[0], mask, 100, rng=0)] + t.observations[1:]
+    mask[0, 300:310] = True  # a separate strip on the border
+    obs = [Observation.from_mask(t.cameras[0], mask, 100, rng=0, cleanup=False)] + t.observations[1:]
     result = fit(obs, "1-2")
     assert result.warnings == ["view 0: mask touches the image border (truncated silhouette)"]
     assert fit(t.observations, "1-2").warnings == []
+    # Clean-up (the default) drops the strip: the object itself does not touch the border.
+    cleaned = [Observation.from_mask(t.cameras[0], mask, 100, rng=0)] + t.observations[1:]
+    assert fit(cleaned, "1-2").warnings == []
