@@ -262,7 +262,10 @@ def _run_parallel(scene_dict, pending, workers, scheduler, write):
             future.cancel()
         raise
     finally:
-        executor.shutdown(wait=False, cancel_futures=True) if client is None else client.close()
+        if client is None:
+            executor.shutdown(wait=False, cancel_futures=True)
+        else:
+            client.close()
 
 
 # --------------------------------------------------------------------------- one trial (worker)
