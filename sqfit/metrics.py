@@ -13,7 +13,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .superquadric import Superquadric, log_implicit_unit, to_local, volume
+from .superquadric import Superquadric, contains, log_implicit_unit, to_local, volume
 
 __all__ = ["IOU_GRID_CELLS", "METRIC_SILHOUETTE_DIRECTIONS", "bounding_box", "iou_3d", "iou_3d_mesh", "r_iou", "success"]
 
@@ -37,11 +37,6 @@ def bounding_box(sq):
     half = np.abs(sq.rotation_matrix) @ np.asarray(sq.size)
     centre = np.asarray(sq.position)
     return np.stack([centre - half, centre + half])
-
-
-def _inside(sq, points):
-    q = to_local(sq, points) / np.asarray(sq.size)
-    return log_implicit_unit(q, sq.shape) <= 0.0
 
 
 def _corners(sq):
@@ -83,7 +78,7 @@ def intersection_volume(a, b, cells=IOU_GRID_CELLS, chunk=1 << 16):
     inside = 0
     for start in range(0, len(grid), chunk):
         keep = log_implicit_unit(grid[start:start + chunk] / size, frame.shape) <= 0.0
-        inside += int(np.count_nonzero(_inside(other, world[start:start + chunk][keep])))
+        inside += int(np.count_nonzero(contains(other, world[start:start + chunk][keep])))
     return inside * float(np.prod(step))
 
 

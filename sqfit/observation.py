@@ -33,6 +33,7 @@ import numpy as np
 from . import constants as C
 from ._checks import check_choice
 from .camera import Camera, pixel_centers
+from .silhouette import polygon_area
 
 __all__ = ["Observation", "SAMPLING_METHODS", "POLYGON_KINDS"]
 
@@ -196,9 +197,9 @@ def outer_contour(mask, rows=None, cols=None):
     crop = np.zeros((rows.max() - r0 + 3, cols.max() - c0 + 3), dtype=np.float64)
     crop[rows - r0 + 1, cols - c0 + 1] = 1.0
     lines = find_contours(crop, 0.5)
-    best = max(lines, key=lambda line: abs(_signed_area(line[:, ::-1])))
+    best = max(lines, key=lambda line: abs(polygon_area(line[:, ::-1])))
     uv = best[:-1, ::-1] + np.array([c0 - 1 + 0.5, r0 - 1 + 0.5])
-    return uv if _signed_area(uv) > 0 else uv[::-1]
+    return uv if polygon_area(uv) > 0 else uv[::-1]
 
 
 def convex_hull(points):
@@ -231,11 +232,6 @@ def convex_hull(points):
 
 def _cross(o, a, b):
     return (a[0] - o[0]) * (b[1] - o[1]) - (a[1] - o[1]) * (b[0] - o[0])
-
-
-def _signed_area(poly):
-    x, y = poly[:, 0], poly[:, 1]
-    return 0.5 * float(np.dot(x, np.roll(y, -1)) - np.dot(y, np.roll(x, -1)))
 
 
 def _has_area(points):

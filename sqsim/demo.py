@@ -6,6 +6,7 @@ import numpy as np
 
 import sqfit
 from sqfit.observation import convex_hull
+from sqfit.silhouette import polygon_area
 from sqfit.superquadric import sample_surface_uniform, volume
 
 
@@ -28,9 +29,7 @@ def run(args):
         eye = 10.0 * np.array([np.cos(angle), np.sin(angle), 0.0])
         cam = sqfit.Camera(intr, sqfit.look_at(eye, [0.0, 0.0, 0.0]))
         uv, depth = sqfit.project(cam, points)
-        hull = convex_hull(uv)
-        x, y = hull[:, 0], hull[:, 1]
-        area = 0.5 * abs(np.dot(x, np.roll(y, -1)) - np.dot(y, np.roll(x, -1)))
+        area = abs(polygon_area(convex_hull(uv)))
         inside = np.mean((uv[:, 0] >= 0) & (uv[:, 0] < 640) & (uv[:, 1] >= 0) & (uv[:, 1] < 480))
         print(f"view {k}: camera at {np.round(eye, 2)}  silhouette area {area:9.0f} px  "
               f"bbox u[{uv[:, 0].min():7.1f}, {uv[:, 0].max():7.1f}] v[{uv[:, 1].min():7.1f}, "

@@ -326,7 +326,7 @@ def fit_trial(scene_dict, index, chains):
             if obs_error is not None:
                 records.append({**base, "status": "bad_observation", "message": obs_error, "warnings": [],
                                 "params": None, "stages": [], "time_s": 0.0,
-                                "metrics": {**score(None, IOU_GRID_CELLS), "success": False}})
+                                "metrics": {**score(None, IOU_GRID_CELLS), "time_s": 0.0, "success": False}})
                 continue
             result = sqfit.fit(obs, chain, rng=np.random.default_rng(chain_seed(seed, chain)), options=options)
             stages = []
@@ -373,8 +373,6 @@ def write_reports(out, scene, chains, records, figures=True):
     records = sorted((r for r in records if r["trial"] < trials and r["chain"] in chains),
                      key=lambda r: (r["trial"], r["object"], chains.index(r["chain"])))
     resampled = sum({r["trial"]: r["resampled"] for r in records}.values())
-    for r in records:
-        r["metrics"].setdefault("time_s", r["time_s"])
     summary = report.summarize(records, chains, scene.experiment.name, scene.experiment.seed, trials, resampled)
     _atomic_write(out / "summary.json", json.dumps(summary, indent=1))
     _atomic_write(out / "table.md", report.table_markdown(summary))

@@ -313,16 +313,28 @@ def load_scene(path):
     ValueError
         Malformed TOML, unknown section or key, or a bad value (message names file and key).
     """
+    return parse_scene(read_toml(path), source=str(path))
+
+
+def read_toml(path):
+    """The parsed TOML mapping of a scene (or sweep) file, with clear errors.
+
+    Raises
+    ------
+    OSError
+        The file does not exist.
+    ValueError
+        Malformed TOML (the message names the file).
+    """
     path = Path(path)
     try:
         text = path.read_text(encoding="utf-8")
     except FileNotFoundError:
         raise OSError(f"scene file not found: {path}") from None
     try:
-        data = tomllib.loads(text)
+        return tomllib.loads(text)
     except tomllib.TOMLDecodeError as exc:
         raise ValueError(f"{path}: malformed TOML: {exc}") from None
-    return parse_scene(data, source=str(path))
 
 
 def parse_scene(mapping, source="<string>"):

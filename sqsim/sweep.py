@@ -28,7 +28,6 @@ from __future__ import annotations
 import itertools
 import json
 import re
-import tomllib
 from pathlib import Path
 
 import numpy as np
@@ -105,10 +104,10 @@ def load_sweep(path):
     scene : sqsim.scene.Scene
     axes : list of (str, list)
     """
-    from .scene import parse_scene
+    from .scene import parse_scene, read_toml
 
     path = Path(path)
-    data = _read_toml(path)
+    data = read_toml(path)
     spec = data.pop("sweep", None)
     if spec is None:
         return parse_scene(data, source=str(path)), []
@@ -119,7 +118,7 @@ def load_sweep(path):
         raise ValueError(f"{path}: unknown key(s) {sorted(unknown)} in [sweep] (known: base, axis)")
     merged = {}
     if "base" in spec:
-        base = _read_toml(path.parent / str(spec["base"]))
+        base = read_toml(path.parent / str(spec["base"]))
         if "sweep" in base:
             raise ValueError(f"{path}: the base scene {spec['base']} must not itself be a sweep")
         merged = base
@@ -135,15 +134,6 @@ def load_sweep(path):
             raise ValueError(f"{path}: [[sweep.axis]] #{n} values must be a non-empty list")
         axes.append((str(axis["param"]), list(axis["values"])))
     return parse_scene(merged, source=str(path)), axes
-
-
-def _read_toml(path):
-    try:
-        return tomllib.loads(Path(path).read_text(encoding="utf-8"))
-    except FileNotFoundError:
-        raise OSError(f"scene file not found: {path}") from None
-    except tomllib.TOMLDecodeError as exc:
-        raise ValueError(f"{path}: malformed TOML: {exc}") from None
 
 
 def point_name(point):
@@ -183,7 +173,7 @@ def run_sweep(scene, axes, output, *, trials=None, chains=None, seed=None, worke
 
 def _row(point, chain, summary, records):
     trials = summary["trials"]
-    values = {q: [r["metrics"][q] if q != "time_s" else r["time_s"] for r in records
+    values = {q: [r["metrics"][q] for r in records
                   if r["chain"] == chain and r["trial"] < trials] for q in QUANTITIES}
     row = {"point": point, "chain": chain, "trials": trials,
            "success_rate": summary["chains"][chain]["success_rate"],

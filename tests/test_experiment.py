@@ -163,3 +163,15 @@ def test_resume_accepts_configs_written_before_a_scene_key_existed(reference, tm
     del config["scene"]["masks"]["cleanup"]  # as written by a version without that key
     (copy / "experiment.json").write_text(json.dumps(config))
     assert without_time(run_experiment(small_scene(), copy, progress=False)) == without_time(summary)
+
+
+def test_unfittable_observations_are_recorded_not_fatal(tmp_path):
+    # Erosion wipes every mask out: each record says why, and the summary counts errors.
+    scene = small_scene(trials=1, chains=["default"]).with_overrides({"noise.erosion_px": 500})
+    summary = run_experiment(scene, tmp_path, progress=False)
+    (record,) = [json.loads(line) for line in (tmp_path / "trials.jsonl").read_text().splitlines()]
+    assert record["status"] == "bad_observation" and "at least 2" in record["message"]
+    assert record["metrics"] == {"iou": 0.0, "r_iou": 0.0, "r_iou_m": 0.0, "r_iou_m_contour": 0.0,
+                                 "time_s": 0.0, "success": False}
+    entry = summary["chains"][sqfit.DEFAULT_CHAIN]
+    assert entry["errors"] == 1 and entry["success_rate"] == 0.0
