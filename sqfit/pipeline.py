@@ -49,7 +49,11 @@ class FitOptions:
     penalty_analytic : float
         ``c_p`` of the G3-G5 penalty (paper: 100).
     max_iterations_numeric, max_iterations_analytic : int
-        Levenberg-Marquardt step limits of the R-IOU (3A, 3B, 3F) and G5 (3C-3E) stages.
+        Levenberg-Marquardt step limits of the R-IOU (3A, 3B, 3F) and G5 (3C-3E) stages. The R-IOU
+        stages rarely converge by ``ftol``: G2 keeps decreasing by about 1 % per step, so this
+        limit is a time budget. 25 steps with the analytic Jacobian and the secant Hessian fit
+        as well as 60 or 120 plain Gauss-Newton steps with finite differences (README, "Fitter
+        speed").
     ftol_numeric, ftol_analytic : float
         Relative cost-reduction tolerances.
     atol_analytic : float
@@ -61,12 +65,14 @@ class FitOptions:
         the silhouette solver's precision (1e-7 px).
     damping_numeric : {"identity", "marquardt"}
         Damping matrix of the R-IOU stages' Levenberg-Marquardt (see :mod:`sqfit.lm`).
-    hessian_numeric : {"gauss-newton", "secant"}
-        Model Hessian of the R-IOU stages: ``J^T J`` (plain LM, default), or ``J^T J`` plus a
-        structured secant estimate of the second-order term (G2 has 3 view residuals for up to
-        11 unknowns, so ``J^T J`` alone has rank 3 and plain LM crawls). Measured (50 paper
-        trials, 1-2-3D-3A, with ``ftol_numeric=1e-3``): better R-IOU / R-IOU-M (mean 0.866 /
-        0.932 vs 0.858 / 0.919) in fewer steps, but mean 3D IoU 0.718 vs 0.732, so not the default.
+    hessian_numeric : {"secant", "gauss-newton"}
+        Model Hessian of the R-IOU stages: ``J^T J`` plus a structured secant estimate of the
+        second-order term (default; :class:`sqfit.lm.SecantTerm`), or plain ``J^T J``. G2 has 3
+        view residuals for up to 11 unknowns, so ``J^T J`` alone has rank 3 and plain LM crawls.
+    riou_jacobian : {"analytic", "numeric"}
+        Jacobian of the R-IOU stages (3A, 3B, 3F): analytic (:func:`sqfit.costs.riou_residuals`,
+        hull polygons; contour polygons always use differences), or forward differences of step
+        ``fd_step`` as in the paper. Measured in the README ("Fitter speed").
     silhouette_directions : int
         Vertices of the silhouette polygons inside the R-IOU costs (R-IOU-M always uses
         :data:`sqfit.silhouette.DEFAULT_DIRECTIONS`).
@@ -80,7 +86,7 @@ class FitOptions:
     polygon: str = "hull"
     penalty_riou: float = C.PENALTY_RIOU
     penalty_analytic: float = C.PENALTY_ANALYTIC
-    max_iterations_numeric: int = 60
+    max_iterations_numeric: int = 25
     max_iterations_analytic: int = 100
     ftol_numeric: float = 1e-5
     ftol_analytic: float = 1e-6
@@ -89,7 +95,8 @@ class FitOptions:
     gtol: float = 1e-10
     fd_step: float = 1e-4
     damping_numeric: str = "marquardt"
-    hessian_numeric: str = "gauss-newton"
+    hessian_numeric: str = "secant"
+    riou_jacobian: str = "analytic"
     silhouette_directions: int = 48
     pose_sigma_deg: float = 20.0
 
@@ -113,6 +120,8 @@ class FitOptions:
             raise ValueError(f"damping_numeric must be 'identity' or 'marquardt', got {self.damping_numeric!r}")
         if self.hessian_numeric not in ("secant", "gauss-newton"):
             raise ValueError(f"hessian_numeric must be 'secant' or 'gauss-newton', got {self.hessian_numeric!r}")
+        if self.riou_jacobian not in ("analytic", "numeric"):
+            raise ValueError(f"riou_jacobian must be 'analytic' or 'numeric', got {self.riou_jacobian!r}")
         if self.fd_step <= 0:
             raise ValueError(f"fd_step must be > 0, got {self.fd_step}")
         if int(self.silhouette_directions) != self.silhouette_directions or self.silhouette_directions < 8:

@@ -28,12 +28,15 @@ straddling the camera plane) has no bounded silhouette: :func:`silhouette` retur
 
 from __future__ import annotations
 
+from functools import lru_cache
+
 import numpy as np
 
 from ._checks import check_shape
-from .superquadric import euler_to_matrix
+from .superquadric import euler_to_matrix, rotation_and_derivatives
 
-__all__ = ["silhouette", "polygon_iou", "polygon_area", "is_convex", "ZNEAR", "DEFAULT_DIRECTIONS"]
+__all__ = ["silhouette", "vertex_velocities", "convex_iou_jacobian", "polygon_iou", "polygon_area",
+           "is_convex", "ZNEAR", "DEFAULT_DIRECTIONS"]
 
 #: Minimum camera depth (metres) of every superquadric point for a silhouette to exist.
 ZNEAR = 1e-3
@@ -46,11 +49,15 @@ _NEWTON_TOL = 1e-7
 _MAX_NEWTON = 40
 #: Polygon edges shorter than this (pixels) do not act as clipping half-planes.
 _MIN_EDGE = 1e-7
+_TINY = 1e-300
 
 
+@lru_cache(maxsize=16)
 def _directions(k):
     theta = 2.0 * np.pi * np.arange(k) / k
-    return np.stack([np.cos(theta), np.sin(theta)], axis=1)
+    d = np.stack([np.cos(theta), np.sin(theta)], axis=1)
+    d.flags.writeable = False
+    return d
 
 
 def _pnorm2(x, y, q):
@@ -156,7 +163,8 @@ def _adapted_directions(L, ok, k):
     return np.where(ok[..., None, None], u, base)
 
 
-def batch_silhouettes(xi, rotations, centers, intrinsics, n_directions=DEFAULT_DIRECTIONS, h0=None):
+def batch_silhouettes(xi, rotations, centers, intrinsics, n_directions=DEFAULT_DIRECTIONS, h0=None,
+                      touching=False):
     """Silhouettes of several superquadrics in several cameras at once.
 
     Parameters
@@ -174,6 +182,8 @@ def batch_silhouettes(xi, rotations, centers, intrinsics, n_directions=DEFAULT_D
     h0 : (b, v, K) float, optional
         Starting support values (e.g. the solution at a nearby ``xi``, for finite differences);
         default: the support values of the quadric's silhouette ellipse.
+    touching : bool
+        Also return the touching points (for :func:`vertex_velocities`).
 
     Returns
     -------
@@ -183,13 +193,16 @@ def batch_silhouettes(xi, rotations, centers, intrinsics, n_directions=DEFAULT_D
         False where part of the superquadric is at depth <= :data:`ZNEAR`.
     h : (b, v, K) float
         Support values (image offsets of the support lines), to warm-start a nearby solve.
+    unit_points, points : (b, v, K, 3) float
+        Only if ``touching``: the touching points on the unit-size superquadric (superquadric
+        frame) and the touching points (camera frames).
     """
     xi = np.atleast_2d(xi)
     a = np.abs(xi[:, 0:3])
     e = np.clip(xi[:, 3:5], *_E_RANGE)
     q1 = (2.0 / (2.0 - e[:, 0]))[:, None, None]
     q2 = (2.0 / (2.0 - e[:, 1]))[:, None, None]
-    R_sq = euler_to_matrix(xi[:, 8:11])  # (b, 3, 3)
+    R_sq = euler_to_matrix(xi[0, 8:11])[None] if len(xi) == 1 else euler_to_matrix(xi[:, 8:11])  # (b, 3, 3)
     # SQ -> camera rotation M and SQ centre c in camera frames: (b, v, 3, 3), (b, v, 3).
     M = np.einsum("vji,bjk->bvik", rotations, R_sq)
     c = np.einsum("vji,bvj->bvi", rotations, xi[:, None, 5:8] - centers[None])
@@ -224,12 +237,100 @@ def batch_silhouettes(xi, rotations, centers, intrinsics, n_directions=DEFAULT_D
             h = h + step
             if not np.any(np.abs(step[valid]) > _NEWTON_TOL):
                 break
-        _, grad = dual_support(w0 - h[..., None] * wz, q1, q2)
+        # ``grad`` is the touching point of the last support value but one: the last step was
+        # below 1e-7 px, so re-evaluating it at ``h`` would move the vertices by less than that.
         point = c[:, :, None, :] + np.einsum("bvij,bvkj->bvki", M, grad * a[:, None, None, :])
         z = np.where(valid[..., None], point[..., 2], 1.0)
         polys = np.stack([fx * point[..., 0] / z + cx, fy * point[..., 1] / z + cy], axis=-1)
     valid &= np.all(np.isfinite(polys), axis=(2, 3))
+    if touching:
+        return polys, valid, h, grad, point
     return polys, valid, h
+
+
+def _unit_point_shape_derivatives(s, e):
+    """Derivatives of points ``s`` (b, v, K, 3) of the unit superquadric with respect to ``e1, e2``
+    at fixed angles ``(eta, omega)`` of the parametrisation
+    ``s = (c_eta^e1 c_omega^e2, c_eta^e1 s_omega^e2, s_eta^e1)`` (signed powers).
+
+    From ``s`` alone: ``|c_eta|^e1 = A = ||(s1, s2)||_(2/e2)``, so ``ds_i/de1 = s_i ln(A) / e1``
+    (``i = 1, 2``), ``ds_3/de1 = s_3 ln|s_3| / e1``, ``ds_i/de2 = s_i ln(|s_i| / A) / e2``. Terms
+    ``s ln|s|`` are 0 at ``s = 0`` (their limit).
+
+    Returns
+    -------
+    ds : (b, v, K, 2, 3) float
+        ``ds[..., j, :] = d s / d e_(j+1)``.
+    """
+    e1, e2 = e[:, 0, None, None, None], e[:, 1, None, None, None]
+    with np.errstate(all="ignore"):
+        aw = np.abs(s)
+        big = np.maximum(aw[..., 0], aw[..., 1])
+        t = np.minimum(aw[..., 0], aw[..., 1]) / (big + _TINY)
+        log_a = np.log(big + _TINY) + 0.5 * e2[..., 0] * np.log1p(t ** (2.0 / e2[..., 0]))
+        slog = np.where(aw > 0, s * np.log(aw + _TINY), 0.0)
+        s_log_a = np.where(aw[..., :2] > 0, s[..., :2] * log_a[..., None], 0.0)
+    ds = np.zeros(s.shape[:3] + (2, 3))
+    ds[..., 0, :2] = s_log_a / e1
+    ds[..., 0, 2] = slog[..., 2] / e1[..., 0]
+    ds[..., 1, :2] = (slog[..., :2] - s_log_a) / e2
+    return ds
+
+
+def vertex_velocities(xi, unit_points, points, rotations, intrinsics):
+    """Image velocities of silhouette vertices with respect to the 11 parameters.
+
+    Each vertex is the projection of a touching point ``y = M (a * s) + c`` (camera frame) with
+    ``s`` on the unit superquadric. Its velocity is the derivative of that projection with the
+    surface point held fixed in the superquadric's parametrisation (``s`` moves only through the
+    shape exponents). By the envelope theorem the component along the outward normal of the
+    silhouette is the exact velocity of the supporting line, and at a corner the touching point
+    does not slide, so the normal flux of these velocities across the polygon's edges is the
+    first-order change of its area (:func:`convex_iou_jacobian`).
+
+    Parameters
+    ----------
+    xi : (b, 11) float
+    unit_points : (b, v, K, 3) float
+        ``s``, touching points on the unit-size superquadric, superquadric frame.
+    points : (b, v, K, 3) float
+        ``y``, touching points, camera frames (from :func:`batch_silhouettes`).
+    rotations : (v, 3, 3) float
+        Camera -> world rotations.
+    intrinsics : (v, 4) float
+
+    Returns
+    -------
+    dpolys : (b, v, K, 2, 11) float
+        ``d (u, v) / d xi`` of every vertex; 0 for a shape exponent outside [0.01, 1.99], where
+        the silhouette clamps it. Not finite where the touching point is at depth 0.
+    """
+    xi = np.atleast_2d(xi)
+    R_sq, dR = zip(*(rotation_and_derivatives(r) for r in xi[:, 8:11]))
+    R_sq, dR = np.stack(R_sq), np.stack(dR)  # (b, 3, 3), (b, 3 angles, 3, 3)
+    a = np.abs(xi[:, 0:3])
+    fx, fy = intrinsics[:, 0][None, :, None], intrinsics[:, 1][None, :, None]
+    iz = 1.0 / points[..., 2]
+    # d pi / d y (camera frame) as two rows, then in the world frame (d pi / d p) and the
+    # superquadric frame.
+    rows = np.zeros(points.shape[:3] + (2, 3))
+    rows[..., 0, 0] = fx * iz
+    rows[..., 1, 1] = fy * iz
+    rows[..., 0, 2] = -fx * points[..., 0] * iz ** 2
+    rows[..., 1, 2] = -fy * points[..., 1] * iz ** 2
+    rows_w = np.einsum("vij,bvklj->bvkli", rotations, rows)
+    rows_sq = np.einsum("bji,bvklj->bvkli", R_sq, rows_w)
+    out = np.empty(points.shape[:3] + (2, 11))
+    sign = np.where(xi[:, 0:3] < 0, -1.0, 1.0)[:, None, None, None, :]
+    out[..., 0:3] = rows_sq * (unit_points[..., None, :] * sign)
+    e = np.clip(xi[:, 3:5], *_E_RANGE)
+    inside = ((xi[:, 3:5] >= _E_RANGE[0]) & (xi[:, 3:5] <= _E_RANGE[1]))[:, None, None, :, None]
+    ds = _unit_point_shape_derivatives(unit_points, e) * a[:, None, None, None, :] * inside
+    out[..., 3:5] = np.einsum("bvkli,bvkei->bvkle", rows_sq, ds)
+    out[..., 5:8] = rows_w
+    dx = np.einsum("bjmn,bvkn->bvkjm", dR, unit_points * a[:, None, None, :])  # (b, v, K, angle, 3)
+    out[..., 8:11] = np.einsum("bvkli,bvkji->bvklj", rows_w, dx)
+    return out
 
 
 def camera_arrays(cameras):
@@ -295,15 +396,13 @@ def half_planes(Q):
     return n, np.where(use, n[..., 0] * Q[..., 0] + n[..., 1] * Q[..., 1], 1.0)
 
 
-def _clipped_boundary(S, n, c, strict=False):
-    """Twice the area contributed by the edges of S inside the convex polygons ``n . x <= c``.
+def _clip(S, n, c, strict=False):
+    """Cyrus-Beck clipping of the edges ``s + t d`` of S against convex polygons ``n . x <= c``.
 
     S : (..., k, 2); n : (..., m, 2) and c : (..., m) from :func:`half_planes` (broadcast over the
-    leading axes). Green's theorem: the area of ``S n Q`` is half the sum of ``cross(a, b)`` over
-    the pieces ``[a, b]`` of both boundaries inside the other polygon; each piece of an edge
-    ``s + t d`` is found by Cyrus-Beck clipping against all half-planes at once. Edges lying
-    exactly on a boundary line of the other polygon count as inside unless ``strict``, so an edge
-    shared by both polygons is counted once (first pass non-strict, second strict).
+    leading axes). Edges lying exactly on a boundary line of the other polygon count as inside
+    unless ``strict``. Returns ``t_lo, t_hi`` (..., k): the piece inside is ``[t_lo, t_hi]`` (empty
+    when ``t_hi <= t_lo``), and the edge vectors ``d`` (..., k, 2).
     """
     d = np.roll(S, -1, axis=-2) - S
     sx, sy = S[..., :, None, 0], S[..., :, None, 1]
@@ -317,6 +416,17 @@ def _clipped_boundary(S, n, c, strict=False):
     neg = den < 0
     t_lo = np.max(np.where(neg, t, 0.0), axis=-1, initial=0.0)
     t_hi = np.min(np.where(neg, 1.0, t), axis=-1, initial=1.0)
+    return t_lo, t_hi, d
+
+
+def _clipped_boundary(S, n, c, strict=False):
+    """Twice the area contributed by the edges of S inside the convex polygons ``n . x <= c``.
+
+    Green's theorem: the area of ``S n Q`` is half the sum of ``cross(a, b)`` over the pieces
+    ``[a, b]`` of both boundaries inside the other polygon (:func:`_clip`). An edge shared by both
+    polygons is counted once (first pass non-strict, second strict).
+    """
+    t_lo, t_hi, d = _clip(S, n, c, strict)
     length = np.maximum(t_hi - t_lo, 0.0)
     cross = S[..., 0] * d[..., 1] - S[..., 1] * d[..., 0]
     return np.sum(length * cross, axis=-1)
@@ -346,6 +456,60 @@ def convex_iou(S, Q, q_planes=None):
         union = area_s + area_q - inter
         iou = np.where(union > 0, inter / union, 0.0)
     return np.clip(iou, 0.0, 1.0)
+
+
+def convex_iou_jacobian(S, Q, q_planes=None):
+    """IoU of convex CCW polygons (as :func:`convex_iou`), and its derivative as a function.
+
+    The vertices of ``S`` move with velocities ``dS`` (e.g. :func:`vertex_velocities`); ``Q`` is
+    fixed. The area of ``S`` changes by the flux of the (edge-wise linear) velocity field across
+    its edges, and the intersection area by the flux across the pieces of those edges inside
+    ``Q`` (:func:`_clip`): with ``N_k`` the outward normal of edge ``k`` scaled by its length, the
+    piece ``[t0, t1]`` contributes ``(t1 - t0) f0 + (t1^2 - t0^2) / 2 (f1 - f0)``, where
+    ``f0 = dS_k . N_k`` and ``f1 = dS_(k+1) . N_k``.
+
+    Parameters
+    ----------
+    S : (..., k, 2) float
+    Q : (..., m, 2) float
+    q_planes : tuple, optional
+        :func:`half_planes` of ``Q``.
+
+    Returns
+    -------
+    iou : (...,) float
+    derivative : callable
+        ``derivative(dS)`` with ``dS`` ``(..., k, 2, p)`` returns ``d iou`` ``(..., p)``; 0 where
+        the polygons do not overlap (IoU 0 has no gradient). Call it only when needed: the
+        IoU alone is cheaper.
+    """
+    nq, cq = half_planes(Q) if q_planes is None else q_planes
+    ns, cs = half_planes(S)
+    with np.errstate(all="ignore"):
+        t_lo, t_hi, d = _clip(S, nq, cq)
+        cross = S[..., 0] * d[..., 1] - S[..., 1] * d[..., 0]
+        length = np.maximum(t_hi - t_lo, 0.0)
+        inter = 0.5 * (np.sum(length * cross, axis=-1) + _clipped_boundary(Q, ns, cs, strict=True))
+        area_s = 0.5 * np.sum(cross, axis=-1)
+        area_q = 0.5 * _clipped_area2(Q)
+        union = area_s + area_q - inter
+        iou = np.clip(np.where(union > 0, inter / union, 0.0), 0.0, 1.0)
+    ok = (union > 0) & (inter > 0)
+
+    def derivative(dS):
+        with np.errstate(all="ignore"):
+            normal = np.stack([d[..., 1], -d[..., 0]], axis=-1)  # outward for CCW, |N| = edge length
+            f0 = np.einsum("...kxp,...kx->...kp", dS, normal)
+            f1 = np.einsum("...kxp,...kx->...kp", np.roll(dS, -1, axis=-3), normal)
+            d_area = 0.5 * np.sum(f0 + f1, axis=-2)
+            # Empty pieces (t_hi <= t_lo, where t_lo may be huge for a degenerate edge): t1 = t0.
+            t0 = np.minimum(t_lo, 1.0)
+            t0, t1 = t0[..., None], np.maximum(t_hi, t0)[..., None]
+            d_inter = np.sum((t1 - t0) * f0 + 0.5 * (t1 ** 2 - t0 ** 2) * (f1 - f0), axis=-2)
+            diou = (d_inter * (area_s + area_q)[..., None] - inter[..., None] * d_area) / union[..., None] ** 2
+        return np.where(ok[..., None] & np.isfinite(diou), diou, 0.0)
+
+    return iou, derivative
 
 
 def _clipped_area2(P):

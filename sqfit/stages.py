@@ -8,13 +8,14 @@ Every stage is ``stage(state, observations, options) -> state``: it reads a :cla
 =====  =====================================================================================
 ``1``  Linear triangulation of the mask centroids (eq. 12, QR) and one depth per view.
 ``2``  PCA initialisation (Algorithm 1): orientation, size, ``e = 1``, one depth per sample.
-``3A`` Levenberg-Marquardt on G2 (1 - R-IOU + penalty), all 11 parameters, finite differences
+``3A`` Levenberg-Marquardt on G2 (1 - R-IOU + penalty), all 11 parameters. Analytic Jacobian
+       by default, finite differences as in the paper with ``FitOptions.riou_jacobian="numeric"``
        (optionally with a secant estimate of the second-order term: ``FitOptions.hessian_numeric``).
 ``3B`` As 3A with ``e`` fixed to 1 (9 parameters).
 ``3C`` LM on G5 with ``e = 1`` and one depth per view (9 + v unknowns), analytic Jacobian.
 ``3D`` LM on G5 with ``e = 1`` and one depth per sample (9 + n unknowns), analytic, Schur.
 ``3E`` LM on G5, all 11 parameters and one depth per sample, analytic, Schur.
-``3F`` LM on G2 with only ``e`` free (2 parameters), finite differences.
+``3F`` LM on G2 with only ``e`` free (2 parameters), Jacobian as 3A.
 =====  =====================================================================================
 
 Stages 3B-3D set ``e = (1, 1)`` before optimising ("quadric parameters"). Depths are camera-frame
@@ -241,14 +242,18 @@ def _check_result(xi, stage):
 
 
 def _riou_stage(state, obs, options, free, quadric, name):
-    """LM on G2 over the parameters ``free``, forward-difference Jacobian.
+    """LM on G2 over the parameters ``free``.
 
-    The Jacobian is lazy (see :func:`sqfit.lm.levenberg_marquardt`): a trial point costs one
-    evaluation of G2; only accepted points pay for the ``len(free)`` difference columns, which
-    reuse the point's residuals and start their silhouette solves from its support values (so
-    Newton needs fewer steps than from the quadric's ellipse). The model Hessian is
+    Jacobian: analytic when ``options.riou_jacobian == "analytic"`` (the default) and the
+    observation polygons are hulls (:func:`sqfit.costs.riou_residuals`); otherwise forward
+    differences, as in the paper. Either is lazy (see :func:`sqfit.lm.levenberg_marquardt`): a
+    trial point costs one evaluation of G2, and only accepted points pay for the Jacobian. The
+    ``len(free)`` difference columns reuse the point's residuals and start their silhouette solves
+    from its support values (so Newton needs fewer steps than from the quadric's ellipse); the
+    analytic Jacobian costs about one extra evaluation's worth of array work. Every accepted
+    point's support values warm-start the next trial's silhouettes. The model Hessian is
     ``options.hessian_numeric`` (Gauss-Newton by default, or with a structured secant term, see
-    :class:`sqfit.lm.SecantTerm`); the cost and its Jacobian are the same either way.
+    :class:`sqfit.lm.SecantTerm`).
     """
     xi0 = np.array(state.xi, dtype=np.float64)
     if quadric:
@@ -257,26 +262,34 @@ def _riou_stage(state, obs, options, free, quadric, name):
     steps = options.fd_step * np.maximum(1.0, np.abs(xi0[free]))
     eye = np.eye(k) * steps
     penalty_rows = len(obs) + free
+    analytic = options.riou_jacobian == "analytic" and options.polygon == "hull"
     accepted = {}  # support values at the last point whose Jacobian was built
 
-    def g2(batch, h0):
+    def g2(batch, h0, jacobian=False):
         if h0 is not None:
             h0 = np.broadcast_to(h0, (len(batch),) + h0.shape[1:])
         return riou_residuals(batch, obs, options.polygon, options.penalty_riou,
-                              options.silhouette_directions, h0)
+                              options.silhouette_directions, h0, jacobian=jacobian)
 
     def model(x):
         full = xi0.copy()
         full[free] = x
-        r, h = g2(full[None], accepted.get("h"))
+        if analytic:
+            r, h, d_views = g2(full[None], accepted.get("h"), jacobian=True)
+        else:
+            r, h = g2(full[None], accepted.get("h"))
 
         def jacobian():
             accepted["h"] = h
-            batch = np.tile(full, (k, 1))
-            batch[:, free] += eye
-            J = (g2(batch, h)[0] - r).T / steps
-            # The penalty is piecewise linear: use its exact slope rather than a difference across a kink.
-            J[len(obs):] = 0.0
+            if analytic:
+                J = np.zeros((r.shape[1], k))
+                J[:len(obs)] = d_views()[0][:, free]
+            else:
+                batch = np.tile(full, (k, 1))
+                batch[:, free] += eye
+                J = (g2(batch, h)[0] - r).T / steps
+                J[len(obs):] = 0.0
+            # The penalty is piecewise linear: its exact slope, not a difference across a kink.
             J[penalty_rows, np.arange(k)] = penalty_jacobian(full, options.penalty_riou)[free]
             return DenseJacobian(J)
 
@@ -289,12 +302,12 @@ def _riou_stage(state, obs, options, free, quadric, name):
     xi[free] = res.x
     _check_result(xi, name)
     return replace(state, xi=xi, cost=res.cost, status=res.status, message=res.message,
-                   nfev=res.nfev + res.njev * k)
+                   nfev=res.nfev + (0 if analytic else res.njev * k))
 
 
 @register("3A")
 def riou_all(state, obs, options):
-    """Stage 3A: G2 over all 11 parameters (numeric, finite differences)."""
+    """Stage 3A: G2 over all 11 parameters."""
     return _riou_stage(state, obs, options, _ALL, False, "3A")
 
 

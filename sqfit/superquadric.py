@@ -15,6 +15,7 @@ Conventions (stated once, pinned by ``tests/test_superquadric.py``):
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from functools import lru_cache
 
@@ -28,6 +29,7 @@ __all__ = [
     "Superquadric",
     "euler_to_matrix",
     "euler_derivatives",
+    "rotation_and_derivatives",
     "matrix_to_euler",
     "spow",
     "to_local",
@@ -120,6 +122,8 @@ def euler_to_matrix(r):
     r = np.asarray(r, dtype=np.float64)
     if r.shape[-1:] != (3,) or r.ndim > 2:
         raise ValueError(f"r must have shape (3,) or (n, 3), got {r.shape}")
+    if r.ndim == 1:  # scalar maths: ~10x faster than the array path for one matrix
+        return rotation_and_derivatives(r, derivatives=False)
     cx, cy, cz = np.cos(r).T
     sx, sy, sz = np.sin(r).T
     R = np.stack(
@@ -162,6 +166,34 @@ def euler_derivatives(r):
         [Rz @ Ry @ Rx @ gens[0], Rz @ Ry @ gens[1] @ Rx, Rz @ gens[2] @ Ry @ Rx]
     )
 
+
+def rotation_and_derivatives(r, derivatives=True):
+    """``R`` ``(3, 3)`` (Euler convention of :mod:`sqfit.superquadric`) and ``dR / dr_k`` ``(3, 3, 3)``
+    (only ``R`` if not ``derivatives``).
+
+    Same values as :func:`euler_to_matrix` and :func:`euler_derivatives`, written out for a
+    single angle triple (these are called once per optimiser step, where numpy's per-call
+    overhead dominates).
+    """
+    cx, cy, cz = math.cos(r[0]), math.cos(r[1]), math.cos(r[2])
+    sx, sy, sz = math.sin(r[0]), math.sin(r[1]), math.sin(r[2])
+    R = np.array([[cz * cy, cz * sy * sx - sz * cx, cz * sy * cx + sz * sx],
+                  [sz * cy, sz * sy * sx + cz * cx, sz * sy * cx - cz * sx],
+                  [-sy, cy * sx, cy * cx]])
+    if not derivatives:
+        return R
+    dR = np.array([
+        [[0.0, cz * sy * cx + sz * sx, -cz * sy * sx + sz * cx],
+         [0.0, sz * sy * cx - cz * sx, -sz * sy * sx - cz * cx],
+         [0.0, cy * cx, -cy * sx]],
+        [[-cz * sy, cz * cy * sx, cz * cy * cx],
+         [-sz * sy, sz * cy * sx, sz * cy * cx],
+         [-cy, -sy * sx, -sy * cx]],
+        [[-sz * cy, -sz * sy * sx - cz * cx, -sz * sy * cx + cz * sx],
+         [cz * cy, cz * sy * sx - sz * cx, cz * sy * cx + sz * sx],
+         [0.0, 0.0, 0.0]],
+    ])
+    return R, dR
 
 def matrix_to_euler(R):
     """Euler angles (module convention) of a rotation matrix.
