@@ -7,8 +7,10 @@ Trials are the paper's permutation experiment rendered without OpenGL (``sqfit.t
 ``sqfit.fit`` call, R-IOU-M evaluation included), median and mean 3D IoU against the ground truth,
 R-IOU (against the ground-truth silhouettes) and R-IOU-M, success rate (IoU > 0) and the paper's
 figures for comparison. ``--repeat N`` times every fit N times and keeps the fastest (the machine
-is shared: the minimum of a few runs is the least noisy per-trial figure). ``--json PATH`` writes
-the per-trial figures. ``--profile CHAIN`` prints a pyinstrument profile of that chain instead.
+is shared: the minimum of a few runs is the least noisy per-trial figure). ``--options JSON`` passes
+``sqfit.FitOptions`` fields (e.g. ``'{"riou_jacobian": "numeric"}'`` for the paper's
+finite-difference R-IOU stages). ``--json PATH`` writes the per-trial figures. ``--profile CHAIN``
+prints a pyinstrument profile of that chain instead.
 """
 
 from __future__ import annotations
@@ -38,11 +40,11 @@ PAPER = {"3A": (0.401, 0.770, 2.669), "3B": (0.282, 0.773, 1.963), "1-3A": (0.68
 GT_DIRECTIONS = 256
 
 
-def _run(trial, chain, repeat):
+def _run(trial, chain, repeat, options=None):
     best = np.inf
     for _ in range(repeat):
         t0 = time.perf_counter()
-        result = sqfit.fit(trial.observations, chain)
+        result = sqfit.fit(trial.observations, chain, options=options)
         best = min(best, time.perf_counter() - t0)
     sq = result.superquadric
     if sq is None:
@@ -57,6 +59,8 @@ def main(argv=None):
     parser.add_argument("--seed", type=int, default=0, help="first trial seed")
     parser.add_argument("--chains", default=",".join(sqfit.PAPER_CHAINS))
     parser.add_argument("--repeat", type=int, default=1, help="fits per trial; the fastest is kept")
+    parser.add_argument("--options", metavar="JSON", type=json.loads, default=None,
+                        help='sqfit.FitOptions fields as JSON, e.g. \'{"riou_jacobian": "numeric"}\'')
     parser.add_argument("--json", metavar="PATH", help="write per-trial figures here")
     parser.add_argument("--profile", metavar="CHAIN", help="profile one chain with pyinstrument")
     args = parser.parse_args(argv)
@@ -68,19 +72,20 @@ def main(argv=None):
         profiler = Profiler(interval=0.0005)
         profiler.start()
         for t in trials:
-            sqfit.fit(t.observations, args.profile)
+            sqfit.fit(t.observations, args.profile, options=args.options)
         profiler.stop()
         print(profiler.output_text(unicode=False))
         return
     print(f"# {len(trials)} paper trials (seeds {args.seed}..{args.seed + len(trials) - 1}), 3 views x 100 samples, "
           f"{platform.processor() or platform.machine()}, python {platform.python_version()}, "
-          f"OPENBLAS_NUM_THREADS={os.environ.get('OPENBLAS_NUM_THREADS')}, best of {args.repeat}")
+          f"OPENBLAS_NUM_THREADS={os.environ.get('OPENBLAS_NUM_THREADS')}, best of {args.repeat}, "
+          f"options {json.dumps(args.options or {})}")
     print("| chain | median s | mean s | paper median s | median IoU | mean IoU | paper IoU | median R-IOU | "
           "mean R-IOU | median R-IOU-M | mean R-IOU-M | paper R-IOU-M | success |")
     print("|---|---|---|---|---|---|---|---|---|---|---|---|---|")
     out = {}
     for chain in args.chains.split(","):
-        rows = np.array([_run(t, chain, args.repeat) for t in trials])
+        rows = np.array([_run(t, chain, args.repeat, args.options) for t in trials])
         out[chain] = rows.tolist()
         s, iou, riou, riou_m = rows.T
         p = PAPER.get(chain, (np.nan,) * 3)
