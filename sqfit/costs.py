@@ -194,7 +194,7 @@ def riou_residuals(xi, obs, polygon="hull", weight=C.PENALTY_RIOU, n_directions=
     polys, valid, h, unit_points, points = batch_silhouettes(xi, obs.rotations, obs.centers, obs.intrinsics,
                                                              n_directions, h0, touching=True)
     iou, derivative = convex_iou_jacobian(polys, targets[None], planes)
-    iou = np.where(valid, np.nan_to_num(iou), 0.0)
+    iou = np.where(valid & np.isfinite(iou), iou, 0.0)
 
     def d_views():
         dpolys = vertex_velocities(xi, unit_points, points, obs.rotations, obs.intrinsics)

@@ -32,13 +32,14 @@ STATUS = {
     "gtol": "converged: gradient norm below gtol",
     "atol": "converged: cost below atol",
     "ftol": "converged: relative cost reduction below ftol",
+    "window": "converged: relative cost reduction over the last window steps below window_ftol",
     "xtol": "converged: relative step size below xtol",
     "max_iterations": "stopped: iteration limit reached",
     "stalled": "stopped: no step decreases the cost (damping limit reached)",
     "nonfinite": "failed: residuals or Jacobian are not finite at the starting point",
 }
 #: codes that mean a local minimum was reached
-CONVERGED = ("gtol", "atol", "ftol", "xtol")
+CONVERGED = ("gtol", "atol", "ftol", "window", "xtol")
 _LAMBDA_MAX = 1e16
 _SCALE_FLOOR = 1e-12
 
@@ -146,7 +147,7 @@ class LMResult:
 
 
 def levenberg_marquardt(model, x0, *, max_iterations=100, ftol=1e-8, xtol=1e-8, gtol=1e-10, atol=0.0,
-                        lam0=1e-3, scaling="identity", hessian="gauss-newton"):
+                        window=0, window_ftol=0.0, lam0=1e-3, scaling="identity", hessian="gauss-newton"):
     """Minimise ``0.5 * ||r(x)||**2`` by Levenberg-Marquardt.
 
     Parameters
@@ -163,6 +164,10 @@ def levenberg_marquardt(model, x0, *, max_iterations=100, ftol=1e-8, xtol=1e-8, 
         Relative cost reduction, relative step size and absolute gradient (inf-norm) tolerances.
     atol : float
         Absolute cost tolerance (zero-residual problems such as G5 with free depths).
+    window, window_ftol : int, float
+        If ``window > 0``: stop (status ``window``) when the cost has decreased by less than the
+        fraction ``window_ftol`` over the last ``window`` accepted steps, i.e. when progress has
+        become a slow crawl, even if each single step still gains more than ``ftol``.
     lam0 : float
         Initial damping (times the largest diagonal entry of ``J^T J`` for ``identity``).
     scaling : {"identity", "marquardt"}
@@ -194,6 +199,7 @@ def levenberg_marquardt(model, x0, *, max_iterations=100, ftol=1e-8, xtol=1e-8, 
     scale = np.maximum(diag0, _SCALE_FLOOR) if marquardt else np.ones_like(x)
     lam = lam0 * (1.0 if marquardt else max(float(diag0.max()), _SCALE_FLOOR))
     nu = 2.0
+    history = [cost]  # cost after every accepted step
     status = "max_iterations"
     it = 0
     for it in range(1, max_iterations + 1):
@@ -230,12 +236,16 @@ def levenberg_marquardt(model, x0, *, max_iterations=100, ftol=1e-8, xtol=1e-8, 
             if secant is not None:
                 secant.update(dx, J, J_new, r, r_new)
             x, r, J, cost = x_new, r_new, J_new, cost_new
+            history.append(cost)
             if marquardt:
                 scale = np.maximum(scale, J.diag())
             lam *= max(1.0 / 3.0, 1.0 - (2.0 * rho - 1.0) ** 3)
             nu = 2.0
             if small_gain:
                 status = "ftol"
+                break
+            if window > 0 and len(history) > window and cost >= (1.0 - window_ftol) * history[-window - 1]:
+                status = "window"
                 break
             if small_step:
                 status = "xtol"

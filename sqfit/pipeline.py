@@ -49,13 +49,13 @@ class FitOptions:
     penalty_analytic : float
         ``c_p`` of the G3-G5 penalty (paper: 100).
     max_iterations_numeric, max_iterations_analytic : int
-        Levenberg-Marquardt step limits of the R-IOU (3A, 3B, 3F) and G5 (3C-3E) stages. The R-IOU
-        stages rarely converge by ``ftol``: G2 keeps decreasing by about 1 % per step, so this
-        limit is a time budget. 25 steps with the analytic Jacobian and the secant Hessian fit
-        as well as 60 or 120 plain Gauss-Newton steps with finite differences (README, "Fitter
-        speed").
+        Levenberg-Marquardt step limits of the R-IOU (3A, 3B, 3F) and G5 (3C-3E) stages.
     ftol_numeric, ftol_analytic : float
-        Relative cost-reduction tolerances.
+        Relative cost-reduction tolerances (per step).
+    window_numeric, window_ftol_numeric : int, float
+        The R-IOU stages also stop when their cost fell by less than the fraction
+        ``window_ftol_numeric`` over the last ``window_numeric`` accepted steps (0 disables):
+        G2 tends to end in a long crawl of ~1 % per step that no longer improves the 3D fit.
     atol_analytic : float
         Absolute cost tolerance of the G5 stages (their minimum is 0: every sample on the surface).
     xtol, gtol : float
@@ -86,9 +86,11 @@ class FitOptions:
     polygon: str = "hull"
     penalty_riou: float = C.PENALTY_RIOU
     penalty_analytic: float = C.PENALTY_ANALYTIC
-    max_iterations_numeric: int = 25
+    max_iterations_numeric: int = 60
     max_iterations_analytic: int = 100
     ftol_numeric: float = 1e-5
+    window_numeric: int = 5
+    window_ftol_numeric: float = 0.01
     ftol_analytic: float = 1e-6
     atol_analytic: float = 1e-12
     xtol: float = 1e-8
@@ -120,6 +122,10 @@ class FitOptions:
             raise ValueError(f"damping_numeric must be 'identity' or 'marquardt', got {self.damping_numeric!r}")
         if self.hessian_numeric not in ("secant", "gauss-newton"):
             raise ValueError(f"hessian_numeric must be 'secant' or 'gauss-newton', got {self.hessian_numeric!r}")
+        if int(self.window_numeric) != self.window_numeric or self.window_numeric < 0:
+            raise ValueError(f"window_numeric must be an integer >= 0, got {self.window_numeric}")
+        if not 0 <= self.window_ftol_numeric < 1:
+            raise ValueError(f"window_ftol_numeric must be in [0, 1), got {self.window_ftol_numeric}")
         if self.riou_jacobian not in ("analytic", "numeric"):
             raise ValueError(f"riou_jacobian must be 'analytic' or 'numeric', got {self.riou_jacobian!r}")
         if self.fd_step <= 0:

@@ -297,6 +297,7 @@ def _riou_stage(state, obs, options, free, quadric, name):
 
     res = levenberg_marquardt(model, xi0[free], max_iterations=options.max_iterations_numeric,
                               ftol=options.ftol_numeric, xtol=options.xtol, gtol=options.gtol,
+                              window=options.window_numeric, window_ftol=options.window_ftol_numeric,
                               scaling=options.damping_numeric, hessian=options.hessian_numeric)
     xi = xi0.copy()
     xi[free] = res.x

@@ -125,3 +125,19 @@ def test_lazy_jacobian_is_built_only_at_accepted_points(hessian):
     np.testing.assert_array_equal(res.x, eager.x)
     assert res.iterations == eager.iterations and res.nfev == eager.nfev
     assert res.njev == len(built) < res.nfev
+
+
+def test_window_stops_a_crawl_but_not_progress():
+    """``window`` ends a run whose cost fell by less than ``window_ftol`` over the last steps."""
+    x0 = [0.8, -0.5, 2.0, -1.0]
+    common = dict(max_iterations=500, ftol=1e-14, xtol=1e-14, scaling="marquardt")
+    full = levenberg_marquardt(few_residuals, x0, **common)  # Gauss-Newton crawls here
+    assert full.status != "window"
+    res = levenberg_marquardt(few_residuals, x0, window=5, window_ftol=0.01, **common)
+    assert res.status == "window" and res.converged and res.iterations < full.iterations
+    # The crawl is slow: at most 1 % lost against running to the end.
+    assert res.cost <= full.cost * 1.01 + 1e-12
+    # A problem that converges quickly (Rosenbrock) never triggers it.
+    quick = levenberg_marquardt(rosenbrock, [-1.2, 1.0], max_iterations=200, window=5, window_ftol=0.01)
+    assert quick.status != "window"
+    np.testing.assert_allclose(quick.x, [1.0, 1.0], atol=1e-6)

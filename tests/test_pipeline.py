@@ -77,6 +77,9 @@ def test_options_as_dict_and_contour_polygon(trial):
     ({"silhouette_directions": 4}, ValueError, "silhouette_directions must be an integer >= 8"),
     ({"damping_numeric": "x"}, ValueError, "damping_numeric must be"),
     ({"hessian_numeric": "bfgs"}, ValueError, "hessian_numeric must be 'secant' or 'gauss-newton'"),
+    ({"riou_jacobian": "exact"}, ValueError, "riou_jacobian must be 'analytic' or 'numeric'"),
+    ({"window_numeric": -1}, ValueError, "window_numeric must be an integer >= 0"),
+    ({"window_ftol_numeric": 1.5}, ValueError, r"window_ftol_numeric must be in \[0, 1\)"),
     ("fast", TypeError, "options must be None, a dict or a FitOptions"),
 ])
 def test_bad_options(trial, options, error, match):
