@@ -63,11 +63,11 @@ def test_axis_permutation_keeps_the_section_that_becomes_the_xy_section(name):
 
 
 @pytest.mark.parametrize("e2", [0.1, 0.5, 1.0, 1.5, 1.9])
-def test_quarter_turn_of_a_square_section(e2):
+def test_45_degree_turn_of_a_square_section(e2):
     xi = Superquadric((1.0, 1.0, 0.7), (0.6, e2), *POSE).to_vector()
     turned = candidate(xi, "R45")
     np.testing.assert_allclose(turned[3:5], [0.6, 2.0 - e2])
-    # Two quarter turns are a half-right-angle symmetry of the square section: the same solid.
+    # Two 45-degree turns make a right angle, a symmetry of the square section: the same solid.
     assert same_solid(xi, candidate(turned, "R45"))
     # One is an approximation of the same solid (exact for the circle, e2 = 1).
     assert iou_3d(to_superquadric(xi), to_superquadric(turned)) > (0.999 if e2 == 1.0 else 0.95)
@@ -97,8 +97,8 @@ def observations(gt):
 
 # A start on a wrong symmetric re-parametrisation of the truth, in which 3G gets stuck.
 STUCK = [
-    pytest.param((2.0, 0.8, 1.0), (0.2, 1.0), (0.3, 0.2, 0.4), "P1", "P2", id="wrong-axis"),
-    pytest.param((1.0, 1.6, 2.2), (1.6, 0.3), (0.3, 0.2, 0.4), "R45", "R45", id="quarter-turn"),
+    pytest.param((1.5, 1.5, 0.8), (0.5, 1.8), (1.0, -0.5, 2.0), "P2", "P1", id="wrong-axis"),
+    pytest.param((1.0, 1.6, 2.2), (1.6, 0.3), (0.3, 0.2, 0.4), "R45", "R45", id="45-degree-turn"),
 ]
 
 
@@ -107,11 +107,21 @@ def test_stage_recovers_from_a_symmetric_local_minimum(size, shape, rotation, st
     gt = Superquadric(size, shape, (0.5, -0.3, 0.2), rotation)
     obs = observations(gt)
     stuck = STAGES["3G"](FitState(candidate(gt.to_vector(), start)), obs, OPT)
-    assert iou_3d(to_superquadric(stuck.xi), gt) < 0.75  # the precondition: 3G alone is stuck
+    assert iou_3d(to_superquadric(stuck.xi), gt) < 0.85  # the precondition: 3G alone is stuck
     out = STAGES["3S"](stuck, obs, OPT)
     assert iou_3d(to_superquadric(out.xi), gt) > 0.97
     assert f"from {recovered_by};" in out.message
     assert M.misfit(out.xi, M._screen_rays(obs)) < M.TRIGGER_MISFIT < M.misfit(stuck.xi, M._screen_rays(obs))
+
+
+def test_gate_keeps_a_fit_below_the_trigger(monkeypatch):
+    gt = Superquadric((2.0, 0.8, 1.0), (0.2, 1.0), (0.5, -0.3, 0.2), (1.0, -0.5, 2.0))
+    obs = observations(gt)
+    stuck = STAGES["3G"](FitState(candidate(gt.to_vector(), "P1")), obs, OPT)
+    monkeypatch.setattr(M, "TRIGGER_MISFIT", 1.0)
+    out = STAGES["3S"](stuck, obs, OPT)
+    np.testing.assert_array_equal(out.xi, stuck.xi)
+    assert "<= 1.0: kept" in out.message and out.nfev == 1
 
 
 def test_good_fit_is_kept_unchanged():
