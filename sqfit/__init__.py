@@ -15,6 +15,7 @@ from .observation import Observation
 from .pipeline import DEFAULT_CHAIN, PAPER_CHAINS, FitOptions, FitResult, StageRecord, fit
 from .stages import STAGES
 from . import stage3g  # noqa: F401  (registers stage 3G)
+from . import multistart  # noqa: F401  (registers stage 3S)
 from .superquadric import Superquadric
 
 __version__ = "0.1.0"
