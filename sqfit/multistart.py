@@ -76,7 +76,7 @@ from . import constants as C
 from ._checks import check_shape
 from .pipeline import r_iou_m, to_superquadric
 from .raycost import contour_rays, ray_residuals
-from .stage3g import _minimise, silhouette_stage
+from .stage3g import minimise, silhouette_stage
 from .stages import FitState, register
 from .superquadric import euler_to_matrix, matrix_to_euler
 
@@ -196,7 +196,7 @@ def _worth_screening(xi, candidates):
 def _screen(candidates, rays, options):
     """A few plain-3G steps from each candidate: ``(k, 11)`` end points, ``(k,)`` misfits, nfev."""
     short = replace(options, max_iterations_analytic=SCREEN_ITERATIONS)
-    results = [_minimise(rays, c, short, 0.0) for c in candidates]
+    results = [minimise(rays, c, short, 0.0) for c in candidates]
     ends = np.array([r.x for r in results])
     costs = np.array([r.cost for r in results])
     return ends, np.sqrt(2.0 * costs / _views(rays)), sum(r.nfev for r in results)

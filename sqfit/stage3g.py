@@ -31,7 +31,7 @@ from .lm import DenseJacobian, levenberg_marquardt
 from .raycost import contour_rays, posed_ray_residuals, ray_residuals
 from .stages import StageError, register
 
-__all__ = ["N_CONTOUR", "BAND_PX", "silhouette_stage", "camera_corrections"]
+__all__ = ["N_CONTOUR", "BAND_PX", "silhouette_stage", "minimise", "camera_corrections"]
 
 #: Contour points (rays) per view.
 N_CONTOUR = 64
@@ -55,12 +55,12 @@ def silhouette_stage(state, obs, options, name="3G"):
     rays = _rays(obs)
     xi0 = np.array(state.xi, dtype=np.float64)
     sigma = np.radians(options.pose_sigma_deg)
-    res = _minimise(rays, xi0, options, 0.0)
+    res = minimise(rays, xi0, options, 0.0)
     nfev = res.nfev
     if sigma > 0:
         # A second run, from the plain optimum: started from stage 2 the extra unknowns change
         # Levenberg-Marquardt's path and sometimes its basin, which cost clean fits accuracy.
-        res = _minimise(rays, np.concatenate([res.x, np.zeros(3 * len(obs))]), options, sigma)
+        res = minimise(rays, np.concatenate([res.x, np.zeros(3 * len(obs))]), options, sigma)
         nfev += res.nfev
     xi = res.x[:len(xi0)]
     if not np.all(np.isfinite(res.x)) or np.max(np.abs(xi[0:3])) > 1e4:
@@ -71,9 +71,11 @@ def silhouette_stage(state, obs, options, name="3G"):
     return replace(state, xi=xi, cost=res.cost, status=res.status, message=message, nfev=nfev)
 
 
-def _minimise(rays, x0, options, sigma):
-    """LM on the 3G residuals from ``x0``: ``(11,)`` if ``sigma == 0``, else ``(11 + 3 v,)`` with
-    pose corrections and prior scale ``sigma`` (radians)."""
+def minimise(rays, x0, options, sigma):
+    """LM on the 3G residuals of ``rays`` (:func:`sqfit.raycost.contour_rays`) from ``x0``:
+    ``(11,)`` if ``sigma == 0``, else ``(11 + 3 v,)`` with pose corrections and prior scale
+    ``sigma`` (radians). Returns the :class:`sqfit.lm.LMResult`; used by 3G and by 3S
+    (:mod:`sqfit.multistart`) to screen candidates on its own rays."""
     warm = {}
 
     def model(x):
