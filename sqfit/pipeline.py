@@ -55,7 +55,8 @@ class FitOptions:
     window_numeric, window_ftol_numeric : int, float
         The R-IOU stages also stop when their cost fell by less than the fraction
         ``window_ftol_numeric`` over the last ``window_numeric`` accepted steps (0 disables):
-        G2 tends to end in a long crawl of ~1 % per step that no longer improves the 3D fit.
+        G2 tends to end in a long crawl of ~1 % per step that no longer improves the 3D fit
+        (README, "Fitter speed").
     atol_analytic : float
         Absolute cost tolerance of the G5 stages (their minimum is 0: every sample on the surface).
     xtol, gtol : float
@@ -90,7 +91,7 @@ class FitOptions:
     max_iterations_analytic: int = 100
     ftol_numeric: float = 1e-5
     window_numeric: int = 5
-    window_ftol_numeric: float = 0.01
+    window_ftol_numeric: float = 0.02
     ftol_analytic: float = 1e-6
     atol_analytic: float = 1e-12
     xtol: float = 1e-8

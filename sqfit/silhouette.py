@@ -126,7 +126,7 @@ def _silhouette_ellipses(a, R_sq, p, rotations, centers, intrinsics):
     K[:, 0, 2], K[:, 1, 2], K[:, 2, 2] = intrinsics[:, 2], intrinsics[:, 3], 1.0
     Rt = np.swapaxes(rotations, 1, 2)
     P = K @ np.concatenate([Rt, -(Rt @ centers[:, :, None])], axis=2)
-    Cd = np.einsum("vij,bjk,vlk->bvil", P, Qd, P)
+    Cd = P[None] @ Qd[:, None] @ np.swapaxes(P, 1, 2)[None]  # (b, v, 3, 3)
     L = np.zeros((b, v, 2, 2))
     with np.errstate(all="ignore"):
         lam = -Cd[..., 2, 2]
@@ -204,8 +204,10 @@ def batch_silhouettes(xi, rotations, centers, intrinsics, n_directions=DEFAULT_D
     q2 = (2.0 / (2.0 - e[:, 1]))[:, None, None]
     R_sq = euler_to_matrix(xi[0, 8:11])[None] if len(xi) == 1 else euler_to_matrix(xi[:, 8:11])  # (b, 3, 3)
     # SQ -> camera rotation M and SQ centre c in camera frames: (b, v, 3, 3), (b, v, 3).
-    M = np.einsum("vji,bjk->bvik", rotations, R_sq)
-    c = np.einsum("vji,bvj->bvi", rotations, xi[:, None, 5:8] - centers[None])
+    # (matmul rather than einsum throughout: several times faster on these small stacks)
+    Rt = np.swapaxes(rotations, 1, 2)
+    M = Rt[None] @ R_sq[:, None]
+    c = (Rt[None] @ (xi[:, None, 5:8] - centers[None])[..., None])[..., 0]
     fx, fy, cx, cy = (intrinsics[:, i][None, :, None] for i in range(4))
     k = int(n_directions)
     wz = (a[:, None, :] * M[:, :, 2, :])[:, :, None, :]  # (b, v, 1, 3)
@@ -214,11 +216,11 @@ def batch_silhouettes(xi, rotations, centers, intrinsics, n_directions=DEFAULT_D
     u1, u2 = U[..., 0], U[..., 1]  # (b, v, K)
     # n(h) = n0 - h e_z; w(h) = a * M^T n(h) = w0 - h wz.
     n0 = np.stack([u1 * fx, u2 * fy, u1 * cx + u2 * cy], axis=-1)  # (b, v, K, 3)
-    w0 = np.einsum("bvji,bvkj->bvki", M, n0) * a[:, None, None, :]
-    n0c = np.einsum("bvkj,bvj->bvk", n0, c)
+    w0 = (n0 @ M) * a[:, None, None, :]
+    n0c = (n0 @ c[..., None])[..., 0]
     # Start: the support of the quadric's ellipse (exact for e = 1, close otherwise), or h0.
-    Lu = np.einsum("bvji,bvkj->bvki", L, U)
-    h = np.einsum("bvkj,bvj->bvk", U, x0) + np.linalg.norm(Lu, axis=-1)
+    Lu = U @ L
+    h = (U @ x0[..., None])[..., 0] + np.linalg.norm(Lu, axis=-1)
     with np.errstate(all="ignore"):
         h = np.where(ok[..., None], h, n0c / np.where(c[..., 2] > 0, c[..., 2], 1.0)[..., None])
     if h0 is not None:
@@ -243,7 +245,7 @@ def batch_silhouettes(xi, rotations, centers, intrinsics, n_directions=DEFAULT_D
                 break
         # ``grad`` is the touching point of the last support value but one: the last step was
         # below 1e-7 px, so re-evaluating it at ``h`` would move the vertices by less than that.
-        point = c[:, :, None, :] + np.einsum("bvij,bvkj->bvki", M, grad * a[:, None, None, :])
+        point = c[:, :, None, :] + (grad * a[:, None, None, :]) @ np.swapaxes(M, -1, -2)
         z = np.where(valid[..., None], point[..., 2], 1.0)
         polys = np.stack([fx * point[..., 0] / z + cx, fy * point[..., 1] / z + cy], axis=-1)
     valid &= np.all(np.isfinite(polys), axis=(2, 3))
@@ -517,8 +519,8 @@ def convex_iou_jacobian(S, Q, q_planes=None):
     def derivative(dS):
         with np.errstate(all="ignore"):
             normal = np.stack([d[..., 1], -d[..., 0]], axis=-1)  # outward for CCW, |N| = edge length
-            f0 = np.einsum("...kxp,...kx->...kp", dS, normal)
-            f1 = np.einsum("...kxp,...kx->...kp", np.roll(dS, -1, axis=-3), normal)
+            f0 = (normal[..., None, :] @ dS)[..., 0, :]
+            f1 = (normal[..., None, :] @ np.roll(dS, -1, axis=-3))[..., 0, :]
             d_area = 0.5 * np.sum(f0 + f1, axis=-2)
             # Empty pieces (t_hi <= t_lo, where t_lo may be huge for a degenerate edge): t1 = t0.
             t0 = np.minimum(t_lo, 1.0)
