@@ -27,7 +27,6 @@ for ``e`` in ``[0.1, 1.9]`` and anywhere but the exact centre.
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -35,9 +34,9 @@ import numpy as np
 from . import constants as C
 from .camera import bearings
 from .observation import Observation
-from .superquadric import rotation_and_derivatives
 from .silhouette import (DEFAULT_DIRECTIONS, batch_iou, batch_silhouettes, camera_arrays, convex_iou_jacobian,
                          half_planes, vertex_velocities)
+from .superquadric import rotation_and_derivatives
 
 __all__ = ["ObservationSet", "penalty", "penalty_jacobian", "riou_residuals", "radial_terms",
            "rotation_and_derivatives",

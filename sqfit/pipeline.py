@@ -23,7 +23,7 @@ from . import constants as C
 from .costs import ObservationSet
 from .observation import POLYGON_KINDS, Observation
 from .silhouette import batch_iou, batch_silhouettes
-from .stages import STAGES, FitState, StageError, default_state
+from .stages import STAGES, StageError, default_state
 from .superquadric import Superquadric
 
 __all__ = ["fit", "FitOptions", "FitResult", "StageRecord", "PAPER_CHAINS", "DEFAULT_CHAIN",

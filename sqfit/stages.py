@@ -252,8 +252,9 @@ def _riou_stage(state, obs, options, free, quadric, name):
     from its support values (so Newton needs fewer steps than from the quadric's ellipse); the
     analytic Jacobian costs about one extra evaluation's worth of array work. Every accepted
     point's support values warm-start the next trial's silhouettes. The model Hessian is
-    ``options.hessian_numeric`` (Gauss-Newton by default, or with a structured secant term, see
-    :class:`sqfit.lm.SecantTerm`).
+    ``options.hessian_numeric`` (with a structured secant term by default, see
+    :class:`sqfit.lm.SecantTerm`, or plain Gauss-Newton); besides ``ftol`` the run stops on a
+    crawl (``options.window_numeric``, ``window_ftol_numeric``).
     """
     xi0 = np.array(state.xi, dtype=np.float64)
     if quadric:

@@ -83,7 +83,7 @@ def table_markdown(summary, with_paper=True):
                      + f" | {100 * vals[-1]:.0f} % |")
         if with_paper and chain in PAPER_TABLE_II:
             ref = PAPER_TABLE_II[chain]
-            lines.append(f"| *paper* | " + " | ".join(f"*{v:.3f}*" for v in ref[:-1]) + f" | *{100 * ref[-1]:.0f} %* |")
+            lines.append("| *paper* | " + " | ".join(f"*{v:.3f}*" for v in ref[:-1]) + f" | *{100 * ref[-1]:.0f} %* |")
     return "\n".join(lines) + "\n"
 
 

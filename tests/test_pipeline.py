@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 import sqfit
-from sqfit import DEFAULT_CHAIN, PAPER_CHAINS, FitOptions, Observation, fit
+from sqfit import DEFAULT_CHAIN, PAPER_CHAINS, Observation, fit
 from sqfit.metrics import iou_3d
 from sqfit.testing import paper_trial
 

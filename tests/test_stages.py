@@ -1,13 +1,13 @@
 import numpy as np
 import pytest
 
-from sqfit import Camera, FitOptions, Observation, Superquadric, look_at
+from sqfit import FitOptions, Observation, Superquadric
 from sqfit import stages as S
 from sqfit.costs import ObservationSet, sample_points
 from sqfit.lm import CONVERGED
 from sqfit.pipeline import r_iou_m, to_superquadric
 from sqfit.superquadric import radial_distance
-from sqfit.testing import PAPER_INTRINSICS, paper_cameras, paper_trial, polygon_mask
+from sqfit.testing import paper_cameras, paper_trial, polygon_mask
 
 OPT = FitOptions()
 
