@@ -202,7 +202,7 @@ def batch_silhouettes(xi, rotations, centers, intrinsics, n_directions=DEFAULT_D
     e = np.clip(xi[:, 3:5], *_E_RANGE)
     q1 = (2.0 / (2.0 - e[:, 0]))[:, None, None]
     q2 = (2.0 / (2.0 - e[:, 1]))[:, None, None]
-    R_sq = euler_to_matrix(xi[0, 8:11])[None] if len(xi) == 1 else euler_to_matrix(xi[:, 8:11])  # (b, 3, 3)
+    R_sq = euler_to_matrix(xi[:, 8:11])  # (b, 3, 3)
     # SQ -> camera rotation M and SQ centre c in camera frames: (b, v, 3, 3), (b, v, 3).
     # (matmul rather than einsum throughout: several times faster on these small stacks)
     Rt = np.swapaxes(rotations, 1, 2)
@@ -394,14 +394,12 @@ def is_convex(polygon, tol=1e-9):
     return bool(np.all(cross >= -scale) or np.all(cross <= scale))
 
 
-def half_planes(Q, edges=None):
-    """Half-planes ``n . x <= c`` of convex CCW polygons, and their areas.
+def half_planes(Q):
+    """Half-planes ``n . x <= c`` of convex CCW polygons, their areas and edge vectors.
 
     Parameters
     ----------
     Q : (..., m, 2) float
-    edges : (..., m, 2) float, optional
-        ``roll(Q, -1) - Q`` if already known.
 
     Returns
     -------
@@ -411,12 +409,14 @@ def half_planes(Q, edges=None):
     c : (..., m) float
     area : (...,) float
         Shoelace areas.
+    edges : (..., m, 2) float
+        ``roll(Q, -1) - Q``.
     """
-    e = np.roll(Q, -1, axis=-2) - Q if edges is None else edges
+    e = np.roll(Q, -1, axis=-2) - Q
     use = np.hypot(e[..., 0], e[..., 1]) > _MIN_EDGE
     n = np.stack([e[..., 1], -e[..., 0]], axis=-1) * use[..., None]
     area = 0.5 * np.sum(Q[..., 0] * e[..., 1] - Q[..., 1] * e[..., 0], axis=-1)
-    return n, np.where(use, n[..., 0] * Q[..., 0] + n[..., 1] * Q[..., 1], 1.0), area
+    return n, np.where(use, n[..., 0] * Q[..., 0] + n[..., 1] * Q[..., 1], 1.0), area, e
 
 
 def _clip(S, d, n, c, strict=False):
@@ -474,10 +474,8 @@ def convex_iou(S, Q, q_planes=None):
 
 def _convex_overlap(S, Q, q_planes):
     """IoU and the intermediate results :func:`convex_iou_jacobian` reuses."""
-    nq, cq, area_q = half_planes(Q) if q_planes is None else q_planes
-    d = np.roll(S, -1, axis=-2) - S
-    ns, cs, area_s = half_planes(S, d)
-    dq = np.roll(Q, -1, axis=-2) - Q
+    nq, cq, area_q, dq = half_planes(Q) if q_planes is None else q_planes
+    ns, cs, area_s, d = half_planes(S)
     with np.errstate(all="ignore"):
         t_lo, t_hi = _clip(S, d, nq, cq)
         cross = S[..., 0] * d[..., 1] - S[..., 1] * d[..., 0]

@@ -122,8 +122,11 @@ def euler_to_matrix(r):
     r = np.asarray(r, dtype=np.float64)
     if r.shape[-1:] != (3,) or r.ndim > 2:
         raise ValueError(f"r must have shape (3,) or (n, 3), got {r.shape}")
-    if r.ndim == 1:  # scalar maths: ~10x faster than the array path for one matrix
+    # One matrix (alone or in a batch of one): scalar maths, ~10x faster than the array path.
+    if r.ndim == 1:
         return rotation_and_derivatives(r, derivatives=False)
+    if len(r) == 1:
+        return rotation_and_derivatives(r[0], derivatives=False)[None]
     cx, cy, cz = np.cos(r).T
     sx, sy, sz = np.sin(r).T
     R = np.stack(

@@ -157,6 +157,17 @@ def test_euler_convention_is_extrinsic_xyz():
     np.testing.assert_allclose(sqm.euler_to_matrix(r), Rz @ Ry @ Rx, atol=1e-12)
 
 
+def test_euler_to_matrix_single_and_batched_paths_agree():
+    r = np.random.default_rng(4).uniform(-np.pi, np.pi, (5, 3))
+    batch = sqm.euler_to_matrix(r)  # array path
+    assert batch.shape == (5, 3, 3)
+    for i in range(5):
+        np.testing.assert_allclose(sqm.euler_to_matrix(r[i]), batch[i], atol=1e-15)  # scalar path
+        one = sqm.euler_to_matrix(r[i:i + 1])  # batch of one: scalar path, batch shape
+        assert one.shape == (1, 3, 3)
+        np.testing.assert_allclose(one[0], batch[i], atol=1e-15)
+
+
 def test_euler_derivatives_match_finite_differences():
     r = np.array([0.3, -1.1, 2.0])
     h = 1e-6
