@@ -34,8 +34,8 @@ import numpy as np
 from . import constants as C
 from .camera import bearings
 from .observation import Observation
-from .silhouette import (DEFAULT_DIRECTIONS, batch_iou, batch_silhouettes, camera_arrays, convex_iou_jacobian,
-                         half_planes, vertex_velocities)
+from .silhouette import (DEFAULT_DIRECTIONS, NEWTON_TOL, batch_iou, batch_silhouettes, camera_arrays, convex_iou_jacobian,
+                         half_planes, silhouette_gradient)
 from .superquadric import rotation_and_derivatives
 
 __all__ = ["ObservationSet", "penalty", "penalty_jacobian", "riou_residuals", "radial_terms",
@@ -145,7 +145,7 @@ def penalty_jacobian(xi, weight):
 
 
 def riou_residuals(xi, obs, polygon="hull", weight=C.PENALTY_RIOU, n_directions=DEFAULT_DIRECTIONS,
-                   h0=None, jacobian=False):
+                   start=None, jacobian=False, tol=NEWTON_TOL):
     """G2 residuals for one or several parameter vectors.
 
     Parameters
@@ -158,8 +158,11 @@ def riou_residuals(xi, obs, polygon="hull", weight=C.PENALTY_RIOU, n_directions=
         ``c_p`` of the penalty.
     n_directions : int
         Silhouette vertices (see :func:`sqfit.silhouette.batch_silhouettes`).
-    h0 : (b, v, K) float, optional
-        Warm start of the silhouette solve.
+    start : SilhouetteStart, optional
+        Warm start of the silhouette solve (the ``start`` returned for a nearby ``xi``, see
+        :func:`sqfit.silhouette.batch_silhouettes`).
+    tol : float
+        Precision of the silhouette solve, pixels (see :func:`sqfit.silhouette.batch_silhouettes`).
     jacobian : bool
         Also return the analytic derivative of the view residuals (``polygon="hull"`` only):
         :func:`sqfit.silhouette.vertex_velocities` and
@@ -174,8 +177,8 @@ def riou_residuals(xi, obs, polygon="hull", weight=C.PENALTY_RIOU, n_directions=
     -------
     r : (b, v + 11) float
         ``1 - IoU`` per view (1 where the silhouette does not exist), then the penalty.
-    h : (b, v, K) float
-        Support values, to warm-start a nearby evaluation.
+    start : SilhouetteStart
+        Silhouette directions and support values, to warm-start a nearby evaluation.
     d_views : callable
         Only if ``jacobian``: ``d_views()`` returns ``d (1 - IoU) / d xi`` per view,
         ``(b, v, 11) float`` (0 where the silhouette does not exist or does not overlap the
@@ -184,22 +187,23 @@ def riou_residuals(xi, obs, polygon="hull", weight=C.PENALTY_RIOU, n_directions=
     """
     xi = np.atleast_2d(np.asarray(xi, dtype=np.float64))
     if not jacobian:
-        polys, valid, h = batch_silhouettes(xi, obs.rotations, obs.centers, obs.intrinsics, n_directions, h0)
+        polys, valid, start = batch_silhouettes(xi, obs.rotations, obs.centers, obs.intrinsics, n_directions,
+                                                start, tol=tol)
         iou = batch_iou(polys, valid, *obs.targets(polygon))
-        return np.concatenate([1.0 - iou, penalty(xi, weight)], axis=1), h
+        return np.concatenate([1.0 - iou, penalty(xi, weight)], axis=1), start
     targets, convex, planes = obs.targets(polygon)
     if not convex:
         raise ValueError(f"the analytic R-IOU Jacobian needs convex observation polygons ('hull'), got {polygon!r}")
-    polys, valid, h, unit_points, points = batch_silhouettes(xi, obs.rotations, obs.centers, obs.intrinsics,
-                                                             n_directions, h0, touching=True)
-    iou, derivative = convex_iou_jacobian(polys, targets[None], planes)
+    polys, valid, start, unit_points, points = batch_silhouettes(xi, obs.rotations, obs.centers, obs.intrinsics,
+                                                                 n_directions, start, touching=True, tol=tol)
+    iou, weights = convex_iou_jacobian(polys, targets[None], planes)
     iou = np.where(valid & np.isfinite(iou), iou, 0.0)
 
     def d_views():
-        dpolys = vertex_velocities(xi, unit_points, points, obs.rotations, obs.intrinsics)
-        return np.where(valid[..., None], -derivative(dpolys), 0.0)
+        gradient = silhouette_gradient(xi, weights(), unit_points, points, obs.rotations, obs.intrinsics)
+        return np.where(valid[..., None], -gradient, 0.0)
 
-    return np.concatenate([1.0 - iou, penalty(xi, weight)], axis=1), h, d_views
+    return np.concatenate([1.0 - iou, penalty(xi, weight)], axis=1), start, d_views
 
 
 def sample_points(obs, depths):

@@ -29,13 +29,14 @@ straddling the camera plane) has no bounded silhouette: :func:`silhouette` retur
 from __future__ import annotations
 
 from functools import lru_cache
+from typing import NamedTuple
 
 import numpy as np
 
 from ._checks import check_shape
 from .superquadric import euler_to_matrix, rotation_and_derivatives
 
-__all__ = ["silhouette", "vertex_velocities", "convex_iou_jacobian", "polygon_iou", "polygon_area",
+__all__ = ["silhouette", "batch_silhouettes", "SilhouetteStart", "vertex_velocities", "silhouette_gradient", "convex_iou_jacobian", "polygon_iou", "polygon_area",
            "is_convex", "ZNEAR", "DEFAULT_DIRECTIONS"]
 
 #: Minimum camera depth (metres) of every superquadric point for a silhouette to exist.
@@ -45,11 +46,91 @@ DEFAULT_DIRECTIONS = 64
 #: Shape exponents are clamped to this range inside the support function (q = 2 / (2 - e)).
 _E_RANGE = (0.01, 1.99)
 #: Newton on the support line: stop when every step is below this (pixels), or after _MAX_NEWTON.
-_NEWTON_TOL = 1e-7
+NEWTON_TOL = 1e-7
 _MAX_NEWTON = 40
+#: :meth:`SilhouetteStart.refreshed` re-adapts directions past this change of aspect ratio.
+REFRESH_DISTORTION = 1.1
 #: Polygon edges shorter than this (pixels) do not act as clipping half-planes.
 _MIN_EDGE = 1e-7
 _TINY = 1e-300
+
+
+class SilhouetteStart(NamedTuple):
+    """The image directions and support values of a silhouette solve, to warm-start a nearby one
+    (:func:`batch_silhouettes`), and what :meth:`refreshed` needs.
+
+    Attributes
+    ----------
+    directions : (b, v, K, 2) float
+        Unit image directions, one per vertex.
+    h : (b, v, K) float
+        Support values found.
+    metric : (b, v, 2, 2) float
+        The inverse of the polygon's vertex covariance when these directions were first used,
+        scaled to determinant 1; NaN until :meth:`refreshed` records it.
+    polygons : (b, v, K, 2) float
+    valid : (b, v) bool
+    normals : (b, v, K, 3) float or None
+        Camera-frame normals of the planes through the camera centre and the image lines
+        ``<x, direction> = 0`` (a cache; None after the directions change).
+    """
+
+    directions: np.ndarray
+    h: np.ndarray
+    metric: np.ndarray
+    polygons: np.ndarray
+    valid: np.ndarray
+    normals: np.ndarray = None
+
+    def refreshed(self, max_distortion=REFRESH_DISTORTION):
+        """The same start, with directions re-adapted to the polygons found where they have drifted.
+
+        :func:`batch_silhouettes` keeps the directions of its ``start``, so over a fit they can
+        drift away from the silhouettes (an elongating silhouette would get its vertices bunched
+        at the ends). The shape of a silhouette is measured by the vertex covariance ``C`` of
+        its polygon (for vertices at evenly spaced parametric angles of an ellipse, half the
+        ellipse's shape matrix). The first call after the directions were set records ``C`` (as
+        ``metric``); later calls compare: where the ratio of the extreme eigenvalues of
+        ``metric C`` (an aspect-ratio change, independent of scale) exceeds ``max_distortion``,
+        uniform angles are mapped through ``C`` instead and each support value starts at the
+        polygon's own support in its new direction (a lower bound, as Newton needs: the polygon
+        is inscribed). Elsewhere the directions stay, so the cost a fit sees stays the same
+        function between refreshes.
+        """
+        polys = self.polygons
+        with np.errstate(all="ignore"):
+            d = polys - polys.sum(axis=-2, keepdims=True) / polys.shape[-2]
+            C = np.swapaxes(d, -1, -2) @ d  # K times the covariance: the scale does not matter
+            det = C[..., 0, 0] * C[..., 1, 1] - C[..., 0, 1] ** 2
+            # The eigenvalue ratio r of metric C (det(metric) = 1) has (1 + r)^2 / r = tr^2 / det.
+            tr = (self.metric * C).sum(axis=(-2, -1))
+            new = self.valid & np.isnan(tr)  # no metric yet: record this one
+            stale = self.valid & (tr * tr > (1.0 + max_distortion) ** 2 / max_distortion * det)
+            if not (stale.any() or new.any()):
+                return self
+            metric = np.where(new[..., None, None], _unit_metric(C), self.metric)
+            if not stale.any():
+                return self._replace(metric=metric)
+            L = np.zeros_like(C)
+            L[..., 0, 0] = np.sqrt(C[..., 0, 0])
+            L[..., 1, 0] = C[..., 1, 0] / L[..., 0, 0]
+            L[..., 1, 1] = np.sqrt(C[..., 1, 1] - L[..., 1, 0] ** 2)
+            ok = stale & np.isfinite(L[..., 1, 1]) & (L[..., 0, 0] > 0) & (L[..., 1, 1] > 0)
+            U = _adapted_directions(L, ok, polys.shape[-2])
+            h = np.max(U @ np.swapaxes(polys, -1, -2), axis=-1)
+        return self._replace(directions=np.where(ok[..., None, None], U, self.directions),
+                             h=np.where(ok[..., None], h, self.h),
+                             metric=np.where(ok[..., None, None], np.nan, metric), normals=None)
+
+
+def _unit_metric(S):
+    """``S^-1`` scaled to determinant 1 (``adj(S) / sqrt(det S)``) for positive definite ``(..., 2, 2)``
+    (NaN where ``S`` is not)."""
+    adj = np.empty_like(S)
+    adj[..., 0, 0], adj[..., 1, 1] = S[..., 1, 1], S[..., 0, 0]
+    adj[..., 0, 1], adj[..., 1, 0] = -S[..., 0, 1], -S[..., 1, 0]
+    with np.errstate(all="ignore"):
+        return adj / np.sqrt(S[..., 0, 0] * S[..., 1, 1] - S[..., 0, 1] * S[..., 1, 0])[..., None, None]
 
 
 @lru_cache(maxsize=16)
@@ -139,6 +220,13 @@ def _silhouette_ellipses(a, R_sq, p, rotations, centers, intrinsics):
     return x0, L, ok
 
 
+def _projection_rows(intrinsics):
+    """``(v, 2, 3) float``: the first two rows ``[[fx, 0, cx], [0, fy, cy]]`` of the camera matrices."""
+    P = np.zeros((len(intrinsics), 2, 3))
+    P[:, 0, 0], P[:, 1, 1], P[:, :, 2] = intrinsics[:, 0], intrinsics[:, 1], intrinsics[:, 2:4]
+    return P
+
+
 def _adapted_directions(L, ok, k):
     """Image directions spread evenly around the silhouette rather than evenly in angle.
 
@@ -163,8 +251,8 @@ def _adapted_directions(L, ok, k):
     return np.where(ok[..., None, None], u, base)
 
 
-def batch_silhouettes(xi, rotations, centers, intrinsics, n_directions=DEFAULT_DIRECTIONS, h0=None,
-                      touching=False):
+def batch_silhouettes(xi, rotations, centers, intrinsics, n_directions=DEFAULT_DIRECTIONS, start=None,
+                      touching=False, tol=NEWTON_TOL):
     """Silhouettes of several superquadrics in several cameras at once.
 
     Parameters
@@ -179,11 +267,19 @@ def batch_silhouettes(xi, rotations, centers, intrinsics, n_directions=DEFAULT_D
         ``fx, fy, cx, cy`` per camera.
     n_directions : int
         ``K``, vertices per silhouette.
-    h0 : (b, v, K) float, optional
-        Starting support values (e.g. the solution at a nearby ``xi``, for finite differences);
-        default: the support values of the quadric's silhouette ellipse.
+    start : SilhouetteStart, optional
+        The directions and support values of a nearby solve (the ``start`` this function returns
+        for a nearby ``xi``; arrays broadcast to ``(b, v, K)``): the same image directions are
+        used and Newton starts from those support values (from the projected centre where they
+        are not finite). Default: directions adapted to, and support values of, the silhouette
+        ellipse of the quadric with the same size and pose (:func:`_adapted_directions`).
     touching : bool
         Also return the touching points (for :func:`vertex_velocities`).
+    tol : float
+        Newton stops when every step is below this (pixels). The vertices are the touching
+        points of the support values before the last step, so they are off by about that much.
+        Finite differences need the default; an analytic Jacobian does well with 1e-3 px (one
+        Newton step fewer on a warm start).
 
     Returns
     -------
@@ -191,15 +287,17 @@ def batch_silhouettes(xi, rotations, centers, intrinsics, n_directions=DEFAULT_D
         Counter-clockwise silhouettes in image coordinates (garbage where not ``valid``).
     valid : (b, v) bool
         False where part of the superquadric is at depth <= :data:`ZNEAR`.
-    h : (b, v, K) float
-        Support values (image offsets of the support lines), to warm-start a nearby solve.
+    start : SilhouetteStart
+        The directions used and the support values found (image offsets of the support lines),
+        to warm-start a nearby solve (:meth:`SilhouetteStart.refreshed` adapts the directions
+        to the silhouettes found).
     unit_points, points : (b, v, K, 3) float
         Only if ``touching``: the touching points on the unit-size superquadric (superquadric
         frame) and the touching points (camera frames).
     """
     xi = np.atleast_2d(xi)
     a = np.abs(xi[:, 0:3])
-    e = np.clip(xi[:, 3:5], *_E_RANGE)
+    e = np.minimum(np.maximum(xi[:, 3:5], _E_RANGE[0]), _E_RANGE[1])
     q1 = (2.0 / (2.0 - e[:, 0]))[:, None, None]
     q2 = (2.0 / (2.0 - e[:, 1]))[:, None, None]
     R_sq = euler_to_matrix(xi[:, 8:11])  # (b, 3, 3)
@@ -208,24 +306,36 @@ def batch_silhouettes(xi, rotations, centers, intrinsics, n_directions=DEFAULT_D
     Rt = np.swapaxes(rotations, 1, 2)
     M = Rt[None] @ R_sq[:, None]
     c = (Rt[None] @ (xi[:, None, 5:8] - centers[None])[..., None])[..., 0]
-    fx, fy, cx, cy = (intrinsics[:, i][None, :, None] for i in range(4))
     k = int(n_directions)
     wz = (a[:, None, :] * M[:, :, 2, :])[:, :, None, :]  # (b, v, 1, 3)
-    x0, L, ok = _silhouette_ellipses(a, R_sq, xi[:, 5:8], rotations, centers, intrinsics)
-    U = _adapted_directions(L, ok, k)
-    u1, u2 = U[..., 0], U[..., 1]  # (b, v, K)
-    # n(h) = n0 - h e_z; w(h) = a * M^T n(h) = w0 - h wz.
-    n0 = np.stack([u1 * fx, u2 * fy, u1 * cx + u2 * cy], axis=-1)  # (b, v, K, 3)
+    if start is None:
+        x0, L, ok = _silhouette_ellipses(a, R_sq, xi[:, 5:8], rotations, centers, intrinsics)
+        U = _adapted_directions(L, ok, k)
+        metric = np.full((len(xi), len(rotations), 2, 2), np.nan)
+        n0 = None
+    else:
+        U, metric, n0 = start.directions, start.metric, start.normals
+        if U.shape[0] != len(xi):
+            U = np.broadcast_to(U, (len(xi),) + U.shape[1:])
+            metric = np.broadcast_to(metric, (len(xi),) + metric.shape[1:])
+            n0 = None
+    # n(h) = n0 - h e_z (camera frame); w(h) = a * M^T n(h) = w0 - h wz.
+    P2 = _projection_rows(intrinsics)  # (v, 2, 3)
+    if n0 is None:
+        n0 = U @ P2  # (b, v, K, 3)
     w0 = (n0 @ M) * a[:, None, None, :]
     n0c = (n0 @ c[..., None])[..., 0]
-    # Start: the support of the quadric's ellipse (exact for e = 1, close otherwise), or h0.
-    Lu = U @ L
-    h = (U @ x0[..., None])[..., 0] + np.linalg.norm(Lu, axis=-1)
     with np.errstate(all="ignore"):
-        h = np.where(ok[..., None], h, n0c / np.where(c[..., 2] > 0, c[..., 2], 1.0)[..., None])
-    if h0 is not None:
-        h = np.where(np.isfinite(h0), h0, h)
-    with np.errstate(all="ignore"):
+        # Start: the support of the quadric's ellipse (exact for e = 1, close otherwise) or the
+        # given support values; else the projected centre, where g >= 0.
+        if start is None:
+            h = (U @ x0[..., None])[..., 0] + np.linalg.norm(U @ L, axis=-1)
+            if not ok.all():
+                h = np.where(ok[..., None], h, n0c / np.where(c[..., 2] > 0, c[..., 2], 1.0)[..., None])
+        else:
+            h = start.h if start.h.shape[0] == len(xi) else np.broadcast_to(start.h, n0c.shape)
+            if not np.isfinite(h).all():
+                h = np.where(np.isfinite(h), h, n0c / np.where(c[..., 2] > 0, c[..., 2], 1.0)[..., None])
         # The first support evaluation also gives the nearest depth of the superquadric in each
         # camera, c_z - h(-e_z) (an extra direction -e_z, whose w is wz).
         hs, grad = dual_support(np.concatenate([w0 - h[..., None] * wz, wz], axis=2), q1, q2)
@@ -233,25 +343,29 @@ def batch_silhouettes(xi, rotations, centers, intrinsics, n_directions=DEFAULT_D
         hs, grad = hs[..., :k], grad[..., :k, :]
         valid = np.isfinite(zmin) & (zmin > ZNEAR)
         cz = np.where(valid, c[..., 2], 1.0)[..., None]  # (b, v, 1)
+        all_valid = bool(valid.all())
+        wz_col = np.swapaxes(wz, -1, -2)  # (b, v, 3, 1)
         for it in range(_MAX_NEWTON):
             if it:
                 hs, grad = dual_support(w0 - h[..., None] * wz, q1, q2)
             # g(h) = n(h) . c + h_sq; g'(h) = -z* (depth of the touching point).
             g = n0c - h * cz + hs
-            zstar = cz + (grad[..., 0] * wz[..., 0] + grad[..., 1] * wz[..., 1] + grad[..., 2] * wz[..., 2])
-            step = g / np.where(valid[..., None], zstar, 1.0)
+            step = g / (cz + (grad @ wz_col)[..., 0])
+            if not all_valid:  # invalid silhouettes take no steps (their g may be NaN)
+                step = np.where(valid[..., None], step, 0.0)
             h = h + step
-            if not np.any(np.abs(step[valid]) > _NEWTON_TOL):
+            if not np.abs(step).max() > tol:
                 break
         # ``grad`` is the touching point of the last support value but one: the last step was
-        # below 1e-7 px, so re-evaluating it at ``h`` would move the vertices by less than that.
+        # below ``tol``, so re-evaluating it at ``h`` would move the vertices by about that much.
         point = c[:, :, None, :] + (grad * a[:, None, None, :]) @ np.swapaxes(M, -1, -2)
-        z = np.where(valid[..., None], point[..., 2], 1.0)
-        polys = np.stack([fx * point[..., 0] / z + cx, fy * point[..., 1] / z + cy], axis=-1)
-    valid &= np.all(np.isfinite(polys), axis=(2, 3))
+        z = point[..., 2:] if all_valid else np.where(valid[..., None, None], point[..., 2:], 1.0)
+        polys = (point @ np.swapaxes(P2, -1, -2)) / z
+    valid &= np.isfinite(polys.reshape(polys.shape[:2] + (-1,)).sum(axis=-1))
+    start = SilhouetteStart(U, h, metric, polys, valid, n0)
     if touching:
-        return polys, valid, h, grad, point
-    return polys, valid, h
+        return polys, valid, start, grad, point
+    return polys, valid, start
 
 
 def _unit_point_shape_derivatives(s, e):
@@ -312,8 +426,12 @@ def vertex_velocities(xi, unit_points, points, rotations, intrinsics):
         the silhouette clamps it. Not finite where the touching point is at depth 0.
     """
     xi = np.atleast_2d(xi)
-    R_sq, dR = zip(*(rotation_and_derivatives(r) for r in xi[:, 8:11]))
-    R_sq, dR = np.stack(R_sq), np.stack(dR)  # (b, 3, 3), (b, 3 angles, 3, 3)
+    if len(xi) == 1:  # the optimiser's case: no stacking
+        R_sq, dR = rotation_and_derivatives(xi[0, 8:11])
+        R_sq, dR = R_sq[None], dR[None]
+    else:
+        R_sq, dR = zip(*(rotation_and_derivatives(r) for r in xi[:, 8:11]))
+        R_sq, dR = np.stack(R_sq), np.stack(dR)  # (b, 3, 3), (b, 3 angles, 3, 3)
     a = np.abs(xi[:, 0:3])
     fx, fy = intrinsics[:, 0][None, :, None], intrinsics[:, 1][None, :, None]
     iz = 1.0 / points[..., 2]
@@ -330,8 +448,8 @@ def vertex_velocities(xi, unit_points, points, rotations, intrinsics):
     out = np.empty(points.shape[:3] + (2, 11))
     sign = np.where(xi[:, 0:3] < 0, -1.0, 1.0)[:, None, None, None, :]
     out[..., 0:3] = rows_sq * (unit_points[..., None, :] * sign)
-    e = np.clip(xi[:, 3:5], *_E_RANGE)
-    inside = ((xi[:, 3:5] >= _E_RANGE[0]) & (xi[:, 3:5] <= _E_RANGE[1]))[:, None, None, :, None]
+    e = np.minimum(np.maximum(xi[:, 3:5], _E_RANGE[0]), _E_RANGE[1])
+    inside = (e == xi[:, 3:5])[:, None, None, :, None]
     ds = _unit_point_shape_derivatives(unit_points, e) * a[:, None, None, None, :] * inside
     out[..., 3:5] = rows_sq @ np.swapaxes(ds, -1, -2)
     out[..., 5:8] = rows_w
@@ -419,41 +537,6 @@ def half_planes(Q):
     return n, np.where(use, n[..., 0] * Q[..., 0] + n[..., 1] * Q[..., 1], 1.0), area, e
 
 
-def _clip(S, d, n, c, strict=False):
-    """Cyrus-Beck clipping of the edges ``s + t d`` of S against convex polygons ``n . x <= c``.
-
-    S : (..., k, 2) and its edge vectors d = roll(S, -1) - S; n : (..., m, 2) and c : (..., m)
-    from :func:`half_planes` (broadcast over the leading axes). Edges lying exactly on a boundary
-    line of the other polygon count as inside unless ``strict``. Returns ``t_lo, t_hi`` (..., k):
-    the piece inside is ``[t_lo, t_hi]`` (empty when ``t_hi <= t_lo``).
-    """
-    sx, sy = S[..., :, None, 0], S[..., :, None, 1]
-    nx, ny = n[..., None, :, 0], n[..., None, :, 1]
-    num = c[..., None, :] - (sx * nx + sy * ny)  # (..., k, m)
-    if strict:
-        num = num - 1e-300
-    # Exact zeros become -tiny: a parallel edge outside (num < 0) then gets t = +huge (empty).
-    den = (d[..., :, None, 0] * nx + d[..., :, None, 1] * ny) - 1e-300
-    t = num / den
-    neg = den < 0
-    t_lo = np.max(np.where(neg, t, 0.0), axis=-1, initial=0.0)
-    t_hi = np.min(np.where(neg, 1.0, t), axis=-1, initial=1.0)
-    return t_lo, t_hi
-
-
-def _clipped_boundary(S, d, n, c, strict=False):
-    """Twice the area contributed by the edges of S inside the convex polygons ``n . x <= c``.
-
-    Green's theorem: the area of ``S n Q`` is half the sum of ``cross(a, b)`` over the pieces
-    ``[a, b]`` of both boundaries inside the other polygon (:func:`_clip`). An edge shared by both
-    polygons is counted once (first pass non-strict, second strict).
-    """
-    t_lo, t_hi = _clip(S, d, n, c, strict)
-    length = np.maximum(t_hi - t_lo, 0.0)
-    cross = S[..., 0] * d[..., 1] - S[..., 1] * d[..., 0]
-    return np.sum(length * cross, axis=-1)
-
-
 def convex_iou(S, Q, q_planes=None):
     """IoU of convex counter-clockwise polygons, vectorised over leading axes.
 
@@ -473,28 +556,68 @@ def convex_iou(S, Q, q_planes=None):
 
 
 def _convex_overlap(S, Q, q_planes):
-    """IoU and the intermediate results :func:`convex_iou_jacobian` reuses."""
-    nq, cq, area_q, dq = half_planes(Q) if q_planes is None else q_planes
-    ns, cs, area_s, d = half_planes(S)
+    """IoU of convex CCW polygons and the intermediate results :func:`convex_iou_jacobian` reuses.
+
+    Green's theorem: the area of ``S n Q`` is half the sum of ``cross(a, b)`` over the pieces
+    ``[a, b]`` of both boundaries inside the other polygon. The pieces come from Cyrus-Beck
+    clipping of each edge against the other polygon's half-planes ``n . x <= n . x0`` (outward
+    normals ``n`` scaled by the edge lengths): along ``x0 + t d`` the constraint ``n_j`` gives
+    ``t (n_j . d) <= n_j . (q_j - x0)``. Both passes share the differences ``q_j - s_i`` and the
+    denominators (``n^Q_j . d^S_i = -n^S_i . d^Q_j``: both are ``cross(d^S_i, d^Q_j)``). An edge
+    lying on the other polygon's boundary counts as inside in the first pass (S's edges) and
+    outside in the second, so a shared edge is counted once. Edges shorter than
+    :data:`_MIN_EDGE` constrain nothing (their direction is rounding noise).
+
+    Returns
+    -------
+    iou : (...,) float
+    parts : tuple
+        ``d`` (edges of S), ``t_lo, t_hi`` (the pieces of S's edges inside Q), ``inter, union,
+        area_s, area_q``.
+    """
+    nq, _, area_q, dq = half_planes(Q) if q_planes is None else q_planes
+    d = np.empty_like(S)
+    np.subtract(S[..., 1:, :], S[..., :-1, :], out=d[..., :-1, :])
+    np.subtract(S[..., :1, :], S[..., -1:, :], out=d[..., -1:, :])
+    sx, sy, dx, dy = S[..., 0], S[..., 1], d[..., 0], d[..., 1]
+    cross_s = sx * dy - sy * dx
+    area_s = 0.5 * cross_s.sum(axis=-1)
     with np.errstate(all="ignore"):
-        t_lo, t_hi = _clip(S, d, nq, cq)
-        cross = S[..., 0] * d[..., 1] - S[..., 1] * d[..., 0]
-        inside = np.sum(np.maximum(t_hi - t_lo, 0.0) * cross, axis=-1)
-        inter = 0.5 * (inside + _clipped_boundary(Q, dq, ns, cs, strict=True))
+        Dx = Q[..., None, :, 0] - sx[..., :, None]  # (..., k, m): q_j - s_i
+        Dy = Q[..., None, :, 1] - sy[..., :, None]
+        nqx, nqy = nq[..., None, :, 0], nq[..., None, :, 1]
+        # Exact zeros of the denominators become -tiny: a parallel edge outside (numerator < 0)
+        # then gets t = +huge (empty), one inside t = -huge (no constraint).
+        den = dx[..., :, None] * nqx + dy[..., :, None] * nqy - 1e-300
+        t = (nqx * Dx + nqy * Dy) / den
+        neg = den < 0
+        t_lo = np.max(np.where(neg, t, 0.0), axis=-1, initial=0.0)
+        t_hi = np.min(np.where(neg, 1.0, t), axis=-1, initial=1.0)
+        # Q's edges against S's half-planes n_i = (dy_i, -dx_i): numerator n_i . (s_i - q_j),
+        # minus tiny (strict), or 1 for a short edge of S (no constraint).
+        free = np.where(dx * dx + dy * dy > _MIN_EDGE ** 2, -1e-300, 1.0)[..., :, None]
+        den = -2e-300 - den
+        t = (dx[..., :, None] * Dy - dy[..., :, None] * Dx + free) / den
+        neg = den < 0
+        length_q = np.maximum(np.min(np.where(neg, 1.0, t), axis=-2, initial=1.0)
+                              - np.max(np.where(neg, t, 0.0), axis=-2, initial=0.0), 0.0)
+        cross_q = Q[..., 0] * dq[..., 1] - Q[..., 1] * dq[..., 0]
+        inter = 0.5 * (np.sum(np.maximum(t_hi - t_lo, 0.0) * cross_s, axis=-1) + np.sum(length_q * cross_q, axis=-1))
         union = area_s + area_q - inter
         iou = np.clip(np.where(union > 0, inter / union, 0.0), 0.0, 1.0)
     return iou, (d, t_lo, t_hi, inter, union, area_s, area_q)
 
 
 def convex_iou_jacobian(S, Q, q_planes=None):
-    """IoU of convex CCW polygons (as :func:`convex_iou`), and its derivative as a function.
+    """IoU of convex CCW polygons (as :func:`convex_iou`), and its derivative in the vertices of ``S``.
 
-    The vertices of ``S`` move with velocities ``dS`` (e.g. :func:`vertex_velocities`); ``Q`` is
-    fixed. The area of ``S`` changes by the flux of the (edge-wise linear) velocity field across
-    its edges, and the intersection area by the flux across the pieces of those edges inside
-    ``Q`` (:func:`_clip`): with ``N_k`` the outward normal of edge ``k`` scaled by its length, the
-    piece ``[t0, t1]`` contributes ``(t1 - t0) f0 + (t1^2 - t0^2) / 2 (f1 - f0)``, where
-    ``f0 = dS_k . N_k`` and ``f1 = dS_(k+1) . N_k``.
+    The vertices of ``S`` move with velocities ``dS_k``; ``Q`` is fixed. The area of ``S``
+    changes by the flux of the (edge-wise linear) velocity field across its edges, and the
+    intersection area by the flux across the pieces of those edges inside ``Q``
+    (:func:`_convex_overlap`): with ``N_k`` the outward normal of edge ``k`` scaled by its
+    length, the piece ``[t0, t1]`` contributes ``(t1 - t0) f0 + (t1^2 - t0^2) / 2 (f1 - f0)``,
+    where ``f0 = dS_k . N_k`` and ``f1 = dS_(k+1) . N_k``. Collecting the terms of each vertex
+    gives ``d iou = sum_k W_k . dS_k``.
 
     Parameters
     ----------
@@ -506,28 +629,95 @@ def convex_iou_jacobian(S, Q, q_planes=None):
     Returns
     -------
     iou : (...,) float
-    derivative : callable
-        ``derivative(dS)`` with ``dS`` ``(..., k, 2, p)`` returns ``d iou`` ``(..., p)``; 0 where
-        the polygons do not overlap (IoU 0 has no gradient). Call it only when needed: the
-        IoU alone is cheaper.
+    weights : callable
+        ``weights()`` returns ``W`` ``(..., k, 2)``, the gradient of the IoU with respect to the
+        vertices of ``S``; 0 where the polygons do not overlap (IoU 0 has no gradient). Call it
+        only when needed: the IoU alone is cheaper.
     """
     iou, (d, t_lo, t_hi, inter, union, area_s, area_q) = _convex_overlap(S, Q, q_planes)
     ok = (union > 0) & (inter > 0)
 
-    def derivative(dS):
+    def weights():
         with np.errstate(all="ignore"):
             normal = np.stack([d[..., 1], -d[..., 0]], axis=-1)  # outward for CCW, |N| = edge length
-            f0 = (normal[..., None, :] @ dS)[..., 0, :]
-            f1 = (normal[..., None, :] @ np.roll(dS, -1, axis=-3))[..., 0, :]
-            d_area = 0.5 * np.sum(f0 + f1, axis=-2)
             # Empty pieces (t_hi <= t_lo, where t_lo may be huge for a degenerate edge): t1 = t0.
             t0 = np.minimum(t_lo, 1.0)
-            t0, t1 = t0[..., None], np.maximum(t_hi, t0)[..., None]
-            d_inter = np.sum((t1 - t0) * f0 + 0.5 * (t1 ** 2 - t0 ** 2) * (f1 - f0), axis=-2)
-            diou = (d_inter * (area_s + area_q)[..., None] - inter[..., None] * d_area) / union[..., None] ** 2
-        return np.where(ok[..., None] & np.isfinite(diou), diou, 0.0)
+            t1 = np.maximum(t_hi, t0)
+            half_sq = 0.5 * (t1 * t1 - t0 * t0)
+            # d iou = c1 d_inter - c2 d_area; per edge k: (c1 (t1 - t0 - half_sq) - c2 / 2) f0
+            # + (c1 half_sq - c2 / 2) f1.
+            c1 = ((area_s + area_q) / union ** 2)[..., None]
+            c2 = (0.5 * inter / union ** 2)[..., None]
+            w0 = (c1 * (t1 - t0 - half_sq) - c2)[..., None] * normal
+            w1 = (c1 * half_sq - c2)[..., None] * normal
+            W = w0 + np.roll(w1, 1, axis=-2)  # f1 of edge k - 1 moves vertex k
+        return np.where(ok[..., None, None] & np.isfinite(W), W, 0.0)
 
-    return iou, derivative
+    return iou, weights
+
+
+def silhouette_gradient(xi, weights, unit_points, points, rotations, intrinsics):
+    """``sum_k W_k . d vertex_k / d xi`` for silhouettes from :func:`batch_silhouettes`.
+
+    The same as contracting :func:`vertex_velocities` with the vertex weights ``W`` (e.g. from
+    :func:`convex_iou_jacobian`), without forming the ``(b, v, K, 2, 11)`` velocities: ``W`` is
+    pulled back to a gradient ``G_k`` with respect to each touching point (camera frame), then
+    to the world frame, and summed over the vertices per parameter group.
+
+    Parameters
+    ----------
+    xi : (b, 11) float
+    weights : (b, v, K, 2) float
+    unit_points, points : (b, v, K, 3) float
+        As for :func:`vertex_velocities`.
+    rotations : (v, 3, 3) float
+    intrinsics : (v, 4) float
+
+    Returns
+    -------
+    gradient : (b, v, 11) float
+        Not finite where a touching point is at depth 0.
+    """
+    xi = np.atleast_2d(xi)
+    b, v = points.shape[:2]
+    if b == 1:
+        R_sq, dR = rotation_and_derivatives(xi[0, 8:11])
+        R_sq, dR = R_sq[None], dR[None]
+    else:
+        R_sq, dR = zip(*(rotation_and_derivatives(r) for r in xi[:, 8:11]))
+        R_sq, dR = np.stack(R_sq), np.stack(dR)
+    a = np.abs(xi[:, 0:3])
+    out = np.empty((b, v, 11))
+    with np.errstate(all="ignore"):
+        iz = 1.0 / points[..., 2]
+        G = np.empty(points.shape)
+        G[..., 0] = weights[..., 0] * intrinsics[:, 0, None] * iz
+        G[..., 1] = weights[..., 1] * intrinsics[:, 1, None] * iz
+        G[..., 2] = -(G[..., 0] * points[..., 0] + G[..., 1] * points[..., 1]) * iz
+        Gw = G @ rotations.swapaxes(1, 2)  # world frame
+        out[..., 5:8] = Gw.sum(axis=-2)
+        H = Gw @ R_sq[:, None]  # superquadric frame
+        sign = np.where(xi[:, 0:3] < 0, -1.0, 1.0)[:, None, :]
+        out[..., 0:3] = np.sum(H * unit_points, axis=-2) * sign
+        # Shape: the derivatives of s of _unit_point_shape_derivatives, contracted with a * H.
+        e = np.minimum(np.maximum(xi[:, 3:5], _E_RANGE[0]), _E_RANGE[1])
+        e1, e2 = e[:, 0, None, None], e[:, 1, None, None]
+        s = unit_points
+        aw = np.abs(s)
+        big = np.maximum(aw[..., 0], aw[..., 1])
+        t = np.minimum(aw[..., 0], aw[..., 1]) / (big + _TINY)
+        log_a = np.log(big + _TINY) + 0.5 * e2 * np.log1p(t ** (2.0 / e2))
+        slog = np.where(aw > 0, s * np.log(aw + _TINY), 0.0)
+        Ha = H * a[:, None, None, :]
+        planar = (Ha[..., 0] * s[..., 0] + Ha[..., 1] * s[..., 1]) * log_a  # log_a >= log(_TINY)
+        inside = e == xi[:, 3:5]  # clamped exponents have no derivative
+        out[..., 3] = np.sum(planar + Ha[..., 2] * slog[..., 2], axis=-1) / e1[..., 0] * inside[:, None, 0]
+        out[..., 4] = (np.sum(Ha[..., 0] * slog[..., 0] + Ha[..., 1] * slog[..., 1] - planar, axis=-1)
+                       / e2[..., 0] * inside[:, None, 1])
+        # Rotation: sum_k Gw_k . (dR_j (a s_k)) = <dR_j, sum_k Gw_k (a s_k)^T>.
+        O = Gw.swapaxes(-1, -2) @ (unit_points * a[:, None, None, :])  # (b, v, 3, 3)
+        out[..., 8:11] = O.reshape(b, v, 9) @ dR.reshape(b, 3, 9).swapaxes(1, 2)
+    return out
 
 
 def polygon_iou(p, q):

@@ -97,8 +97,8 @@ def test_riou_residuals_at_ground_truth(trial):
     gt = trial.gt.to_vector()
     far = gt.copy()
     far[5:8] += 50.0  # around / behind the cameras: no silhouette, IoU 0
-    r, h = riou_residuals(np.stack([gt, far]), obs)
-    assert r.shape == (2, 3 + 11) and h.shape[:2] == (2, 3)
+    r, start = riou_residuals(np.stack([gt, far]), obs)
+    assert r.shape == (2, 3 + 11) and start.h.shape[:2] == (2, 3)
     # The hull of 100 uniform samples is a bit smaller than the silhouette.
     assert np.all(r[0, :3] < 0.2) and not r[0, 3:].any()
     np.testing.assert_array_equal(r[1, :3], 1.0)
