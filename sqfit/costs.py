@@ -161,17 +161,18 @@ def riou_residuals(xi, obs, polygon="hull", weight=C.PENALTY_RIOU, n_directions=
     start : SilhouetteStart, optional
         Warm start of the silhouette solve (the ``start`` returned for a nearby ``xi``, see
         :func:`sqfit.silhouette.batch_silhouettes`).
-    tol : float
-        Precision of the silhouette solve, pixels (see :func:`sqfit.silhouette.batch_silhouettes`).
     jacobian : bool
         Also return the analytic derivative of the view residuals (``polygon="hull"`` only):
-        :func:`sqfit.silhouette.vertex_velocities` and
-        :func:`sqfit.silhouette.convex_iou_jacobian`. It is the derivative of the IoU of the
+        :func:`sqfit.silhouette.convex_iou_jacobian` (the IoU's gradient in the vertices) pulled
+        back through :func:`sqfit.silhouette.silhouette_gradient` (the vertices' velocities, as
+        :func:`sqfit.silhouette.vertex_velocities`). It is the derivative of the IoU of the
         silhouette polygon whose vertices move with the touching points. Finite differences of
         the residuals also see the vertices slide along the silhouette, an effect of the
         discretisation: they agree to a few percent at 48 vertices, except for the shape
         columns of pointed superquadrics (``e`` near 1.9, nearly every vertex on a corner),
         which can differ by a third there and agree as ``n_directions`` grows.
+    tol : float
+        Precision of the silhouette solve, pixels (see :func:`sqfit.silhouette.batch_silhouettes`).
 
     Returns
     -------
@@ -235,7 +236,7 @@ def radial_terms(xi, points):
     rel = points - xi[5:8]
     y = rel @ R
     y[y == 0.0] = _TINY  # keeps log finite; the weight of such a coordinate is 0 anyway
-    norm2 = np.einsum("ij,ij->i", y, y)
+    norm2 = (y * y).sum(axis=1)
     la = np.log(np.abs(y)) - np.log(np.abs(a))
     X = (2.0 / e2) * la[:, :2]
     XY = np.logaddexp(X[:, 0], X[:, 1])
@@ -257,8 +258,14 @@ def radial_terms(xi, points):
     d_xi = np.empty((len(points), C.N_PARAMS))
     d_xi[:, 0:3] = S[:, None] * dl / a
     # d G3 / d e1 = -S (L - wA A - wB Bz) / 2; d G3 / d e2 = -S wA (XY - wx X1 - wy X2) / 2.
-    d_xi[:, 3] = -half_S * (L - _wmul(wA, A) - _wmul(wB, Bz))
-    d_xi[:, 4] = -half_S * wA * (XY - _wmul(wxy[:, 0], X[:, 0]) - _wmul(wxy[:, 1], X[:, 1]))
+    with np.errstate(invalid="ignore"):
+        de1 = L - wA * A - wB * Bz
+        de2 = XY - wxy[:, 0] * X[:, 0] - wxy[:, 1] * X[:, 1]
+    if not (np.isfinite(de1).all() and np.isfinite(de2).all()):  # 0 * -inf (a zero size): 0
+        de1 = L - _wmul(wA, A) - _wmul(wB, Bz)
+        de2 = XY - _wmul(wxy[:, 0], X[:, 0]) - _wmul(wxy[:, 1], X[:, 1])
+    d_xi[:, 3] = -half_S * de1
+    d_xi[:, 4] = -half_S * wA * de2
     d_point = d_y @ R.T
     d_xi[:, 5:8] = -d_point
     # y = R^T (x - p): d y_i / d r_k = sum_j dR_k[j, i] rel_j.
@@ -299,7 +306,7 @@ def g5_residuals(xi, depths, obs, weight=C.PENALTY_ANALYTIC, scaled=True):
     """
     xi = np.asarray(xi, dtype=np.float64)
     g3, d_xi, d_point = radial_terms(xi, sample_points(obs, depths))
-    D = np.einsum("ij,ij->i", d_point, obs.rays)
+    D = (d_point * obs.rays).sum(axis=1)
     if scaled:
         vol = xi[0] * xi[1] * xi[2]
         scale = vol + 1.0

@@ -142,15 +142,17 @@ def _directions(k):
 
 
 def _pnorm2(x, y, q):
-    """``(|x|^q + |y|^q)^(1/q)`` for ``x, y >= 0`` and the weights ``x^q / sum``, ``y^q / sum``."""
+    """``(|x|^q + |y|^q)^(1/q)`` for ``x, y >= 0`` and the weight ``x^q / sum`` (that of ``y`` is
+    one minus it)."""
     big = np.maximum(x, y)
-    t = np.minimum(x, y) / (big + 1e-300)
+    t = np.minimum(x, y)
+    t /= big + 1e-300
     tq = t ** q
-    total = 1.0 + tq
-    norm = big * total ** (1.0 / q)
+    total = tq + 1.0
+    norm = total ** (1.0 / q)
+    norm *= big
     w_small = tq / total
-    w_x = np.where(x >= y, 1.0 - w_small, w_small)
-    return norm, w_x, 1.0 - w_x
+    return norm, np.where(x >= y, 1.0 - w_small, w_small)
 
 
 def dual_support(w, q1, q2):
@@ -174,11 +176,15 @@ def dual_support(w, q1, q2):
         Gradient of ``h`` with respect to ``w``; the touching point is ``a * grad``.
     """
     aw = np.abs(w)
-    s, rho1, rho2 = _pnorm2(aw[..., 0], aw[..., 1], q2)
-    h, sig_s, sig_3 = _pnorm2(s, aw[..., 2], q1)
+    s, rho1 = _pnorm2(aw[..., 0], aw[..., 1], q2)
+    h, sig_s = _pnorm2(s, aw[..., 2], q1)
     hs = h * sig_s
+    grad = np.empty_like(aw)
+    np.multiply(hs, rho1, out=grad[..., 0])  # h sig_s rho1
+    np.subtract(hs, grad[..., 0], out=grad[..., 1])  # h sig_s rho2
+    np.subtract(h, hs, out=grad[..., 2])  # h sig_3
     # w_i = 0 has weight 0: the tiny offset keeps 0 / 0 out without a branch.
-    grad = np.stack([hs * rho1, hs * rho2, h * sig_3], axis=-1) / (w + np.copysign(1e-300, w))
+    grad /= w + np.copysign(1e-300, w)
     return h, grad
 
 
@@ -368,6 +374,20 @@ def batch_silhouettes(xi, rotations, centers, intrinsics, n_directions=DEFAULT_D
     return polys, valid, start
 
 
+def _shape_logs(s, e):
+    """``ln A`` with ``A = ||(s1, s2)||_(2/e2)`` ``(b, v, K)`` and ``s ln|s|`` ``(b, v, K, 3)`` (0 at
+    ``s = 0``, the limit) for points ``s`` (b, v, K, 3) of unit superquadrics with exponents ``e``
+    (b, 2). ``ln A >= ln(1e-300)``, so ``s_i ln A`` is 0 where ``s_i`` is."""
+    e2 = e[:, 1, None, None]
+    with np.errstate(all="ignore"):
+        aw = np.abs(s)
+        big = np.maximum(aw[..., 0], aw[..., 1])
+        t = np.minimum(aw[..., 0], aw[..., 1]) / (big + _TINY)
+        log_a = np.log(big + _TINY) + 0.5 * e2 * np.log1p(t ** (2.0 / e2))
+        slog = np.where(aw > 0, s * np.log(aw + _TINY), 0.0)
+    return log_a, slog
+
+
 def _unit_point_shape_derivatives(s, e):
     """Derivatives of points ``s`` (b, v, K, 3) of the unit superquadric with respect to ``e1, e2``
     at fixed angles ``(eta, omega)`` of the parametrisation
@@ -383,13 +403,8 @@ def _unit_point_shape_derivatives(s, e):
         ``ds[..., j, :] = d s / d e_(j+1)``.
     """
     e1, e2 = e[:, 0, None, None, None], e[:, 1, None, None, None]
-    with np.errstate(all="ignore"):
-        aw = np.abs(s)
-        big = np.maximum(aw[..., 0], aw[..., 1])
-        t = np.minimum(aw[..., 0], aw[..., 1]) / (big + _TINY)
-        log_a = np.log(big + _TINY) + 0.5 * e2[..., 0] * np.log1p(t ** (2.0 / e2[..., 0]))
-        slog = np.where(aw > 0, s * np.log(aw + _TINY), 0.0)
-        s_log_a = np.where(aw[..., :2] > 0, s[..., :2] * log_a[..., None], 0.0)
+    log_a, slog = _shape_logs(s, e)
+    s_log_a = s[..., :2] * log_a[..., None]
     ds = np.zeros(s.shape[:3] + (2, 3))
     ds[..., 0, :2] = s_log_a / e1
     ds[..., 0, 2] = slog[..., 2] / e1[..., 0]
@@ -406,7 +421,8 @@ def vertex_velocities(xi, unit_points, points, rotations, intrinsics):
     shape exponents). By the envelope theorem the component along the outward normal of the
     silhouette is the exact velocity of the supporting line, and at a corner the touching point
     does not slide, so the normal flux of these velocities across the polygon's edges is the
-    first-order change of its area (:func:`convex_iou_jacobian`).
+    first-order change of its area (:func:`convex_iou_jacobian`). The fitter contracts them with
+    the IoU's vertex weights without forming them (:func:`silhouette_gradient`).
 
     Parameters
     ----------
@@ -701,19 +717,14 @@ def silhouette_gradient(xi, weights, unit_points, points, rotations, intrinsics)
         out[..., 0:3] = np.sum(H * unit_points, axis=-2) * sign
         # Shape: the derivatives of s of _unit_point_shape_derivatives, contracted with a * H.
         e = np.minimum(np.maximum(xi[:, 3:5], _E_RANGE[0]), _E_RANGE[1])
-        e1, e2 = e[:, 0, None, None], e[:, 1, None, None]
         s = unit_points
-        aw = np.abs(s)
-        big = np.maximum(aw[..., 0], aw[..., 1])
-        t = np.minimum(aw[..., 0], aw[..., 1]) / (big + _TINY)
-        log_a = np.log(big + _TINY) + 0.5 * e2 * np.log1p(t ** (2.0 / e2))
-        slog = np.where(aw > 0, s * np.log(aw + _TINY), 0.0)
+        log_a, slog = _shape_logs(s, e)
         Ha = H * a[:, None, None, :]
-        planar = (Ha[..., 0] * s[..., 0] + Ha[..., 1] * s[..., 1]) * log_a  # log_a >= log(_TINY)
-        inside = e == xi[:, 3:5]  # clamped exponents have no derivative
-        out[..., 3] = np.sum(planar + Ha[..., 2] * slog[..., 2], axis=-1) / e1[..., 0] * inside[:, None, 0]
-        out[..., 4] = (np.sum(Ha[..., 0] * slog[..., 0] + Ha[..., 1] * slog[..., 1] - planar, axis=-1)
-                       / e2[..., 0] * inside[:, None, 1])
+        planar = (Ha[..., 0] * s[..., 0] + Ha[..., 1] * s[..., 1]) * log_a
+        # Clamped exponents have no derivative.
+        scale = np.where(e == xi[:, 3:5], 1.0 / e, 0.0)[:, None, :]
+        out[..., 3] = np.sum(planar + Ha[..., 2] * slog[..., 2], axis=-1) * scale[..., 0]
+        out[..., 4] = np.sum(Ha[..., 0] * slog[..., 0] + Ha[..., 1] * slog[..., 1] - planar, axis=-1) * scale[..., 1]
         # Rotation: sum_k Gw_k . (dR_j (a s_k)) = <dR_j, sum_k Gw_k (a s_k)^T>.
         O = Gw.swapaxes(-1, -2) @ (unit_points * a[:, None, None, :])  # (b, v, 3, 3)
         out[..., 8:11] = O.reshape(b, v, 9) @ dR.reshape(b, 3, 9).swapaxes(1, 2)

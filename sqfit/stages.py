@@ -54,8 +54,7 @@ _SHAPE_ONLY = np.array([3, 4])
 #: Silhouette precision (pixels) of the R-IOU stages with the analytic Jacobian: the vertices
 #: are then off by ~1e-3 px (area ~1e-5 relative), which saves one Newton step per evaluation.
 #: Finite differences (steps of ~1e-2 px) need the default 1e-7 px.
-import os
-_SILHOUETTE_TOL_ANALYTIC = float(os.environ.get("STOL", "1e-3"))
+_SILHOUETTE_TOL_ANALYTIC = 1e-3
 
 
 @dataclass(frozen=True)
@@ -255,8 +254,11 @@ def _riou_stage(state, obs, options, free, quadric, name):
     trial point costs one evaluation of G2, and only accepted points pay for the Jacobian. The
     ``len(free)`` difference columns reuse the point's residuals and start their silhouette solves
     from its support values (so Newton needs fewer steps than from the quadric's ellipse); the
-    analytic Jacobian costs about one extra evaluation's worth of array work. Every accepted
-    point's support values warm-start the next trial's silhouettes. The model Hessian is
+    analytic Jacobian costs about half an evaluation's worth of array work. Every accepted
+    point's silhouette directions and support values warm-start the next trial's silhouettes
+    (:class:`sqfit.silhouette.SilhouetteStart`: the directions stay until the silhouettes' shape
+    drifts, so trials see one smooth cost); with the analytic Jacobian the silhouettes are
+    solved to 1e-3 px instead of 1e-7 px, one Newton step fewer. The model Hessian is
     ``options.hessian_numeric`` (with a structured secant term by default, see
     :class:`sqfit.lm.SecantTerm`, or plain Gauss-Newton); besides ``ftol`` the run stops on a
     crawl (``options.window_numeric``, ``window_ftol_numeric``).
@@ -269,7 +271,7 @@ def _riou_stage(state, obs, options, free, quadric, name):
     eye = np.eye(k) * steps
     penalty_rows = len(obs) + free
     analytic = options.riou_jacobian == "analytic" and options.polygon == "hull"
-    accepted = {}  # support values at the last point whose Jacobian was built
+    accepted = {}  # the silhouette start of the last point whose Jacobian was built
 
     def g2(batch, start, jacobian=False):
         return riou_residuals(batch, obs, options.polygon, options.penalty_riou, options.silhouette_directions,
@@ -284,8 +286,7 @@ def _riou_stage(state, obs, options, free, quadric, name):
             r, start = g2(full[None], accepted.get("start"))
 
         def jacobian():
-            import os
-            accepted["start"] = start.refreshed(float(os.environ.get("REFRESH", "1.1") or 1.1))
+            accepted["start"] = start.refreshed()
             if analytic:
                 J = np.zeros((r.shape[1], k))
                 J[:len(obs)] = d_views()[0][:, free]

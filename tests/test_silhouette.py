@@ -3,7 +3,8 @@ import pytest
 from scipy.spatial import ConvexHull
 
 from sqfit import Camera, Intrinsics, Superquadric, look_at, project
-from sqfit.silhouette import ZNEAR, polygon_area, polygon_iou, silhouette
+from sqfit.silhouette import (ZNEAR, batch_silhouettes, camera_arrays, convex_iou, convex_iou_jacobian, polygon_area,
+                              polygon_iou, silhouette, silhouette_gradient, vertex_velocities)
 from sqfit.superquadric import to_mesh
 
 CAM = Camera(Intrinsics(640, 480, 400.0, 300.0, 320.0, 240.0), look_at([10.0, 0, 0], [0, 0, 0]))
@@ -96,3 +97,102 @@ def test_polygon_iou_degenerate_and_bad_input():
         polygon_iou(np.zeros((3, 3)), square(0, 0, 1))
     with pytest.raises(ValueError, match="n_directions must be an integer >= 3"):
         silhouette(Superquadric((1, 1, 1)), CAM, 2)
+
+
+# --- the fitter's fast paths: warm starts, vertex weights, the pulled-back gradient ----------------
+
+CAMS = [CAM, Camera(CAM.intrinsics, look_at([0.0, 9.0, 3.0], [0, 0, 0])),
+        Camera(CAM.intrinsics, look_at([-6.0, -6.0, -2.0], [0, 0, 0]))]
+
+
+def random_xi(rng, shape=None):
+    xi = np.r_[rng.uniform(0.4, 1.5, 3), shape if shape is not None else rng.uniform(0.2, 1.8, 2),
+               rng.uniform(-0.5, 0.5, 3), rng.uniform(-np.pi, np.pi, 3)]
+    return xi
+
+
+def solve(xi, start=None, k=48, **kw):
+    return batch_silhouettes(np.atleast_2d(xi), *camera_arrays(CAMS), k, start, **kw)
+
+
+def test_warm_start_keeps_its_directions_and_finds_the_same_silhouette():
+    rng = np.random.default_rng(0)
+    xi = random_xi(rng)
+    polys, valid, start = solve(xi)
+    assert valid.all()
+    moved = xi + rng.normal(size=11) * 0.02
+    warm_polys, _, warm = solve(moved, start)
+    np.testing.assert_array_equal(warm.directions, start.directions)
+    # The same directions from a cold support value (the projected centre) give the same polygon.
+    cold_polys, _, _ = solve(moved, start._replace(h=np.full_like(start.h, np.nan), normals=None))
+    np.testing.assert_allclose(warm_polys, cold_polys, atol=1e-6)
+    # Inscribed in the exact silhouette: close to a fine one (as the default resolution is, above).
+    for v, cam in enumerate(CAMS):
+        assert polygon_iou(warm_polys[0, v], silhouette(Superquadric.from_vector(moved), cam, 512)) > 0.98
+
+
+def test_silhouette_tolerance_bounds_the_vertex_error():
+    xi = random_xi(np.random.default_rng(1))
+    exact, _, _ = solve(xi)
+    loose, _, _ = solve(xi, tol=1e-3)
+    assert np.abs(loose - exact).max() < 1e-2
+
+
+def test_refreshed_records_then_readapts_drifted_directions():
+    rng = np.random.default_rng(2)
+    xi = random_xi(rng, shape=(1.0, 1.0))
+    _, _, start = solve(xi)
+    assert np.isnan(start.metric).all()
+    recorded = start.refreshed()  # first call: records the shape, keeps the directions
+    np.testing.assert_array_equal(recorded.directions, start.directions)
+    assert np.isfinite(recorded.metric).all()
+    # A small move keeps everything: the cost stays one function of xi.
+    _, _, near = solve(xi + 1e-4, recorded)
+    assert near.refreshed() is near
+    # Stretching the superquadric 3x along one axis changes every silhouette's aspect ratio.
+    stretched = xi.copy()
+    stretched[0] *= 3.0
+    polys, _, far = solve(stretched, recorded)
+    fresh = far.refreshed()
+    changed = np.any(fresh.directions != far.directions, axis=(2, 3))
+    assert changed.all() and fresh.normals is None and np.isnan(fresh.metric).all()
+    # New support values start below the exact ones (Newton needs a lower bound) and converge.
+    _, _, exact = solve(stretched, fresh._replace(h=np.full_like(fresh.h, np.nan)))
+    assert np.all(fresh.h <= exact.h + 1e-9)
+    again, _, _ = solve(stretched, fresh)
+    np.testing.assert_allclose(again, solve(stretched, exact)[0], atol=1e-6)
+    # The re-adapted vertices are spread around the silhouette: a larger inscribed area.
+    assert polygon_area(again[0, 0]) >= polygon_area(polys[0, 0]) - 1e-9
+
+
+def test_convex_iou_vertex_weights_match_central_differences():
+    rng = np.random.default_rng(3)
+    xi = random_xi(rng)
+    S, _, _ = solve(xi)
+    Q, _, _ = solve(xi + rng.normal(size=11) * 0.05)  # an overlapping convex target
+    iou, weights = convex_iou_jacobian(S[0], Q[0])
+    W = weights()
+    dS = rng.normal(size=S[0].shape)
+    eps = 1e-6
+    numeric = (convex_iou(S[0] + eps * dS, Q[0]) - convex_iou(S[0] - eps * dS, Q[0])) / (2 * eps)
+    np.testing.assert_allclose(np.sum(W * dS, axis=(-2, -1)), numeric, rtol=1e-4, atol=1e-8)
+    np.testing.assert_allclose(iou, convex_iou(S[0], Q[0]))
+    # Disjoint polygons: IoU 0, no gradient.
+    _, weights = convex_iou_jacobian(S[0], Q[0] + 1e4)
+    assert not weights().any()
+
+
+@pytest.mark.parametrize("shape", [None, (0.01, 1.0), (1.0, 1.99), (2.5, 0.5)])
+def test_silhouette_gradient_is_weights_times_vertex_velocities(shape):
+    rng = np.random.default_rng(4)
+    xi = np.stack([random_xi(rng, shape), random_xi(rng, shape)])
+    xi[1, 0] *= -1.0  # the sign of a is ignored by the silhouette, not by its derivative
+    rotations, centers, intr = camera_arrays(CAMS)
+    _, valid, _, unit_points, points = batch_silhouettes(xi, rotations, centers, intr, 48, touching=True)
+    assert valid.all()
+    W = rng.normal(size=points.shape[:3] + (2,))
+    expected = np.einsum("bvkc,bvkcp->bvp", W, vertex_velocities(xi, unit_points, points, rotations, intr))
+    got = silhouette_gradient(xi, W, unit_points, points, rotations, intr)
+    np.testing.assert_allclose(got, expected, rtol=1e-9, atol=1e-9 * np.abs(expected).max())
+    if shape == (2.5, 0.5):  # e1 clamped by the silhouette: no derivative
+        assert not got[..., 3].any()
