@@ -280,11 +280,12 @@ class SecantTerm:
         """LM step ``-(J^T J + S + lam diag(scale))^-1 g``; the Gauss-Newton step where that
         matrix is not positive definite."""
         H = J._H + np.diag(lam * scale)
+        A = H + self.S
         try:
-            L = np.linalg.cholesky(H + self.S)
+            np.linalg.cholesky(A)  # the test for positive definiteness
         except np.linalg.LinAlgError:
             return -np.linalg.solve(H, g)
-        return -np.linalg.solve(L.T, np.linalg.solve(L, g))
+        return -np.linalg.solve(A, g)
 
     def update(self, s, J_old, J_new, r_old, r_new):
         y = J_new.gradient(r_new) - J_old.gradient(r_old)
