@@ -36,8 +36,8 @@ import numpy as np
 from ._checks import check_shape
 from .superquadric import euler_to_matrix, rotation_and_derivatives
 
-__all__ = ["silhouette", "batch_silhouettes", "SilhouetteStart", "vertex_velocities", "silhouette_gradient", "convex_iou_jacobian", "polygon_iou", "polygon_area",
-           "is_convex", "ZNEAR", "DEFAULT_DIRECTIONS"]
+__all__ = ["silhouette", "batch_silhouettes", "SilhouetteStart", "vertex_velocities", "silhouette_gradient",
+           "convex_iou_jacobian", "polygon_iou", "polygon_area", "is_convex", "ZNEAR", "DEFAULT_DIRECTIONS"]
 
 #: Minimum camera depth (metres) of every superquadric point for a silhouette to exist.
 ZNEAR = 1e-3
@@ -374,6 +374,16 @@ def batch_silhouettes(xi, rotations, centers, intrinsics, n_directions=DEFAULT_D
     return polys, valid, start
 
 
+def _rotations(xi):
+    """Rotations ``(b, 3, 3)`` of parameter vectors ``(b, 11)`` and their derivatives ``(b, 3, 3, 3)``
+    (one per angle)."""
+    if len(xi) == 1:  # the optimiser's case: no stacking
+        R, dR = rotation_and_derivatives(xi[0, 8:11])
+        return R[None], dR[None]
+    R, dR = zip(*(rotation_and_derivatives(r) for r in xi[:, 8:11]))
+    return np.stack(R), np.stack(dR)
+
+
 def _shape_logs(s, e):
     """``ln A`` with ``A = ||(s1, s2)||_(2/e2)`` ``(b, v, K)`` and ``s ln|s|`` ``(b, v, K, 3)`` (0 at
     ``s = 0``, the limit) for points ``s`` (b, v, K, 3) of unit superquadrics with exponents ``e``
@@ -442,12 +452,7 @@ def vertex_velocities(xi, unit_points, points, rotations, intrinsics):
         the silhouette clamps it. Not finite where the touching point is at depth 0.
     """
     xi = np.atleast_2d(xi)
-    if len(xi) == 1:  # the optimiser's case: no stacking
-        R_sq, dR = rotation_and_derivatives(xi[0, 8:11])
-        R_sq, dR = R_sq[None], dR[None]
-    else:
-        R_sq, dR = zip(*(rotation_and_derivatives(r) for r in xi[:, 8:11]))
-        R_sq, dR = np.stack(R_sq), np.stack(dR)  # (b, 3, 3), (b, 3 angles, 3, 3)
+    R_sq, dR = _rotations(xi)
     a = np.abs(xi[:, 0:3])
     fx, fy = intrinsics[:, 0][None, :, None], intrinsics[:, 1][None, :, None]
     iz = 1.0 / points[..., 2]
@@ -529,7 +534,7 @@ def is_convex(polygon, tol=1e-9):
 
 
 def half_planes(Q):
-    """Half-planes ``n . x <= c`` of convex CCW polygons, their areas and edge vectors.
+    """Half-planes ``n_j . x <= n_j . q_j`` of convex CCW polygons, and their shoelace terms.
 
     Parameters
     ----------
@@ -539,18 +544,17 @@ def half_planes(Q):
     -------
     n : (..., m, 2) float
         Outward edge normals scaled by the edge lengths. Edges shorter than :data:`_MIN_EDGE` get
-        ``n = 0, c = 1`` (no constraint): their direction is rounding noise.
-    c : (..., m) float
+        ``n = 0`` (no constraint): their direction is rounding noise.
+    cross : (..., m) float
+        ``cross(q_j, q_(j+1) - q_j)``, twice the area each edge contributes (Green's theorem).
     area : (...,) float
         Shoelace areas.
-    edges : (..., m, 2) float
-        ``roll(Q, -1) - Q``.
     """
     e = np.roll(Q, -1, axis=-2) - Q
     use = np.hypot(e[..., 0], e[..., 1]) > _MIN_EDGE
     n = np.stack([e[..., 1], -e[..., 0]], axis=-1) * use[..., None]
-    area = 0.5 * np.sum(Q[..., 0] * e[..., 1] - Q[..., 1] * e[..., 0], axis=-1)
-    return n, np.where(use, n[..., 0] * Q[..., 0] + n[..., 1] * Q[..., 1], 1.0), area, e
+    cross = Q[..., 0] * e[..., 1] - Q[..., 1] * e[..., 0]
+    return n, cross, 0.5 * np.sum(cross, axis=-1)
 
 
 def convex_iou(S, Q, q_planes=None):
@@ -591,7 +595,7 @@ def _convex_overlap(S, Q, q_planes):
         ``d`` (edges of S), ``t_lo, t_hi`` (the pieces of S's edges inside Q), ``inter, union,
         area_s, area_q``.
     """
-    nq, _, area_q, dq = half_planes(Q) if q_planes is None else q_planes
+    nq, cross_q, area_q = half_planes(Q) if q_planes is None else q_planes
     d = np.empty_like(S)
     np.subtract(S[..., 1:, :], S[..., :-1, :], out=d[..., :-1, :])
     np.subtract(S[..., :1, :], S[..., -1:, :], out=d[..., -1:, :])
@@ -617,7 +621,6 @@ def _convex_overlap(S, Q, q_planes):
         neg = den < 0
         length_q = np.maximum(np.min(np.where(neg, 1.0, t), axis=-2, initial=1.0)
                               - np.max(np.where(neg, t, 0.0), axis=-2, initial=0.0), 0.0)
-        cross_q = Q[..., 0] * dq[..., 1] - Q[..., 1] * dq[..., 0]
         inter = 0.5 * (np.sum(np.maximum(t_hi - t_lo, 0.0) * cross_s, axis=-1) + np.sum(length_q * cross_q, axis=-1))
         union = area_s + area_q - inter
         iou = np.clip(np.where(union > 0, inter / union, 0.0), 0.0, 1.0)
@@ -696,12 +699,7 @@ def silhouette_gradient(xi, weights, unit_points, points, rotations, intrinsics)
     """
     xi = np.atleast_2d(xi)
     b, v = points.shape[:2]
-    if b == 1:
-        R_sq, dR = rotation_and_derivatives(xi[0, 8:11])
-        R_sq, dR = R_sq[None], dR[None]
-    else:
-        R_sq, dR = zip(*(rotation_and_derivatives(r) for r in xi[:, 8:11]))
-        R_sq, dR = np.stack(R_sq), np.stack(dR)
+    R_sq, dR = _rotations(xi)
     a = np.abs(xi[:, 0:3])
     out = np.empty((b, v, 11))
     with np.errstate(all="ignore"):
