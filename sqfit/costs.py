@@ -34,8 +34,8 @@ import numpy as np
 from . import constants as C
 from .camera import bearings
 from .observation import Observation
-from .silhouette import (DEFAULT_DIRECTIONS, NEWTON_TOL, batch_iou, batch_silhouettes, camera_arrays, convex_iou_jacobian,
-                         half_planes, silhouette_gradient)
+from .silhouette import (DEFAULT_DIRECTIONS, NEWTON_TOL, batch_iou, batch_silhouettes, camera_arrays,
+                         convex_iou_jacobian, half_planes, silhouette_gradient)
 from .superquadric import rotation_and_derivatives
 
 __all__ = ["ObservationSet", "penalty", "penalty_jacobian", "riou_residuals", "radial_terms",
