@@ -583,10 +583,13 @@ def _convex_overlap(S, Q, q_planes):
     clipping of each edge against the other polygon's half-planes ``n . x <= n . x0`` (outward
     normals ``n`` scaled by the edge lengths): along ``x0 + t d`` the constraint ``n_j`` gives
     ``t (n_j . d) <= n_j . (q_j - x0)``. Both passes share the differences ``q_j - s_i`` and the
-    denominators (``n^Q_j . d^S_i = -n^S_i . d^Q_j``: both are ``cross(d^S_i, d^Q_j)``). An edge
-    lying on the other polygon's boundary counts as inside in the first pass (S's edges) and
-    outside in the second, so a shared edge is counted once. Edges shorter than
-    :data:`_MIN_EDGE` constrain nothing (their direction is rounding noise).
+    denominators (``n^Q_j . d^S_i = cross(d^S_i, d^Q_j) = -n^S_i . d^Q_j``). An edge lying on
+    the other polygon's boundary and running the same way counts as inside in the first pass
+    (S's edges) and outside in the second, so a shared edge is counted once; running the opposite
+    way (polygons touching from outside) it counts in neither. Edges shorter than :data:`_MIN_EDGE` constrain
+    nothing (their direction is rounding noise): Q's have ``n = 0`` (:func:`half_planes`); S's
+    get numerator 1, so with a denominator below ``1e-7 |d^Q|`` in magnitude they only yield
+    ``t < 0`` or ``t > 1``.
 
     Returns
     -------
@@ -609,7 +612,11 @@ def _convex_overlap(S, Q, q_planes):
         # Exact zeros of the denominators become -tiny: a parallel edge outside (numerator < 0)
         # then gets t = +huge (empty), one inside t = -huge (no constraint).
         den = dx[..., :, None] * nqx + dy[..., :, None] * nqy - 1e-300
-        t = (nqx * Dx + nqy * Dy) / den
+        # An edge of S on a boundary line of Q counts as inside only if the two run the same way
+        # (both interiors on one side); running opposite ways (polygons touching from outside),
+        # the numerator 0 becomes negative: outside, as in the strict second pass.
+        anti = np.minimum(dy[..., :, None] * nqx - dx[..., :, None] * nqy, 0.0)  # d^S . d^Q < 0
+        t = (nqx * Dx + nqy * Dy + 1e-300 * anti) / den
         neg = den < 0
         t_lo = np.max(np.where(neg, t, 0.0), axis=-1, initial=0.0)
         t_hi = np.min(np.where(neg, 1.0, t), axis=-1, initial=1.0)

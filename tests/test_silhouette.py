@@ -84,6 +84,26 @@ def test_polygon_iou_convex_path_agrees_with_shapely():
         assert polygon_iou(p, q) == pytest.approx(ref, abs=1e-10)
 
 
+@pytest.mark.parametrize("q", [
+    [[0.5, 0.0], [2.0, 0.0], [2.0, 1.0], [0.5, 1.0]],  # shares parts of two edges with the square
+    [[1.0, 0.0], [2.0, 0.0], [2.0, 1.0], [1.0, 1.0]],  # touches along a whole edge: IoU 0
+    [[0.0, 0.0], [1.0, 0.0], [1.0, 1.0], [0.0, 1.0]],  # identical
+    [[0.25, 0.25], [0.75, 0.25], [0.75, 0.75], [0.25, 0.75]],  # inside
+])
+def test_convex_iou_shared_edges_and_repeated_vertices(q):
+    """Edges on the other polygon's boundary are counted once, and repeated vertices (silhouette
+    corners, padding) constrain nothing, in either role."""
+    import shapely
+
+    square = np.array([[0.0, 0.0], [1.0, 0.0], [1.0, 0.0], [1.0, 1.0], [0.0, 1.0], [0.0, 1.0]])
+    q = np.array(q)
+    ref = shapely.Polygon(square).intersection(shapely.Polygon(q)).area / shapely.Polygon(square).union(
+        shapely.Polygon(q)).area
+    padded = np.vstack([q, q[-1:], q[-1:]])
+    assert convex_iou(square, padded) == pytest.approx(ref, abs=1e-12)
+    assert convex_iou(padded, square) == pytest.approx(ref, abs=1e-12)
+
+
 def test_polygon_iou_non_convex_uses_shapely():
     L = np.array([[0, 0], [2, 0], [2, 1], [1, 1], [1, 2], [0, 2]], float)  # area 3
     assert polygon_iou(L, square(0, 0, 2)) == pytest.approx(3 / 4)
