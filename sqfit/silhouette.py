@@ -321,10 +321,10 @@ def batch_silhouettes(xi, rotations, centers, intrinsics, n_directions=DEFAULT_D
         n0 = None
     else:
         U, metric, n0 = start.directions, start.metric, start.normals
-        if U.shape[0] != len(xi):
-            U = np.broadcast_to(U, (len(xi),) + U.shape[1:])
-            metric = np.broadcast_to(metric, (len(xi),) + metric.shape[1:])
-            n0 = None
+        if U.shape[0] != len(xi):  # one start for a batch (finite differences)
+            U, metric = (np.broadcast_to(x, (len(xi),) + x.shape[1:]) for x in (U, metric))
+            if n0 is not None:
+                n0 = np.broadcast_to(n0, (len(xi),) + n0.shape[1:])
     # n(h) = n0 - h e_z (camera frame); w(h) = a * M^T n(h) = w0 - h wz.
     P2 = _projection_rows(intrinsics)  # (v, 2, 3)
     if n0 is None:
@@ -337,11 +337,11 @@ def batch_silhouettes(xi, rotations, centers, intrinsics, n_directions=DEFAULT_D
         if start is None:
             h = (U @ x0[..., None])[..., 0] + np.linalg.norm(U @ L, axis=-1)
             if not ok.all():
-                h = np.where(ok[..., None], h, n0c / np.where(c[..., 2] > 0, c[..., 2], 1.0)[..., None])
+                h = np.where(ok[..., None], h, np.nan)
         else:
             h = start.h if start.h.shape[0] == len(xi) else np.broadcast_to(start.h, n0c.shape)
-            if not np.isfinite(h).all():
-                h = np.where(np.isfinite(h), h, n0c / np.where(c[..., 2] > 0, c[..., 2], 1.0)[..., None])
+        if not np.isfinite(h).all():
+            h = np.where(np.isfinite(h), h, n0c / np.where(c[..., 2] > 0, c[..., 2], 1.0)[..., None])
         # The first support evaluation also gives the nearest depth of the superquadric in each
         # camera, c_z - h(-e_z) (an extra direction -e_z, whose w is wz).
         hs, grad = dual_support(np.concatenate([w0 - h[..., None] * wz, wz], axis=2), q1, q2)
