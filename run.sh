@@ -50,7 +50,7 @@ ensure_venv() {
     if [ ! -f "$stamp" ] || [ "$(cat "$stamp")" != "$want" ]; then
         log "installing Python dependencies into $VENV (first run takes a few minutes)"
         "$VENV/bin/python" -m pip install -q --upgrade pip
-        "$VENV/bin/python" -m pip install -q -e ".[test,cluster,bench]"
+        "$VENV/bin/python" -m pip install -q -e ".[test,cluster,bench,slam,formats,viz]"
         echo "$want" > "$stamp"
     fi
 }
