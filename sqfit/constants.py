@@ -22,3 +22,6 @@ PENALTY_ANALYTIC = 100.0
 
 #: Default number of samples N per observation (paper, Table I).
 DEFAULT_SAMPLES = 100
+
+#: Views of one object a fit needs at least (one view fixes no depth); fewer is ``too_few_views``.
+MIN_VIEWS = 2

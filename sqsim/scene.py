@@ -53,6 +53,7 @@ RENDERERS = ("osmesa", "egl", "polygon")
 TRAJECTORIES = ("circle",)
 #: Minimum depth (metres) of every mesh vertex in every camera for a trial to be observable.
 ZNEAR = 0.05
+MIN_VIEWS = sqfit.constants.MIN_VIEWS
 _PAPER_CHAINS = ("3A", "3B", "1-3A", "1-2-3A", "1-2-3B", "3E", "1-3E", "1-2-3C", "1-2-3D", "1-2-3E",
                  "1-2-3D-3E", "1-2-3D-3A", "1-2-3D-3F")
 
@@ -376,6 +377,9 @@ def parse_scene(mapping, source="<string>"):
 
 def _check_scene(scene):
     src, obj = scene.source, scene.objects
+    if scene.trajectory.views < MIN_VIEWS:
+        raise ValueError(f"{src}: trajectory.views = {scene.trajectory.views}: fitting needs >= {MIN_VIEWS} views "
+                         f"of each object (set trajectory.views >= {MIN_VIEWS})")
     if obj.kind == "mesh":
         if obj.path is None:
             raise ValueError(f"{src}: objects.path is required when objects.kind = \"mesh\"")

@@ -210,6 +210,14 @@ def test_observations_need_two_views():
         observations(sim, 1, s)
 
 
+def test_single_view_scene_is_rejected_up_front():
+    with pytest.raises(ValueError, match=r"trajectory.views = 1: fitting needs >= 2 views"):
+        parse_scene({"trajectory": {"views": 1}})
+    with pytest.raises(ValueError, match=r"trajectory.views = 1: fitting needs >= 2 views"):
+        parse_scene({}).with_overrides({"trajectory.views": 1})
+    assert parse_scene({"trajectory": {"views": 2}}).trajectory.views == 2
+
+
 def test_scene_is_immutable():
     s = parse_scene({})
     with pytest.raises(AttributeError):
