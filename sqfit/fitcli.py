@@ -4,8 +4,10 @@ The dataset is read with :mod:`sqfit.io` (written by ``sqsim generate``, or a us
 ``cameras.json`` + ``masks/view_VV.png``). Objects are the ``gt.json`` records (``"id"``) when
 present, else every non-zero instance id found in the masks. One JSON line per (trial, object):
 ``trial``, ``object_id``, then :meth:`sqfit.FitResult.to_dict` (chain, status, final ``params``,
-per-stage ``params`` / seconds / status / R-IOU-M, warnings). An object that cannot be read or
-fitted gets a record with ``status`` ``"error"`` and the message; the command goes on.
+per-stage ``params`` / seconds / status / R-IOU-M, warnings), ``views`` (the view indices used) and
+``dropped_views`` (``{"view", "reason"}`` for each view where the object's mask is empty or
+unusable, also listed in ``warnings``; warnings name views by their index in the trial). An
+object that cannot be read or fitted gets a record with ``status`` ``"error"`` and the message; the command goes on.
 Samples are seeded per (trial, object) from ``--seed`` with ``numpy.random.SeedSequence``, so a
 record does not depend on which other trials are in the dataset.
 """
@@ -72,8 +74,9 @@ def fit_dataset(dataset, output, chain, samples=C.DEFAULT_SAMPLES, sampling="uni
             for oid in ids:
                 record = {"trial": trial.name, "object_id": oid}
                 try:
-                    obs = io.observations(trial, oid, samples, sampling, _rng(seed, trial.name, oid), cleanup)
-                    record.update(fit(obs, chain, options=options).to_dict())
+                    views = io.observe_views(trial.cameras, trial.images, oid, samples, sampling,
+                                             _rng(seed, trial.name, oid), cleanup)
+                    record.update(views.record(fit(views.observations, chain, options=options)))
                 except (OSError, ValueError, TypeError) as exc:
                     record.update({"chain": chain, "status": "error", "message": str(exc)})
                 n_errors += record["status"] != "ok"

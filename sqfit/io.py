@@ -35,7 +35,8 @@ directory holding ``cameras.json`` directly is accepted as a single trial.
 from __future__ import annotations
 
 import json
-from dataclasses import dataclass
+import re
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
@@ -45,7 +46,7 @@ from .camera import Camera
 from .observation import Observation
 
 __all__ = ["Trial", "load_trial", "iter_trials", "trial_dirs", "observations", "observations_from_images",
-           "read_mask_png", "write_mask_png", "FORMAT", "FORMAT_VERSION"]
+           "ViewObservations", "observe_views", "read_mask_png", "write_mask_png", "FORMAT", "FORMAT_VERSION"]
 
 FORMAT = "sqkit-dataset"
 FORMAT_VERSION = 1
@@ -239,3 +240,105 @@ def observations(trial, object_id, n_samples=C.DEFAULT_SAMPLES, sampling="unifor
     See :func:`observations_from_images`; returns a list (possibly with fewer than two views).
     """
     return observations_from_images(trial.cameras, trial.images, object_id, n_samples, sampling, rng, cleanup)
+
+
+@dataclass(frozen=True)
+class ViewObservations:
+    """One object's observations with the views they came from and the views that were dropped.
+
+    Attributes
+    ----------
+    observations : list of Observation
+    views : list of int
+        View index of each observation (``observations[i]`` comes from view ``views[i]``).
+    dropped : list of (int, str)
+        ``(view index, reason)`` of every view that gave no observation.
+    names : list of str or None
+        Names of all views (image file names of imported data), for messages; None: ``view k``.
+    """
+
+    observations: list
+    views: list
+    dropped: list = field(default_factory=list)
+    names: list | None = None
+
+    def label(self, view):
+        """``"view 2"`` or ``"view 2 (img_0002.png)"``."""
+        return f"view {view}" if self.names is None else f"view {view} ({self.names[view]})"
+
+    @property
+    def warnings(self):
+        """One message per dropped view: which view and why."""
+        return [f"{self.label(k)} dropped: {reason}" for k, reason in self.dropped]
+
+    def record(self, result):
+        """``result.to_dict()`` with the views used and dropped, and warnings naming real views.
+
+        ``sqfit.fit`` numbers its warnings by observation (``view i`` = ``observations[i]``); here
+        they are renamed to the view the observation came from, and the dropped-view warnings
+        come first.
+        """
+        out = result.to_dict()
+        out["warnings"] = self.warnings + [self._rename(w) for w in out["warnings"]]
+        out["views"] = list(self.views)
+        out["dropped_views"] = [{"view": k, "reason": r} for k, r in self.dropped]
+        if self.names is not None:
+            out["images"] = [self.names[k] for k in self.views]
+        return out
+
+
+    def _rename(self, message):
+        m = _FIT_VIEW.match(message)
+        if m is None or int(m.group(1)) >= len(self.views):
+            return message
+        return self.label(self.views[int(m.group(1))]) + message[m.end() - 1:]
+
+
+_FIT_VIEW = re.compile(r"^view (\d+):")
+
+
+def observe_views(cameras, images, object_id, n_samples=C.DEFAULT_SAMPLES, sampling="uniform", rng=None,
+                  cleanup=True, names=None):
+    """Observations of one object, view by view, saying which views were dropped and why.
+
+    Each view goes through :func:`observations_from_images` on its own, with the one generator
+    used view after view, so the samples equal those of one call over all views.
+
+    Parameters
+    ----------
+    cameras : list of Camera
+        One per view.
+    images : sequence of (h, w) int
+        Instance ids, one image per view (sizes may differ between views; each must match its
+        camera's intrinsics).
+    object_id : int
+    n_samples, sampling, rng, cleanup
+        As :func:`observations_from_images`.
+    names : list of str, optional
+        View names for messages (image file names).
+
+    Returns
+    -------
+    views : ViewObservations
+        Views where the object's mask is empty, or unusable (covering the whole image), are
+        dropped with the reason.
+    """
+    if len(images) != len(cameras):
+        raise ValueError(f"images must hold one image per camera ({len(cameras)}), got {len(images)}")
+    if names is not None and len(names) != len(cameras):
+        raise ValueError(f"names must hold one name per camera ({len(cameras)}), got {len(names)}")
+    rng = np.random.default_rng(rng)
+    obs, used, dropped = [], [], []
+    for k, (cam, image) in enumerate(zip(cameras, images)):
+        try:
+            got = observations_from_images([cam], np.asarray(image)[None], object_id, n_samples, sampling, rng,
+                                           cleanup)
+        except ValueError as exc:
+            dropped.append((k, str(exc)))
+            continue
+        if not got:
+            dropped.append((k, f"object {object_id} has an empty mask in this view"))
+            continue
+        obs.extend(got)
+        used.extend([k] * len(got))
+    return ViewObservations(obs, used, dropped, None if names is None else [str(n) for n in names])

@@ -73,3 +73,45 @@ def test_broken_trial_is_recorded(dataset, tmp_path):
     records = [json.loads(x) for x in out.read_text().splitlines()]
     assert records[-1]["trial"] == "000001" and records[-1]["status"] == "error"
     assert "not valid JSON" in records[-1]["message"]
+
+
+def test_view_with_empty_mask_is_named_in_the_record(tmp_path):
+    trial = paper_trial(3)
+    root = tmp_path / "ds"
+    write_trial(root, "000000", trial)
+    path = root / "trials" / "000000" / "masks" / "view_01.png"
+    write_mask_png(path, np.zeros_like(trial.masks[1], dtype=np.uint16))  # object 3 absent from view 1
+    out = tmp_path / "fits.jsonl"
+    assert main(["fit", str(root), "-o", str(out), "--chain", "1-2", "--no-progress"]) == 0
+    (record,) = [json.loads(x) for x in out.read_text().splitlines()]
+    assert record["status"] == "ok" and record["views"] == [0, 2]
+    assert record["dropped_views"] == [{"view": 1, "reason": "object 3 has an empty mask in this view"}]
+    assert record["warnings"][0] == "view 1 dropped: object 3 has an empty mask in this view"
+
+
+def test_observe_views_names_views_and_keeps_samples():
+    from sqfit import Observation
+    from sqfit.io import observations_from_images, observe_views
+    from sqfit.pipeline import FitResult
+
+    trial = paper_trial(3)
+    images = np.stack([m.astype(np.uint16) * 3 for m in trial.masks])
+    images[0] = 0
+    full = np.full_like(images[2], 3)  # covers the whole image: unusable, dropped with the reason
+    views = observe_views(trial.cameras, [images[0], images[1], full], 3, 20, rng=5, names=["a", "b", "c"])
+    assert views.views == [1] and [k for k, _ in views.dropped] == [0, 2]
+    assert views.warnings[0] == "view 0 (a) dropped: object 3 has an empty mask in this view"
+    assert "view 2 (c) dropped: mask covers the whole image" in views.warnings[1]
+    same = observe_views(trial.cameras, images, 3, 20, rng=5)
+    ref = observations_from_images(trial.cameras, images, 3, 20, rng=5)
+    assert all(isinstance(o, Observation) for o in same.observations)
+    np.testing.assert_array_equal(np.stack([o.samples for o in same.observations]),
+                                  np.stack([o.samples for o in ref]))
+    # Fit warnings number observations; the record names the view they came from.
+    record = same.record(FitResult(None, warnings=["view 0: mask touches the image border (truncated silhouette)"]))
+    assert record["warnings"] == ["view 0 dropped: object 3 has an empty mask in this view",
+                                  "view 1: mask touches the image border (truncated silhouette)"]
+    with pytest.raises(ValueError, match="one image per camera"):
+        observe_views(trial.cameras, images[:2], 3)
+    with pytest.raises(ValueError, match="one name per camera"):
+        observe_views(trial.cameras, images, 3, names=["a"])
