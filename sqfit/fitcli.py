@@ -1,5 +1,8 @@
 """``sqfit fit DATASET -o fits.jsonl --chain C``: fit every object of a dataset.
 
+``sqfit fit --coco annotations.json --poses sparse/0 -o fits.jsonl`` fits a user's COCO masks
+with COLMAP or JSON poses instead (:mod:`sqfit.formats.importer`; same records).
+
 The dataset is read with :mod:`sqfit.io` (written by ``sqsim generate``, or a user's own
 ``cameras.json`` + ``masks/view_VV.png``). Objects are the ``gt.json`` records (``"id"``) when
 present, else every non-zero instance id found in the masks. One JSON line per (trial, object):
@@ -27,7 +30,14 @@ def add_arguments(parser):
     from .observation import POLYGON_KINDS, SAMPLING_METHODS
     from .pipeline import DEFAULT_CHAIN
 
-    parser.add_argument("dataset", help="dataset directory (DIR/trials/NNNNNN/...) or one trial directory")
+    parser.add_argument("dataset", nargs="?",
+                        help="dataset directory (DIR/trials/NNNNNN/...) or one trial directory; or use --coco")
+    parser.add_argument("--coco", metavar="FILE", help="COCO instance file (RLE or polygon masks, 'track_id' per "
+                        "annotation groups views into objects); needs --poses (README: 'Your own data')")
+    parser.add_argument("--poses", metavar="PATH", help="camera poses of the --coco images: a COLMAP model "
+                        "directory (sparse/0, binary or text) or a JSON pose file")
+    parser.add_argument("--pose-format", default="auto", choices=["auto", "colmap", "json"],
+                        help="format of --poses (auto: a directory is COLMAP, *.json is JSON)")
     parser.add_argument("-o", "--output", required=True, help="JSON-lines file to write")
     parser.add_argument("--chain", default=DEFAULT_CHAIN, help="stages joined by '-', e.g. 1-2-3D-3A")
     parser.add_argument("--samples", type=int, default=C.DEFAULT_SAMPLES, help="samples N per observation")
@@ -86,6 +96,18 @@ def fit_dataset(dataset, output, chain, samples=C.DEFAULT_SAMPLES, sampling="uni
 
 
 def run(args):
+    if args.coco is not None or args.poses is not None:
+        if args.dataset is not None or args.coco is None or args.poses is None:
+            raise ValueError("give either a DATASET directory or --coco FILE with --poses PATH")
+        from .formats.importer import fit_import
+
+        n, errors = fit_import(args.coco, args.poses, args.output, args.chain, args.samples, args.sampling,
+                               args.polygon, args.seed, progress=not args.no_progress, cleanup=args.cleanup,
+                               pose_format=args.pose_format)
+        print(f"wrote {n} fit record(s) to {args.output}; {errors} not ok")
+        return 0
+    if args.dataset is None:
+        raise ValueError("give a DATASET directory, or --coco FILE with --poses PATH")
     n, errors = fit_dataset(args.dataset, args.output, args.chain, args.samples, args.sampling, args.polygon,
                             args.seed, progress=not args.no_progress, cleanup=args.cleanup)
     print(f"wrote {n} fit record(s) to {args.output}; {errors} not ok")

@@ -337,7 +337,7 @@ def observe_views(cameras, images, object_id, n_samples=C.DEFAULT_SAMPLES, sampl
             dropped.append((k, str(exc)))
             continue
         if not got:
-            dropped.append((k, f"object {object_id} has an empty mask in this view"))
+            dropped.append((k, "the object's mask is empty in this view"))
             continue
         obs.extend(got)
         used.extend([k] * len(got))

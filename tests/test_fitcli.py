@@ -85,8 +85,8 @@ def test_view_with_empty_mask_is_named_in_the_record(tmp_path):
     assert main(["fit", str(root), "-o", str(out), "--chain", "1-2", "--no-progress"]) == 0
     (record,) = [json.loads(x) for x in out.read_text().splitlines()]
     assert record["status"] == "ok" and record["views"] == [0, 2]
-    assert record["dropped_views"] == [{"view": 1, "reason": "object 3 has an empty mask in this view"}]
-    assert record["warnings"][0] == "view 1 dropped: object 3 has an empty mask in this view"
+    assert record["dropped_views"] == [{"view": 1, "reason": "the object's mask is empty in this view"}]
+    assert record["warnings"][0] == "view 1 dropped: the object's mask is empty in this view"
 
 
 def test_observe_views_names_views_and_keeps_samples():
@@ -100,7 +100,7 @@ def test_observe_views_names_views_and_keeps_samples():
     full = np.full_like(images[2], 3)  # covers the whole image: unusable, dropped with the reason
     views = observe_views(trial.cameras, [images[0], images[1], full], 3, 20, rng=5, names=["a", "b", "c"])
     assert views.views == [1] and [k for k, _ in views.dropped] == [0, 2]
-    assert views.warnings[0] == "view 0 (a) dropped: object 3 has an empty mask in this view"
+    assert views.warnings[0] == "view 0 (a) dropped: the object's mask is empty in this view"
     assert "view 2 (c) dropped: mask covers the whole image" in views.warnings[1]
     same = observe_views(trial.cameras, images, 3, 20, rng=5)
     ref = observations_from_images(trial.cameras, images, 3, 20, rng=5)
@@ -109,7 +109,7 @@ def test_observe_views_names_views_and_keeps_samples():
                                   np.stack([o.samples for o in ref]))
     # Fit warnings number observations; the record names the view they came from.
     record = same.record(FitResult(None, warnings=["view 0: mask touches the image border (truncated silhouette)"]))
-    assert record["warnings"] == ["view 0 dropped: object 3 has an empty mask in this view",
+    assert record["warnings"] == ["view 0 dropped: the object's mask is empty in this view",
                                   "view 1: mask touches the image border (truncated silhouette)"]
     with pytest.raises(ValueError, match="one image per camera"):
         observe_views(trial.cameras, images[:2], 3)

@@ -4,7 +4,7 @@ import sys
 
 def test_sqfit_does_not_import_opengl_or_sqsim():
     code = ("import sys, sqfit, sqfit.cli; "
-            "bad = [m for m in ('OpenGL', 'pyrender', 'sqsim') if m in sys.modules]; "
+            "bad = [m for m in ('OpenGL', 'pyrender', 'sqsim', 'pycolmap', 'pycocotools') if m in sys.modules]; "
             "assert not bad, bad")
     subprocess.run([sys.executable, "-c", code], check=True)
 
@@ -13,3 +13,9 @@ def test_cli_help_works():
     for prog in ("sqsim", "sqfit"):
         out = subprocess.run([sys.executable, "-m", f"{prog}.cli", "--help"], capture_output=True, text=True)
         assert out.returncode == 0 and "COMMAND" in out.stdout, out.stderr
+
+
+def test_formats_import_no_optional_library():
+    code = ("import sys, sqfit.formats, sqfit.fitcli; "
+            "bad = [m for m in ('pycolmap', 'pycocotools', 'sqsim') if m in sys.modules]; assert not bad, bad")
+    subprocess.run([sys.executable, "-c", code], check=True)
