@@ -6,8 +6,9 @@ half-written trial; stale ``.tmp-*`` directories are removed on the next start, 
 trials are skipped, so re-running resumes. Files are byte-deterministic: a trial's bytes depend
 only on the scene, the seed and its index (no timestamps; JSON with sorted keys and Python's
 shortest round-trip float repr; PNGs through Pillow with a fixed compression level).
-``annotations.json`` (COCO instances, RLE masks from pycocotools) is rebuilt from all finished
-trials at the end of every run.
+``annotations.json`` (COCO instances, RLE masks from pycocotools, a ``track_id`` per object) is
+rebuilt from all finished trials at the end of every run, and so is the COLMAP model
+``sparse/0`` with ``--colmap`` (:mod:`sqsim.export`).
 """
 
 from __future__ import annotations
@@ -136,7 +137,7 @@ def _prepare(root, scene):
     _atomic_write_text(meta_path, _dumps(meta))
 
 
-def generate(scene, output, trials=None, seed=None, workers=1, progress=True):
+def generate(scene, output, trials=None, seed=None, workers=1, progress=True, colmap=False):
     """Write (or complete) a dataset.
 
     Parameters
@@ -150,6 +151,8 @@ def generate(scene, output, trials=None, seed=None, workers=1, progress=True):
         Processes (``1``: in this process; otherwise a spawn-context process pool).
     progress : bool
         Show a tqdm progress bar on stderr.
+    colmap : bool
+        Also write the cameras as a COLMAP text model ``DIR/sparse/0`` (:mod:`sqsim.export`).
 
     Returns
     -------
@@ -171,6 +174,10 @@ def generate(scene, output, trials=None, seed=None, workers=1, progress=True):
     skipped = scene.experiment.trials - len(todo)
     results = _run(scene, todo, root, int(workers), progress)
     _atomic_write_text(root / "annotations.json", json.dumps(build_annotations(root), sort_keys=True) + "\n")
+    if colmap:
+        from .export import write_colmap_model
+
+        write_colmap_model(root)
     return {"written": sum(r is not None for r in results), "skipped": skipped,
             "resampled": int(sum(r or 0 for r in results))}
 
@@ -212,14 +219,18 @@ def build_annotations(root):
     ``images`` carry ``file_name`` (relative to the dataset), ``width``, ``height``, ``trial``,
     ``view``, ``intrinsics``, ``T_world_camera`` (the fitter's pose) and ``T_world_camera_true``;
     ``annotations`` carry an RLE ``segmentation`` (pycocotools, counts as ASCII), ``area``,
-    ``bbox`` ``[x, y, w, h]``, ``category_id`` (the object kind) and ``instance_id`` (the pixel
-    value in the PNG).
+    ``bbox`` ``[x, y, w, h]``, ``category_id`` (the object kind), ``instance_id`` (the pixel
+    value in the PNG) and ``track_id`` ``"NNNNNN/ID"`` (trial and instance id: unique across the
+    dataset's trials, :func:`sqsim.export.track_id`), which groups views into objects for
+    ``sqfit fit --coco``.
 
     Returns
     -------
     coco : dict
     """
-    from pycocotools import mask as mask_utils
+    from sqfit.formats.coco import encode_mask
+
+    from .export import track_id, view_file_name
 
     root = Path(root)
     images, annotations = [], []
@@ -229,17 +240,17 @@ def build_annotations(root):
         for v, (cam, image) in enumerate(zip(trial.cameras, trial.images)):
             image_id = len(images) + 1
             true = trial.true_cameras[v] if trial.true_cameras else cam
-            images.append({"id": image_id, "file_name": f"trials/{path.name}/masks/view_{v:02d}.png",
+            images.append({"id": image_id, "file_name": view_file_name(path.name, v),
                            "width": int(image.shape[1]), "height": int(image.shape[0]),
                            "trial": path.name, "view": v, "intrinsics": cam.intrinsics.to_dict(),
                            "T_world_camera": cam.pose.tolist(), "T_world_camera_true": true.pose.tolist()})
             for oid in [int(i) for i in np.unique(image) if i != 0]:
-                rle = mask_utils.encode(np.asfortranarray(image == oid, dtype=np.uint8))
+                segmentation, area, bbox = encode_mask(image == oid)
                 annotations.append({
                     "id": len(annotations) + 1, "image_id": image_id, "instance_id": oid, "iscrowd": 0,
+                    "track_id": track_id(path.name, oid),
                     "category_id": OBJECT_KINDS.index(kinds.get(oid, "superquadric")) + 1,
-                    "segmentation": {"size": [int(s) for s in rle["size"]], "counts": rle["counts"].decode("ascii")},
-                    "area": float(mask_utils.area(rle)), "bbox": [float(x) for x in mask_utils.toBbox(rle)]})
+                    "segmentation": segmentation, "area": area, "bbox": bbox})
     return {"info": {"description": "sqkit simulated instance masks", "version": str(FORMAT_VERSION)},
             "images": images, "annotations": annotations, "categories": CATEGORIES}
 
@@ -253,12 +264,14 @@ def add_arguments(parser):
     parser.add_argument("--seed", type=int, default=None, help="seed (default: experiment.seed)")
     parser.add_argument("--workers", type=int, default=1, help="worker processes")
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
+    parser.add_argument("--colmap", action="store_true",
+                        help="also write the cameras as a COLMAP text model DIR/sparse/0 (for sqfit fit --coco)")
 
 
 def run(args):
     scene = load_scene(args.scene)
     summary = generate(scene, args.output, trials=args.trials, seed=args.seed, workers=args.workers,
-                       progress=not args.no_progress)
+                       progress=not args.no_progress, colmap=args.colmap)
     print(f"{args.output}: {summary['written']} trial(s) written, {summary['skipped']} already there, "
           f"{summary['resampled']} unobservable draw(s) re-sampled")
     return 0
