@@ -27,6 +27,7 @@ from . import constants as C
 
 
 def add_arguments(parser):
+    from .formats.importer import POSE_FORMATS
     from .observation import POLYGON_KINDS, SAMPLING_METHODS
     from .pipeline import DEFAULT_CHAIN
 
@@ -36,7 +37,7 @@ def add_arguments(parser):
                         "annotation groups views into objects); needs --poses (README: 'Your own data')")
     parser.add_argument("--poses", metavar="PATH", help="camera poses of the --coco images: a COLMAP model "
                         "directory (sparse/0, binary or text) or a JSON pose file")
-    parser.add_argument("--pose-format", default="auto", choices=["auto", "colmap", "json"],
+    parser.add_argument("--pose-format", default="auto", choices=["auto", *POSE_FORMATS],
                         help="format of --poses (auto: a directory is COLMAP, *.json is JSON)")
     parser.add_argument("-o", "--output", required=True, help="JSON-lines file to write")
     parser.add_argument("--chain", default=DEFAULT_CHAIN, help="stages joined by '-', e.g. 1-2-3D-3A")

@@ -196,6 +196,8 @@ def test_rle_round_trip_and_uncompressed_rle():
     ({"size": [7, 9], "counts": "zz"}, "malformed compressed RLE"),
     ({"size": [7, 9], "counts": [3, 4]}, "uncompressed RLE counts sum to 7, not height \\* width = 63"),
     ({"size": [7, 9], "counts": 5}, "'counts' must be a string or a list"),
+    ({"size": [7, 9], "counts": [70, -7]}, "uncompressed RLE counts must be >= 0"),
+    ({"size": [7, 9], "counts": [60, 3.0]}, "uncompressed RLE counts must be integers"),
     ([[1, 2, 3]], r"polygons must be lists of >= 3 finite \(x, y\) pairs"),
     ([[1, 2, 3, 4, 5, float("nan")]], "polygons must be lists"),
     ("P1370", "segmentation must be RLE .* or polygons"),

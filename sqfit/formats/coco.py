@@ -168,9 +168,13 @@ def decode_segmentation(segmentation, height, width, where="segmentation"):
                              f"({height}, {width})")
         counts = segmentation.get("counts")
         if isinstance(counts, list):
-            if sum(int(c) for c in counts) != height * width:
+            if not all(isinstance(c, int) and not isinstance(c, bool) for c in counts):
+                raise ValueError(f"{where}: uncompressed RLE counts must be integers")
+            if sum(counts) != height * width:
                 raise ValueError(f"{where}: uncompressed RLE counts sum to {sum(counts)}, not height * width = "
                                  f"{height * width}")
+            if any(int(c) < 0 for c in counts):
+                raise ValueError(f"{where}: uncompressed RLE counts must be >= 0")
             rle = mask_utils.frPyObjects(segmentation, height, width)
         elif isinstance(counts, (str, bytes)):
             rle = {"size": [height, width], "counts": counts.encode("ascii") if isinstance(counts, str) else counts}
