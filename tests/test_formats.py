@@ -285,7 +285,8 @@ def test_bad_user_scenes_are_flagged(tmp_path, trial):
     others = [{"id": 20, "image_id": 10, "track_id": "lonely", "segmentation": one},          # one view only
               {"id": 21, "image_id": 10, "track_id": "ghost", "segmentation": empty},         # empty in view 0
               {"id": 22, "image_id": 11, "track_id": "ghost", "segmentation": one},
-              {"id": 23, "image_id": 12, "track_id": "ghost", "segmentation": one}]
+              {"id": 23, "image_id": 12, "track_id": "ghost", "segmentation": one},
+              {"id": 24, "image_id": 11, "track_id": "broken", "segmentation": {"size": [10, 10], "counts": "x"}}]
     coco, model = write_user_scene(tmp_path, trial, other=others)
     data = json.loads(coco.read_text())
     data["images"].append({"id": 99, "file_name": "unposed.png", "width": 640, "height": 480})
@@ -311,6 +312,9 @@ def test_bad_user_scenes_are_flagged(tmp_path, trial):
     lonely = by_track["lonely"]
     assert lonely["status"] == "too_few_views"
     assert lonely["message"] == "track 'lonely' has 1 usable view(s) ['view_00.png']; fitting needs >= 2"
+    broken = by_track["broken"]  # its bad RLE drops its own view only, not track 7's view of that image
+    assert broken["status"] == "too_few_views" and broken["dropped_views"][0]["view"] == 0
+    assert "annotation 24 (view_01.png): RLE size [10, 10] does not match" in broken["dropped_views"][0]["reason"]
     ghost = by_track["ghost"]
     assert ghost["status"] == "ok" and ghost["views"] == [1, 2]
     assert ghost["warnings"][0] == "view 0 (view_00.png) dropped: the object's mask is empty in this view"

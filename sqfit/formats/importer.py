@@ -37,8 +37,8 @@ from .coco import read_coco
 from .colmap import read_colmap
 from .posejson import read_pose_json
 
-__all__ = ["POSE_FORMATS", "detect_pose_format", "read_poses", "ImportedScene", "load_import", "observe_track",
-           "fit_import"]
+__all__ = ["POSE_FORMATS", "detect_pose_format", "read_poses", "ImportedScene", "match_cameras", "load_import",
+           "observe_track", "fit_import"]
 
 #: Pose sources: name -> reader ``path -> {image name: sqfit.Camera (T_world_camera)}``.
 #: A new source (e.g. TUM trajectories) is one reader here and one rule in detect_pose_format.
@@ -94,7 +94,10 @@ class ImportedScene:
             union = np.zeros((image.height, image.width), dtype=bool)
             for by_image in self.coco.tracks.values():
                 for ann in by_image.get(image_id, []):
-                    union |= self.coco.mask(ann)
+                    try:
+                        union |= self.coco.mask(ann)
+                    except ValueError:
+                        pass  # reported by its own track; other objects keep this view
             self._union[image_id] = encode_mask(union)[0]
         return decode_segmentation(self._union[image_id], image.height, image.width)
 
