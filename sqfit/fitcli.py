@@ -7,10 +7,11 @@ The dataset is read with :mod:`sqfit.io` (written by ``sqsim generate``, or a us
 ``cameras.json`` + ``masks/view_VV.png``). Objects are the ``gt.json`` records (``"id"``) when
 present, else every non-zero instance id found in the masks. One JSON line per (trial, object):
 ``trial``, ``object_id``, then :meth:`sqfit.FitResult.to_dict` (chain, status, final ``params``,
-per-stage ``params`` / seconds / status / R-IOU-M, warnings), ``views`` (the view indices used) and
-``dropped_views`` (``{"view", "reason"}`` for each view where the object's mask is empty or
+per-stage ``params`` / seconds / status / R-IOU-M, warnings), ``views`` (the view indices used)
+and ``dropped_views`` (``{"view", "reason"}`` for each view where the object's mask is empty or
 unusable, also listed in ``warnings``; warnings name views by their index in the trial). An
-object that cannot be read or fitted gets a record with ``status`` ``"error"`` and the message; the command goes on.
+object that cannot be read or fitted gets a record with ``status`` ``"error"`` and the message;
+the command goes on.
 Samples are seeded per (trial, object) from ``--seed`` with ``numpy.random.SeedSequence``, so a
 record does not depend on which other trials are in the dataset.
 """
