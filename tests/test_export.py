@@ -131,3 +131,15 @@ def test_readme_round_trip_commands_run(tmp_path):
     native = {f"{r['trial']}/{r['object_id']}": r for r in records(tmp_path / "demo" / "native.jsonl")}
     assert len(imported) == 2 and all(r["status"] == "ok" for r in imported)
     assert all(native[r["track_id"]]["status"] == "ok" for r in imported)
+
+
+def test_json_poses_of_the_coco_file_reproduce_native_fits_exactly(dataset, tmp_path):
+    # annotations.json carries file_name, intrinsics and T_world_camera per image: a JSON pose file.
+    # Without COLMAP's quaternion rounding the import is bit-identical to the native fit, any chain.
+    native, imported = tmp_path / "native.jsonl", tmp_path / "imported.jsonl"
+    args = ["--seed", "3", "--samples", "50", "--no-progress"]  # default chain
+    assert sqfit_main(["fit", str(dataset), "-o", str(native), *args]) == 0
+    coco = str(dataset / "annotations.json")
+    assert sqfit_main(["fit", "--coco", coco, "--poses", coco, "-o", str(imported), *args]) == 0
+    ref = {f"{r['trial']}/{r['object_id']}": r["params"] for r in records(native)}
+    assert {r["track_id"]: r["params"] for r in records(imported)} == ref
