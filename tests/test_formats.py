@@ -194,6 +194,7 @@ def test_rle_round_trip_and_uncompressed_rle():
 @pytest.mark.parametrize("segm, match", [
     ({"size": [5, 9], "counts": "abc"}, r"RLE size \[5, 9\] does not match the image \(height, width\) = \(7, 9\)"),
     ({"size": [7, 9], "counts": "zz"}, "malformed compressed RLE"),
+    ({"size": [7, 9], "counts": "P1370000000V1x"}, "cannot decode RLE: Invalid RLE mask representation"),
     ({"size": [7, 9], "counts": [3, 4]}, "uncompressed RLE counts sum to 7, not height \\* width = 63"),
     ({"size": [7, 9], "counts": 5}, "'counts' must be a string or a list"),
     ({"size": [7, 9], "counts": [70, -7]}, "uncompressed RLE counts must be >= 0"),
@@ -347,3 +348,29 @@ def test_ambiguous_base_names_are_flagged(tmp_path, trial):
     scene = load_import(coco, tmp_path / "p.json")
     assert list(scene.cameras) == [10]
     assert "base name matches 2 poses (left/view_01.png, right/view_01.png); use full names" in scene.unusable[11]
+
+
+def test_more_reader_errors(tmp_path, trial):
+    with pytest.raises(OSError, match="pose file not found"):
+        read_pose_json(tmp_path / "none.json")
+    (tmp_path / "bad.json").write_text("{")
+    with pytest.raises(ValueError, match="bad.json is not valid JSON"):
+        read_pose_json(tmp_path / "bad.json")
+    rec = {"file_name": "a", "intrinsics": trial.cameras[0].intrinsics.to_dict(),
+           "T_world_camera": trial.cameras[0].pose.tolist()}
+    (tmp_path / "dup.json").write_text(json.dumps({"images": [rec, rec]}))
+    with pytest.raises(ValueError, match=r"images\[1\] \(a\): duplicate file_name"):
+        read_pose_json(tmp_path / "dup.json")
+    with pytest.raises(ValueError, match=r"cameras\['x'\] must be a sqfit.Camera"):
+        write_colmap(tmp_path / "m", {"x": "not a camera"})
+    zero = tmp_path / "zero"
+    zero.mkdir()
+    (zero / "cameras.txt").write_text("4 PINHOLE 64 48 0 50 32 24\n")
+    (zero / "images.txt").write_text("1 1 0 0 0 0 0 0 4 img.png\n\n")
+    (zero / "points3D.txt").write_text("")
+    with pytest.raises(ValueError, match="camera 4: fx must be a finite number > 0"):
+        read_colmap(zero)
+    (tmp_path / "empty.json").write_text(json.dumps({"images": []}))
+    coco, _ = write_user_scene(tmp_path, trial)
+    with pytest.raises(ValueError, match="empty.json holds no image with a pose"):
+        load_import(coco, tmp_path / "empty.json")
