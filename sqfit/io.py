@@ -331,8 +331,8 @@ def observe_views(cameras, images, object_id, n_samples=C.DEFAULT_SAMPLES, sampl
     obs, used, dropped = [], [], []
     for k, (cam, image) in enumerate(zip(cameras, images)):
         try:
-            got = observations_from_images([cam], np.asarray(image)[None], object_id, n_samples, sampling, rng,
-                                           cleanup)
+            got = observations_from_images([cam], np.asarray(image)[None], object_id, n_samples=n_samples,
+                                           sampling=sampling, rng=rng, cleanup=cleanup)
         except ValueError as exc:
             dropped.append((k, str(exc)))
             continue
