@@ -286,7 +286,6 @@ class ViewObservations:
             out["images"] = [self.names[k] for k in self.views]
         return out
 
-
     def _rename(self, message):
         m = _FIT_VIEW.match(message)
         if m is None or int(m.group(1)) >= len(self.views):
