@@ -343,10 +343,11 @@ def test_import_errors_are_one_line(tmp_path, trial, capsys):
 def test_ambiguous_base_names_are_flagged(tmp_path, trial):
     coco, _ = write_user_scene(tmp_path, trial)
     poses = {f"{d}/{n}": cam for d in ("left", "right") for n, cam in zip(NAMES, trial.cameras)}
-    poses["view_00.png"] = trial.cameras[0]  # exact name wins over base names
+    poses["view_00.png"] = trial.cameras[0]  # exact names win over base names
+    poses["view_02.png"] = trial.cameras[2]
     write_pose_json(tmp_path / "p.json", poses)
     scene = load_import(coco, tmp_path / "p.json")
-    assert list(scene.cameras) == [10]
+    assert list(scene.cameras) == [10, 12]
     assert "base name matches 2 poses (left/view_01.png, right/view_01.png); use full names" in scene.unusable[11]
 
 
@@ -370,6 +371,9 @@ def test_more_reader_errors(tmp_path, trial):
     (zero / "points3D.txt").write_text("")
     with pytest.raises(ValueError, match="camera 4: fx must be a finite number > 0"):
         read_colmap(zero)
+    write_pose_json(tmp_path / "one.json", {NAMES[1]: trial.cameras[1]})
+    with pytest.raises(ValueError, match="only 1 image of .* can be used .*; fitting needs >= 2 views"):
+        load_import(write_user_scene(tmp_path, trial)[0], tmp_path / "one.json")
     (tmp_path / "empty.json").write_text(json.dumps({"images": []}))
     coco, _ = write_user_scene(tmp_path, trial)
     with pytest.raises(ValueError, match="empty.json holds no image with a pose"):

@@ -163,7 +163,7 @@ def load_import(coco_path, poses_path, pose_format="auto"):
     Raises
     ------
     OSError, ValueError
-        Unreadable files (messages from the readers), or no COCO image matching any pose.
+        Unreadable files (messages from the readers), or fewer than two COCO images with a pose.
     """
     coco = read_coco(coco_path)
     poses = read_poses(poses_path, pose_format)
@@ -174,6 +174,9 @@ def load_import(coco_path, poses_path, pose_format="auto"):
         raise ValueError(f"no image of {coco_path} can be used with the poses of {poses_path} (matched by file "
                          f"name, then base name): {next(iter(unusable.values()))}; pose image names look like "
                          f"{sorted(poses)[:2]}")
+    if coco.images and len(cameras) < C.MIN_VIEWS:
+        raise ValueError(f"only {len(cameras)} image of {coco_path} can be used with the poses of {poses_path}; "
+                         f"fitting needs >= {C.MIN_VIEWS} views of each object")
     return ImportedScene(coco, cameras, unusable)
 
 
