@@ -13,3 +13,10 @@ def test_cli_help_works():
     for prog in ("sqsim", "sqfit"):
         out = subprocess.run([sys.executable, "-m", f"{prog}.cli", "--help"], capture_output=True, text=True)
         assert out.returncode == 0 and "COMMAND" in out.stdout, out.stderr
+
+
+def test_sequence_readers_import_no_optional_library():
+    code = ("import sys, sqfit.io, sqfit.formats.tum; "
+            "bad = [m for m in ('OpenGL', 'pyrender', 'sqsim', 'evo', 'gtsam') if m in sys.modules]; "
+            "assert not bad, bad")
+    subprocess.run([sys.executable, "-c", code], check=True)
