@@ -239,3 +239,9 @@ def observations(trial, object_id, n_samples=C.DEFAULT_SAMPLES, sampling="unifor
     See :func:`observations_from_images`; returns a list (possibly with fewer than two views).
     """
     return observations_from_images(trial.cameras, trial.images, object_id, n_samples, sampling, rng, cleanup)
+
+
+# Sequences (frames with odometry, sqfit.sequence) are read through this module too.
+from .sequence import LazyImages, Sequence, load_sequence  # noqa: E402
+
+__all__ += ["Sequence", "LazyImages", "load_sequence"]

@@ -50,7 +50,8 @@ __all__ = ["Scene", "ExperimentConfig", "CameraConfig", "TrajectoryConfig", "Obj
 
 OBJECT_KINDS = ("superquadric", "box", "cylinder", "capsule", "cone", "mesh")
 RENDERERS = ("osmesa", "egl", "polygon")
-TRAJECTORIES = ("circle",)
+TRAJECTORIES = ("circle", "orbit", "waypoints")  # orbit, waypoints: sequences (sqsim.trajectory)
+LAYOUTS = ("free", "ground")  # sqsim.layout
 #: Minimum depth (metres) of every mesh vertex in every camera for a trial to be observable.
 ZNEAR = 0.05
 _PAPER_CHAINS = ("3A", "3B", "1-3A", "1-2-3A", "1-2-3B", "3E", "1-3E", "1-2-3C", "1-2-3D", "1-2-3E",
@@ -131,6 +132,12 @@ def _optional_path(v):
     return None if v in (None, "") else _string(v)
 
 
+def _waypoints(v):
+    from .trajectory import check_waypoint_rows
+
+    return check_waypoint_rows(v)
+
+
 # --- sections: frozen dataclasses with per-field checkers in field metadata -----------------------
 
 @dataclass(frozen=True)
@@ -160,6 +167,14 @@ class TrajectoryConfig:
     arc_deg: float = 360.0
     look_at: tuple = (0.0, 0.0, 0.0)
     start_deg: float = 0.0  # angle of the first camera on the circle, from +x towards +y
+    # Sequences only (kind "orbit" or "waypoints"; sqsim.trajectory): None = not given.
+    frames: int | None = None
+    frame_rate_hz: float | None = None
+    radius_amplitude: float | None = None
+    height_amplitude: float | None = None
+    look_at_wander: float | None = None
+    waypoints: tuple | None = None
+    waypoints_file: str | None = None
 
 
 @dataclass(frozen=True)
@@ -173,6 +188,8 @@ class ObjectsConfig:
     path: str | None = None
     mesh_resolution: int = 32  # cube-sphere subdivisions of a superquadric mesh
     max_attempts: int = 10000  # draws per trial before giving up on an unobservable scene
+    layout: str = "free"  # "free": positions uniform in a cube; "ground": on the floor (sqsim.layout)
+    upright: bool = False  # ground layout: only the yaw (rz) is drawn, rx = ry = 0
 
 
 @dataclass(frozen=True)
@@ -193,6 +210,8 @@ class NoiseConfig:
     false_blobs: int = 0
     pose_rotation_deg: float = 0.0
     pose_translation_m: float = 0.0
+    odometry_rotation_deg: float = 0.0  # sequences: per-step noise of the relative poses
+    odometry_translation_m: float = 0.0
 
 
 @dataclass(frozen=True)
@@ -209,15 +228,19 @@ _CHECKS = {
                "fy": _float(0, lo_open=True), "cx": _float(), "cy": _float()},
     "trajectory": {"kind": _choice(TRAJECTORIES), "radius": _float(0, lo_open=True), "views": _int(1),
                    "height": _float(), "arc_deg": _float(0, 360, lo_open=True), "look_at": _vector(3),
-                   "start_deg": _float()},
+                   "start_deg": _float(), "frames": _int(2), "frame_rate_hz": _float(0, lo_open=True),
+                   "radius_amplitude": _float(0), "height_amplitude": _float(0), "look_at_wander": _float(0),
+                   "waypoints": _waypoints, "waypoints_file": _optional_path},
     "objects": {"count": _int(1), "kind": _choice(OBJECT_KINDS), "size": _range(0, lo_open=True),
                 "position": _range(), "rotation": _range(), "shape": _range(lo=sqfit.constants.SHAPE_DOMAIN[0], hi=sqfit.constants.SHAPE_DOMAIN[1]),
-                "path": _optional_path, "mesh_resolution": _int(2), "max_attempts": _int(1)},
+                "path": _optional_path, "mesh_resolution": _int(2), "max_attempts": _int(1),
+                "layout": _choice(LAYOUTS), "upright": _bool},
     "masks": {"renderer": _choice(RENDERERS), "samples": _int(3), "sampling": _choice(SAMPLING_METHODS),
               "min_area_px": _int(0), "cleanup": _bool},
     "noise": {"erosion_px": _int(0), "dilation_px": _int(0), "boundary_jitter_px": _float(0),
               "dropout": _float(0, 1, hi_open=True), "false_blobs": _int(0),
-              "pose_rotation_deg": _float(0), "pose_translation_m": _float(0)},
+              "pose_rotation_deg": _float(0), "pose_translation_m": _float(0),
+              "odometry_rotation_deg": _float(0), "odometry_translation_m": _float(0)},
     "fit": {"polygon": _choice(POLYGON_KINDS), "penalty_riou": _float(0, lo_open=True),
             "penalty_analytic": _float(0, lo_open=True), "pose_sigma_deg": _float(0)},
 }
@@ -390,7 +413,10 @@ def _check_scene(scene):
                          f"not {obj.kind!r}")
     if obj.count > np.iinfo(np.uint16).max:
         raise ValueError(f"{src}: objects.count must be <= 65535 (uint16 instance ids)")
-    return scene
+    from .layout import check_layout
+    from .trajectory import check_sequence_keys
+
+    return check_sequence_keys(check_layout(scene))
 
 
 # --- seeds ----------------------------------------------------------------------------------------
@@ -434,6 +460,10 @@ def camera_poses(trajectory):
     poses : (views, 4, 4) float
     """
     t = trajectory
+    if t.kind != "circle":
+        from .trajectory import sequence_poses
+
+        return sequence_poses(t)[1]
     if t.arc_deg >= 360.0 or t.views == 1:
         angles = t.start_deg + t.arc_deg * np.arange(t.views) / t.views
     else:
