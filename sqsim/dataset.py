@@ -23,6 +23,8 @@ from sqfit.io import FORMAT, FORMAT_VERSION, load_trial, trial_dirs, write_mask_
 
 from . import __version__
 from .scene import OBJECT_KINDS, load_scene, parse_scene
+from .sequence_dataset import finish_sequence_dataset, write_sequence_trial
+from .trajectory import is_sequence
 
 __all__ = ["generate", "write_trial", "build_annotations", "trial_name", "add_arguments", "run"]
 
@@ -65,6 +67,8 @@ def write_trial(scene, index, root, renderer=None):
 
     if isinstance(scene, dict):
         scene = parse_scene(scene, source="<dataset>")
+    if is_sequence(scene):
+        return write_sequence_trial(scene, index, root, renderer)
     trials = Path(root) / "trials"
     final = trials / trial_name(index)
     if final.exists():
@@ -170,7 +174,10 @@ def generate(scene, output, trials=None, seed=None, workers=1, progress=True):
     todo = [i for i in range(scene.experiment.trials) if not (root / "trials" / trial_name(i)).exists()]
     skipped = scene.experiment.trials - len(todo)
     results = _run(scene, todo, root, int(workers), progress)
-    _atomic_write_text(root / "annotations.json", json.dumps(build_annotations(root), sort_keys=True) + "\n")
+    if is_sequence(scene):
+        finish_sequence_dataset(root)
+    else:
+        _atomic_write_text(root / "annotations.json", json.dumps(build_annotations(root), sort_keys=True) + "\n")
     return {"written": sum(r is not None for r in results), "skipped": skipped,
             "resampled": int(sum(r or 0 for r in results))}
 
