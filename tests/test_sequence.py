@@ -288,3 +288,29 @@ def test_impossible_or_wrong_scenes():
     far = scene(objects={"position": [40.0, 45.0], "max_attempts": 3})
     with pytest.raises(ValueError, match=r"no draw in 3 attempts where every object is observed in >= 2 frames"):
         simulate_sequence(far)
+
+
+def test_multi_view_trials_refuse_a_sequence_scene():
+    from sqsim.trial import sample_trial
+
+    with pytest.raises(ValueError, match=r"trajectory\.kind = 'orbit' is an image sequence"):
+        sample_trial(scene(), 0)
+
+
+
+def test_sequence_command_prints_drift_and_draws(tmp_path, capsys, simulated):
+    from sqsim.cli import main
+    from sqsim.sequence_report import drift
+
+    _, seqs = simulated
+    translation, rotation = drift(seqs[0].true_poses, seqs[0].odometry_poses)
+    assert translation[0] == 0 and rotation[0] == 0 and translation[-1] > 0
+    (tmp_path / "s.toml").write_text(
+        '[camera]\nwidth = 160\nheight = 120\nfx = 100.0\nfy = 75.0\ncx = 80.0\ncy = 60.0\n'
+        '[trajectory]\nkind = "orbit"\nframes = 10\nradius = 5.0\nheight = 1.5\n'
+        '[objects]\ncount = 3\nlayout = "ground"\nsize = [0.2, 0.5]\nposition = [-1.5, 1.5]\n'
+        '[masks]\nmin_area_px = 15\n[noise]\nodometry_rotation_deg = 0.5\n')
+    assert main(["sequence", str(tmp_path / "s.toml"), "--figure", str(tmp_path / "f.png")]) == 0
+    out = capsys.readouterr().out
+    assert "10 frames" in out and "odometry drift: frame 2:" in out and "frame 9:" in out
+    assert (tmp_path / "f.png").read_bytes()[:4] == b"\x89PNG"
