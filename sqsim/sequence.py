@@ -86,9 +86,10 @@ def observed_objects(images, ids, min_area_px):
         Visible pixels per frame and object.
     """
     ids = np.asarray(ids, dtype=np.int64)
-    top = int(max(ids.max(initial=0), 0)) + 1
-    areas = np.stack([np.bincount(image.ravel(), minlength=top)[:top][ids] if image.max(initial=0) < top
-                      else np.bincount(image.ravel())[ids] for image in images]) if len(images) else np.zeros((0, len(ids)), int)
+    images = np.asarray(images)
+    top = int(max(ids.max(initial=0), images.max(initial=0))) + 1
+    areas = np.array([np.bincount(image.ravel(), minlength=top)[ids] for image in images],
+                     dtype=np.int64).reshape(len(images), len(ids))
     return areas >= max(int(min_area_px), 1), areas
 
 
