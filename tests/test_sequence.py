@@ -314,3 +314,16 @@ def test_sequence_command_prints_drift_and_draws(tmp_path, capsys, simulated):
     out = capsys.readouterr().out
     assert "10 frames" in out and "odometry drift: frame 2:" in out and "frame 9:" in out
     assert (tmp_path / "f.png").read_bytes()[:4] == b"\x89PNG"
+
+
+@pytest.mark.parametrize("name", ["sequence.toml", "sequence-waypoints.toml"])
+def test_shipped_sequence_scenes(name):
+    from pathlib import Path
+
+    from sqsim.scene import load_scene
+
+    s = load_scene(Path(__file__).resolve().parents[1] / "scenes" / name)
+    t, poses = sequence_poses(s.trajectory)
+    assert len(t) == s.trajectory.frames >= 40 and s.objects.count >= 6 and s.objects.layout == "ground"
+    assert (s.noise.odometry_rotation_deg, s.noise.odometry_translation_m) == (0.5, 0.02)
+    assert np.all(np.diff(t) > 0) and poses.shape == (len(t), 4, 4)
