@@ -376,7 +376,8 @@ def camera_poses(trajectory):
     Views on a ``circle`` of ``radius`` around ``look_at`` at height ``height`` (world z), at
     angles ``start_deg + arc_deg * k / views`` for a full circle (``arc_deg = 360``) and spread
     from ``start_deg`` to ``start_deg + arc_deg`` inclusive otherwise, each looking at
-    ``look_at`` with world +z up in the image.
+    ``look_at`` with world +z up in the image. A sequence kind (``orbit``, ``waypoints``) gives
+    its frames (``sqsim.trajectory.sequence_poses``).
 
     Returns
     -------
