@@ -153,10 +153,11 @@ def _sequence_dir(directory):
         return path
     trials = path / "trials"
     found = sorted(p for p in trials.iterdir() if p.is_dir() and not p.name.startswith(".")) if trials.is_dir() else []
-    if len(found) != 1:
+    if not found:
+        raise ValueError(f"{path} is not a sequence: no cameras.json and no trials/NNNNNN directory")
+    if len(found) > 1:
         raise ValueError(f"{path} holds {len(found)} sequences under trials/; pass one of them "
-                         "(e.g. DIR/trials/000000)" if found else f"{path} is not a sequence: no cameras.json "
-                         "and no trials/NNNNNN directory")
+                         f"(e.g. {found[0]})")
     return found[0]
 
 
