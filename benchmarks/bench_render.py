@@ -6,6 +6,12 @@ masks/s per process) and the whole ``simulate_trial`` (sampling, meshing, re-sam
 rendering, noise) for reference.
 
     OPENBLAS_NUM_THREADS=1 .venv/bin/python benchmarks/bench_render.py [--trials 100] [--renderer osmesa]
+
+A sequence scene (``trajectory.kind = "orbit"`` or ``"waypoints"``) is timed per frame: every frame
+of ``--trials`` sequences rendered at once (``Renderer.render(objects, cameras of all frames)``),
+and the whole ``simulate_sequence`` (layout, re-draws, rendering, visibility, odometry):
+
+    OPENBLAS_NUM_THREADS=1 .venv/bin/python benchmarks/bench_render.py --scene scenes/sequence.toml --trials 5
 """
 
 from __future__ import annotations
@@ -37,6 +43,8 @@ def main():
         scene = scene.with_overrides({"masks.renderer": args.renderer})
     renderer = get_renderer(scene.masks.renderer, scene.intrinsics)
     k = scene.intrinsics
+    if scene.trajectory.kind != "circle":
+        return bench_sequences(scene, renderer, args)
     trials = [sample_trial(scene, i, renderer) for i in range(args.trials)]
     n_masks = sum(len(cams) for _, cams, _, _ in trials)
     best = float("inf")
@@ -54,6 +62,31 @@ def main():
     print(f"render only:         {n_masks / best:8.1f} masks/s  ({1e3 * best / n_masks:.2f} ms/mask)")
     print(f"simulate_trial (all): {n_masks / full:8.1f} masks/s  ({1e3 * full / args.trials:.1f} ms/trial, "
           "incl. sampling, meshing, re-sampling)")
+
+
+def bench_sequences(scene, renderer, args):
+    import sqfit
+    from sqsim.sequence import sample_sequence, simulate_sequence
+
+    k = scene.intrinsics
+    drawn = [sample_sequence(scene, index=i, renderer=renderer) for i in range(args.trials)]
+    cameras = [[sqfit.Camera(k, T) for T in poses] for _, _, poses, _, _, _ in drawn]
+    n_frames = sum(len(c) for c in cameras)
+    best = float("inf")
+    for _ in range(args.repeat):
+        t0 = time.perf_counter()
+        for (objects, *_), cams in zip(drawn, cameras):
+            renderer.render(objects, cams)
+        best = min(best, time.perf_counter() - t0)
+    t0, c0 = time.perf_counter(), time.process_time()
+    for i in range(args.trials):
+        simulate_sequence(scene, index=i, renderer=renderer)
+    full, cpu = time.perf_counter() - t0, time.process_time() - c0
+    print(f"renderer={scene.masks.renderer}  image={k.width}x{k.height}  sequences={args.trials}  "
+          f"frames={n_frames}  objects={scene.objects.count}")
+    print(f"render only:              {n_frames / best:8.1f} frames/s  ({1e3 * best / n_frames:.2f} ms/frame)")
+    print(f"simulate_sequence (all):  {n_frames / full:8.1f} frames/s  ({1e3 * full / n_frames:.2f} ms/frame wall, "
+          f"{1e3 * cpu / n_frames:.2f} ms/frame CPU of this process; incl. layout, re-draws, visibility, odometry)")
 
 
 if __name__ == "__main__":

@@ -341,3 +341,9 @@ def observe_views(cameras, images, object_id, n_samples=C.DEFAULT_SAMPLES, sampl
         obs.extend(got)
         used.extend([k] * len(got))
     return ViewObservations(obs, used, dropped, None if names is None else [str(n) for n in names])
+
+
+# Sequences (frames with odometry, sqfit.sequence) are read through this module too.
+from .sequence import LazyImages, Sequence, load_sequence  # noqa: E402
+
+__all__ += ["Sequence", "LazyImages", "load_sequence"]

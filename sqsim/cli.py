@@ -17,6 +17,7 @@ COMMANDS = {
     "experiment": ("sqsim.experiment", "run the permutation experiment: simulate, fit chains, evaluate, report"),
     "sweep": ("sqsim.sweep", "run the experiment over a grid of scene values; degradation curves"),
     "generate": ("sqsim.dataset", "render a scene's trials to a mask dataset (resumable, COCO annotations)"),
+    "sequence": ("sqsim.sequence_report", "simulate one image sequence: visibility, odometry drift, top-down figure"),
 }
 
 

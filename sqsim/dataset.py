@@ -24,6 +24,8 @@ from sqfit.io import FORMAT, FORMAT_VERSION, load_trial, trial_dirs, write_mask_
 
 from . import __version__
 from .scene import OBJECT_KINDS, load_scene, parse_scene
+from .sequence_dataset import finish_sequence_dataset, write_sequence_trial
+from .trajectory import is_sequence
 
 __all__ = ["generate", "write_trial", "build_annotations", "trial_name", "add_arguments", "run"]
 
@@ -66,6 +68,8 @@ def write_trial(scene, index, root, renderer=None):
 
     if isinstance(scene, dict):
         scene = parse_scene(scene, source="<dataset>")
+    if is_sequence(scene):
+        return write_sequence_trial(scene, index, root, renderer)
     trials = Path(root) / "trials"
     final = trials / trial_name(index)
     if final.exists():
@@ -168,12 +172,18 @@ def generate(scene, output, trials=None, seed=None, workers=1, progress=True, co
         scene = scene.with_overrides(overrides)
     if int(workers) != workers or workers < 1:
         raise ValueError(f"workers must be an integer >= 1, got {workers}")
+    if colmap and is_sequence(scene):
+        raise ValueError("--colmap exports trial datasets; a sequence scene (trajectory.kind = "
+                         f"{scene.trajectory.kind!r}) writes its poses as TUM trajectories (true.tum, odometry.tum)")
     root = Path(output)
     _prepare(root, scene)
     todo = [i for i in range(scene.experiment.trials) if not (root / "trials" / trial_name(i)).exists()]
     skipped = scene.experiment.trials - len(todo)
     results = _run(scene, todo, root, int(workers), progress)
-    _atomic_write_text(root / "annotations.json", json.dumps(build_annotations(root), sort_keys=True) + "\n")
+    if is_sequence(scene):
+        finish_sequence_dataset(root)
+    else:
+        _atomic_write_text(root / "annotations.json", json.dumps(build_annotations(root), sort_keys=True) + "\n")
     if colmap:
         from .export import write_colmap_model
 

@@ -43,6 +43,9 @@ import sqfit
 from sqfit.observation import POLYGON_KINDS, SAMPLING_METHODS
 from sqfit.superquadric import euler_to_matrix, to_mesh
 
+from ._scene_values import (_bool, _choice, _float, _int, _optional_path, _range, _string,  # noqa: F401
+                            _strings, _vector, _waypoints)
+
 __all__ = ["Scene", "ExperimentConfig", "CameraConfig", "TrajectoryConfig", "ObjectsConfig",
            "MasksConfig", "NoiseConfig", "FitConfig", "SceneObject", "OBJECT_KINDS",
            "load_scene", "parse_scene", "trial_seed", "child_seed", "camera_poses", "make_object",
@@ -50,86 +53,13 @@ __all__ = ["Scene", "ExperimentConfig", "CameraConfig", "TrajectoryConfig", "Obj
 
 OBJECT_KINDS = ("superquadric", "box", "cylinder", "capsule", "cone", "mesh")
 RENDERERS = ("osmesa", "egl", "polygon")
-TRAJECTORIES = ("circle",)
+TRAJECTORIES = ("circle", "orbit", "waypoints")  # orbit, waypoints: sequences (sqsim.trajectory)
+LAYOUTS = ("free", "ground")  # sqsim.layout
 #: Minimum depth (metres) of every mesh vertex in every camera for a trial to be observable.
 ZNEAR = 0.05
 MIN_VIEWS = sqfit.constants.MIN_VIEWS
 _PAPER_CHAINS = ("3A", "3B", "1-3A", "1-2-3A", "1-2-3B", "3E", "1-3E", "1-2-3C", "1-2-3D", "1-2-3E",
                  "1-2-3D-3E", "1-2-3D-3A", "1-2-3D-3F")
-
-
-# --- value checkers: each returns the cleaned value or raises ValueError(problem) -----------------
-
-def _int(lo=None):
-    def check(v):
-        if isinstance(v, bool) or not isinstance(v, (int, float)) or int(v) != v:
-            raise ValueError(f"must be an integer, got {v!r}")
-        if lo is not None and v < lo:
-            raise ValueError(f"must be >= {lo}, got {v!r}")
-        return int(v)
-    return check
-
-
-def _float(lo=None, hi=None, lo_open=False, hi_open=False):
-    def check(v):
-        if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
-            raise ValueError(f"must be a finite number, got {v!r}")
-        v = float(v)
-        if lo is not None and (v < lo or (lo_open and v == lo)):
-            raise ValueError(f"must be {'>' if lo_open else '>='} {lo}, got {v!r}")
-        if hi is not None and (v > hi or (hi_open and v == hi)):
-            raise ValueError(f"must be {'<' if hi_open else '<='} {hi}, got {v!r}")
-        return v
-    return check
-
-
-def _choice(choices):
-    def check(v):
-        if v not in choices:
-            raise ValueError(f"must be one of {list(choices)}, got {v!r}")
-        return v
-    return check
-
-
-def _bool(v):
-    if not isinstance(v, bool):
-        raise ValueError(f"must be true or false, got {v!r}")
-    return v
-
-
-def _string(v):
-    if not isinstance(v, str) or not v:
-        raise ValueError(f"must be a non-empty string, got {v!r}")
-    return v
-
-
-def _vector(n, item=_float()):
-    def check(v):
-        if not isinstance(v, (list, tuple)) or len(v) != n:
-            raise ValueError(f"must be a list of {n} numbers, got {v!r}")
-        return tuple(item(x) for x in v)
-    return check
-
-
-def _range(lo=None, lo_open=False, hi=None):
-    pair = _vector(2, _float(lo, hi, lo_open=lo_open))
-
-    def check(v):
-        a, b = pair(v)
-        if a > b:
-            raise ValueError(f"must be [low, high] with low <= high, got {list(v)!r}")
-        return (a, b)
-    return check
-
-
-def _strings(v):
-    if not isinstance(v, (list, tuple)) or not v:
-        raise ValueError(f"must be a non-empty list of strings, got {v!r}")
-    return tuple(_string(x) for x in v)
-
-
-def _optional_path(v):
-    return None if v in (None, "") else _string(v)
 
 
 # --- sections: frozen dataclasses with per-field checkers in field metadata -----------------------
@@ -161,6 +91,14 @@ class TrajectoryConfig:
     arc_deg: float = 360.0
     look_at: tuple = (0.0, 0.0, 0.0)
     start_deg: float = 0.0  # angle of the first camera on the circle, from +x towards +y
+    # Sequences only (kind "orbit" or "waypoints"; sqsim.trajectory): None = not given.
+    frames: int | None = None
+    frame_rate_hz: float | None = None
+    radius_amplitude: float | None = None
+    height_amplitude: float | None = None
+    look_at_wander: float | None = None
+    waypoints: tuple | None = None
+    waypoints_file: str | None = None
 
 
 @dataclass(frozen=True)
@@ -174,6 +112,8 @@ class ObjectsConfig:
     path: str | None = None
     mesh_resolution: int = 32  # cube-sphere subdivisions of a superquadric mesh
     max_attempts: int = 10000  # draws per trial before giving up on an unobservable scene
+    layout: str = "free"  # "free": positions uniform in a cube; "ground": on the floor (sqsim.layout)
+    upright: bool = False  # ground layout: only the yaw (rz) is drawn, rx = ry = 0
 
 
 @dataclass(frozen=True)
@@ -194,6 +134,8 @@ class NoiseConfig:
     false_blobs: int = 0
     pose_rotation_deg: float = 0.0
     pose_translation_m: float = 0.0
+    odometry_rotation_deg: float = 0.0  # sequences: per-step noise of the relative poses
+    odometry_translation_m: float = 0.0
 
 
 @dataclass(frozen=True)
@@ -210,15 +152,19 @@ _CHECKS = {
                "fy": _float(0, lo_open=True), "cx": _float(), "cy": _float()},
     "trajectory": {"kind": _choice(TRAJECTORIES), "radius": _float(0, lo_open=True), "views": _int(1),
                    "height": _float(), "arc_deg": _float(0, 360, lo_open=True), "look_at": _vector(3),
-                   "start_deg": _float()},
+                   "start_deg": _float(), "frames": _int(2), "frame_rate_hz": _float(0, lo_open=True),
+                   "radius_amplitude": _float(0), "height_amplitude": _float(0), "look_at_wander": _float(0),
+                   "waypoints": _waypoints, "waypoints_file": _optional_path},
     "objects": {"count": _int(1), "kind": _choice(OBJECT_KINDS), "size": _range(0, lo_open=True),
                 "position": _range(), "rotation": _range(), "shape": _range(lo=sqfit.constants.SHAPE_DOMAIN[0], hi=sqfit.constants.SHAPE_DOMAIN[1]),
-                "path": _optional_path, "mesh_resolution": _int(2), "max_attempts": _int(1)},
+                "path": _optional_path, "mesh_resolution": _int(2), "max_attempts": _int(1),
+                "layout": _choice(LAYOUTS), "upright": _bool},
     "masks": {"renderer": _choice(RENDERERS), "samples": _int(3), "sampling": _choice(SAMPLING_METHODS),
               "min_area_px": _int(0), "cleanup": _bool},
     "noise": {"erosion_px": _int(0), "dilation_px": _int(0), "boundary_jitter_px": _float(0),
               "dropout": _float(0, 1, hi_open=True), "false_blobs": _int(0),
-              "pose_rotation_deg": _float(0), "pose_translation_m": _float(0)},
+              "pose_rotation_deg": _float(0), "pose_translation_m": _float(0),
+              "odometry_rotation_deg": _float(0), "odometry_translation_m": _float(0)},
     "fit": {"polygon": _choice(POLYGON_KINDS), "penalty_riou": _float(0, lo_open=True),
             "penalty_analytic": _float(0, lo_open=True), "pose_sigma_deg": _float(0)},
 }
@@ -394,7 +340,10 @@ def _check_scene(scene):
                          f"not {obj.kind!r}")
     if obj.count > np.iinfo(np.uint16).max:
         raise ValueError(f"{src}: objects.count must be <= 65535 (uint16 instance ids)")
-    return scene
+    from .layout import check_layout
+    from .trajectory import check_sequence_keys
+
+    return check_sequence_keys(check_layout(scene))
 
 
 # --- seeds ----------------------------------------------------------------------------------------
@@ -431,13 +380,18 @@ def camera_poses(trajectory):
     Views on a ``circle`` of ``radius`` around ``look_at`` at height ``height`` (world z), at
     angles ``start_deg + arc_deg * k / views`` for a full circle (``arc_deg = 360``) and spread
     from ``start_deg`` to ``start_deg + arc_deg`` inclusive otherwise, each looking at
-    ``look_at`` with world +z up in the image.
+    ``look_at`` with world +z up in the image. A sequence kind (``orbit``, ``waypoints``) gives
+    its frames (``sqsim.trajectory.sequence_poses``).
 
     Returns
     -------
     poses : (views, 4, 4) float
     """
     t = trajectory
+    if t.kind != "circle":
+        from .trajectory import sequence_poses
+
+        return sequence_poses(t)[1]
     if t.arc_deg >= 360.0 or t.views == 1:
         angles = t.start_deg + t.arc_deg * np.arange(t.views) / t.views
     else:

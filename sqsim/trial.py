@@ -72,6 +72,9 @@ def sample_trial(scene, index, renderer=None):
     ValueError
         No observable draw in ``objects.max_attempts`` attempts (the scene is impossible).
     """
+    if scene.trajectory.kind != "circle":
+        raise ValueError(f"{scene.source}: trajectory.kind = {scene.trajectory.kind!r} is an image sequence; "
+                         "multi-view trials need kind = \"circle\" (sequences: sqsim.sequence, sqsim generate)")
     if renderer is None:
         renderer = get_renderer(scene.masks.renderer, scene.intrinsics)
     rng = np.random.default_rng(child_seed(trial_seed(scene.experiment.seed, index), SEED_STREAMS["objects"]))

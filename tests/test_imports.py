@@ -19,3 +19,10 @@ def test_formats_import_no_optional_library():
     code = ("import sys, sqfit.formats, sqfit.fitcli; "
             "bad = [m for m in ('pycolmap', 'pycocotools', 'sqsim') if m in sys.modules]; assert not bad, bad")
     subprocess.run([sys.executable, "-c", code], check=True)
+
+
+def test_sequence_readers_import_no_optional_library():
+    code = ("import sys, sqfit.io, sqfit.formats.tum; "
+            "bad = [m for m in ('OpenGL', 'pyrender', 'sqsim', 'evo', 'gtsam') if m in sys.modules]; "
+            "assert not bad, bad")
+    subprocess.run([sys.executable, "-c", code], check=True)
