@@ -136,7 +136,7 @@ def _prepare(root, scene):
     _atomic_write_text(meta_path, _dumps(meta))
 
 
-def generate(scene, output, trials=None, seed=None, workers=1, progress=True):
+def generate(scene, output, trials=None, seed=None, workers=1, progress=True, scheduler=None):
     """Write (or complete) a dataset.
 
     Parameters
@@ -150,6 +150,9 @@ def generate(scene, output, trials=None, seed=None, workers=1, progress=True):
         Processes (``1``: in this process; otherwise a spawn-context process pool).
     progress : bool
         Show a tqdm progress bar on stderr.
+    scheduler : str, optional
+        Dask scheduler address ``tcp://HOST:PORT`` (overrides ``workers``); the workers must see
+        ``output`` on a shared file system. The bytes written do not depend on where a trial ran.
 
     Returns
     -------
@@ -167,40 +170,37 @@ def generate(scene, output, trials=None, seed=None, workers=1, progress=True):
         raise ValueError(f"workers must be an integer >= 1, got {workers}")
     root = Path(output)
     _prepare(root, scene)
-    todo = [i for i in range(scene.experiment.trials) if not (root / "trials" / trial_name(i)).exists()]
+    present = {p.name for p in (root / "trials").iterdir()}  # one listing, not a stat per trial
+    todo = [i for i in range(scene.experiment.trials) if trial_name(i) not in present]
     skipped = scene.experiment.trials - len(todo)
-    results = _run(scene, todo, root, int(workers), progress)
+    results = _run(scene, todo, root, int(workers), scheduler, progress)
     _atomic_write_text(root / "annotations.json", json.dumps(build_annotations(root), sort_keys=True) + "\n")
     return {"written": sum(r is not None for r in results), "skipped": skipped,
             "resampled": int(sum(r or 0 for r in results))}
 
 
-def _run(scene, todo, root, workers, progress):
+def _run(scene, todo, root, workers, scheduler, progress):
     from tqdm import tqdm
 
     bar = tqdm(total=len(todo), unit="trial", disable=not progress or not todo, desc="generate")
     results = []
     try:
-        if workers == 1 or len(todo) <= 1:
+        if scheduler is None and (workers == 1 or len(todo) <= 1):
             for i in todo:
                 results.append(write_trial(scene, i, root))
                 bar.update()
             return results
-        import multiprocessing
-        from concurrent.futures import ProcessPoolExecutor, as_completed
+        from .parallel import map_unordered
 
+        # Bounded submissions (sqsim.parallel): on Ctrl-C or an error the queued trials are
+        # dropped and each worker finishes (and renames) the trial it is writing; local workers
+        # ignore SIGINT so none dies half-way through a trial.
         scene_dict = scene.to_dict()
-        pool = ProcessPoolExecutor(workers, mp_context=multiprocessing.get_context("spawn"),
-                                   initializer=_ignore_sigint)
-        try:
-            futures = [pool.submit(_worker, scene_dict, i, str(root)) for i in todo]
-            for fut in as_completed(futures):
-                results.append(fut.result()[1])
-                bar.update()
-        finally:
-            # On Ctrl-C or an error: drop queued trials, let each worker finish (and rename) the
-            # trial it is writing; workers ignore SIGINT so none dies half-way through a trial.
-            pool.shutdown(wait=True, cancel_futures=True)
+        args = ((scene_dict, i, str(root.resolve())) for i in todo)
+        for _, resampled in map_unordered(_worker, args, workers=workers, scheduler=scheduler,
+                                          initializer=_ignore_sigint, wait_on_exit=True):
+            results.append(resampled)
+            bar.update()
         return results
     finally:
         bar.close()
@@ -252,13 +252,16 @@ def add_arguments(parser):
     parser.add_argument("--trials", type=int, default=None, help="number of trials (default: experiment.trials)")
     parser.add_argument("--seed", type=int, default=None, help="seed (default: experiment.seed)")
     parser.add_argument("--workers", type=int, default=1, help="worker processes")
+    parser.add_argument("--scheduler", default=None,
+                        help="Dask scheduler address tcp://HOST:PORT (overrides --workers; the output "
+                             "directory must be on a file system the workers share)")
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
 
 
 def run(args):
     scene = load_scene(args.scene)
     summary = generate(scene, args.output, trials=args.trials, seed=args.seed, workers=args.workers,
-                       progress=not args.no_progress)
+                       progress=not args.no_progress, scheduler=args.scheduler)
     print(f"{args.output}: {summary['written']} trial(s) written, {summary['skipped']} already there, "
           f"{summary['resampled']} unobservable draw(s) re-sampled")
     return 0

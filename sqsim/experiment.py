@@ -236,36 +236,11 @@ def _map_trials(scene_dict, pending, jsonl, workers, scheduler, progress):
 
 
 def _run_parallel(scene_dict, pending, workers, scheduler, write):
-    from concurrent.futures import FIRST_COMPLETED, wait
+    from .parallel import map_unordered
 
-    client = None
-    if scheduler is not None:
-        from distributed import Client
-
-        client = Client(scheduler)
-        executor = client.get_executor()
-    else:
-        import multiprocessing
-        from concurrent.futures import ProcessPoolExecutor
-
-        # spawn: no OpenGL context or thread state is inherited from this process.
-        executor = ProcessPoolExecutor(int(workers), mp_context=multiprocessing.get_context("spawn"))
-    futures = set()
-    try:
-        futures = {executor.submit(fit_trial, scene_dict, i, c) for i, c in pending.items()}
-        while futures:
-            finished, futures = wait(futures, return_when=FIRST_COMPLETED)
-            for future in finished:
-                write(future.result())
-    except BaseException:
-        for future in futures:
-            future.cancel()
-        raise
-    finally:
-        if client is None:
-            executor.shutdown(wait=False, cancel_futures=True)
-        else:
-            client.close()
+    args = ((scene_dict, i, c) for i, c in pending.items())
+    for records in map_unordered(fit_trial, args, workers=workers, scheduler=scheduler):
+        write(records)
 
 
 # --------------------------------------------------------------------------- one trial (worker)

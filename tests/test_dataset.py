@@ -211,20 +211,46 @@ def test_reader_errors(tmp_path):
 
 
 def test_ctrl_c_with_workers_stops_cleanly(scene_file, tmp_path):
-    # Ctrl-C reaches the whole process group: the run must stop (no hang), exit 130, and leave only
-    # complete trials that a re-run accepts.
-    scene_file.write_text(SCENE.replace("trials = 4", "trials = 400"))
+    # Ctrl-C reaches the whole process group: the run must stop promptly (no hang, however many
+    # trials are left), exit 130, and leave only complete trials that a re-run accepts. A million
+    # trials cannot finish before the signal, so the test cannot pass by the run ending on its own.
+    scene_file.write_text(SCENE.replace("trials = 4", "trials = 1000000"))
     out = tmp_path / "d"
     cmd = [sys.executable, "-m", "sqsim.cli", "generate", str(scene_file), "-o", str(out), "--workers", "2",
            "--no-progress"]
     proc = subprocess.Popen(cmd, stderr=subprocess.PIPE, text=True, start_new_session=True)
-    deadline = time.time() + 60
-    while time.time() < deadline and not list((out / "trials").glob("0*")):
+    deadline = time.time() + 120
+    while time.time() < deadline and proc.poll() is None and not list((out / "trials").glob("0*")):
         time.sleep(0.05)
+    assert proc.poll() is None, "the run ended before it was interrupted"
+    assert list((out / "trials").glob("0*")), "no trial written in 120 s"
     os.killpg(proc.pid, signal.SIGINT)
+    sent = time.time()
     _, err = proc.communicate(timeout=60)
+    assert time.time() - sent < 20, f"took {time.time() - sent:.1f} s to stop"
     assert proc.returncode == 130 and "interrupted" in err
     names = [p.name for p in (out / "trials").iterdir()]
-    assert 1 <= len(names) < 400 and not [n for n in names if n.startswith(".")]
+    assert 1 <= len(names) < 1000 and not [n for n in names if n.startswith(".")]
     for name in names:
         load_trial(out / "trials" / name)
+
+
+def test_dask_local_cluster_writes_the_same_bytes(scene_file, tmp_path):
+    distributed = pytest.importorskip("distributed")
+    scene = load_scene(scene_file)
+    generate(scene, tmp_path / "one", workers=1, progress=False)
+    # One worker process with two threads: the threads share (and take turns on) its renderer.
+    with distributed.LocalCluster(n_workers=1, threads_per_worker=2, processes=True,
+                                  dashboard_address=None) as cluster:
+        summary = generate(scene, tmp_path / "dask", scheduler=cluster.scheduler_address, progress=False)
+    assert summary["written"] == 4
+    assert files(tmp_path / "one") == files(tmp_path / "dask")
+
+
+def test_generate_unreachable_scheduler(scene_file, tmp_path, monkeypatch):
+    pytest.importorskip("distributed")
+    import sqsim.parallel
+
+    monkeypatch.setattr(sqsim.parallel, "CONNECT_TIMEOUT_S", 2)
+    with pytest.raises(OSError, match="cannot connect to the Dask scheduler 'tcp://127.0.0.1:9'"):
+        generate(load_scene(scene_file), tmp_path / "d", scheduler="tcp://127.0.0.1:9", progress=False)
