@@ -35,6 +35,8 @@ def add_arguments(parser):
     parser.add_argument("--no-cleanup", dest="cleanup", action="store_false",
                         help="use masks as given (default: keep each mask's largest component and fill its holes)")
     parser.add_argument("--seed", type=int, default=0, help="seed of the mask sampling")
+    parser.add_argument("--rerun", metavar="FILE.rrd", default=None,
+                        help="also write a rerun recording: cameras, masks, ground truth, every stage of every fit")
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
 
 
@@ -44,8 +46,14 @@ def _rng(seed, trial_name, object_id):
 
 
 def fit_dataset(dataset, output, chain, samples=C.DEFAULT_SAMPLES, sampling="uniform", polygon="hull",
-                seed=0, progress=True, cleanup=True):
-    """Fit every object of every trial; returns ``(records written, errors)``."""
+                seed=0, progress=True, cleanup=True, rerun=None):
+    """Fit every object of every trial; returns ``(records written, errors)``.
+
+    ``rerun``: path of an ``.rrd`` file to record the trials and the stages of every fit into
+    (:class:`sqfit.recording.Recorder`; needs rerun-sdk).
+    """
+    from contextlib import nullcontext
+
     from tqdm import tqdm
 
     from . import io
@@ -58,7 +66,12 @@ def fit_dataset(dataset, output, chain, samples=C.DEFAULT_SAMPLES, sampling="uni
     out_path = Path(output)
     if out_path.parent and not out_path.parent.exists():
         out_path.parent.mkdir(parents=True)
-    with open(out_path, "w", encoding="utf-8") as out:
+    recorder = None
+    if rerun is not None:
+        from .recording import Recorder
+
+        recorder = Recorder(rerun)
+    with open(out_path, "w", encoding="utf-8") as out, (recorder or nullcontext()):
         for path in tqdm(paths, desc="sqfit fit", unit="trial", disable=not progress):
             try:
                 trial = io.load_trial(path)
@@ -69,11 +82,16 @@ def fit_dataset(dataset, output, chain, samples=C.DEFAULT_SAMPLES, sampling="uni
                 n_records += 1
                 n_errors += 1
                 continue
+            if recorder is not None:
+                recorder.log_loaded_trial(trial)
             for oid in ids:
                 record = {"trial": trial.name, "object_id": oid}
                 try:
                     obs = io.observations(trial, oid, samples, sampling, _rng(seed, trial.name, oid), cleanup)
-                    record.update(fit(obs, chain, options=options).to_dict())
+                    result = fit(obs, chain, options=options)
+                    record.update(result.to_dict())
+                    if recorder is not None:
+                        recorder.log_fit(trial.name, oid, chain, result.stages, trial.cameras)
                 except (OSError, ValueError, TypeError) as exc:
                     record.update({"chain": chain, "status": "error", "message": str(exc)})
                 n_errors += record["status"] != "ok"
@@ -84,6 +102,6 @@ def fit_dataset(dataset, output, chain, samples=C.DEFAULT_SAMPLES, sampling="uni
 
 def run(args):
     n, errors = fit_dataset(args.dataset, args.output, args.chain, args.samples, args.sampling, args.polygon,
-                            args.seed, progress=not args.no_progress, cleanup=args.cleanup)
+                            args.seed, progress=not args.no_progress, cleanup=args.cleanup, rerun=args.rerun)
     print(f"wrote {n} fit record(s) to {args.output}; {errors} not ok")
     return 0

@@ -19,7 +19,7 @@ from pathlib import Path
 
 import numpy as np
 
-from sqfit.io import FORMAT, FORMAT_VERSION, load_trial, trial_dirs, write_mask_png
+from sqfit.io import FORMAT, FORMAT_VERSION, iter_trials, load_trial, trial_dirs, write_mask_png
 
 from . import __version__
 from .scene import OBJECT_KINDS, load_scene, parse_scene
@@ -136,7 +136,7 @@ def _prepare(root, scene):
     _atomic_write_text(meta_path, _dumps(meta))
 
 
-def generate(scene, output, trials=None, seed=None, workers=1, progress=True, scheduler=None):
+def generate(scene, output, trials=None, seed=None, workers=1, progress=True, scheduler=None, rerun=None):
     """Write (or complete) a dataset.
 
     Parameters
@@ -153,6 +153,9 @@ def generate(scene, output, trials=None, seed=None, workers=1, progress=True, sc
     scheduler : str, optional
         Dask scheduler address ``tcp://HOST:PORT`` (overrides ``workers``); the workers must see
         ``output`` on a shared file system. The bytes written do not depend on where a trial ran.
+    rerun : str or os.PathLike, optional
+        Also write a rerun recording (``.rrd``) of every trial of the dataset: cameras, masks,
+        ground truth (:class:`sqfit.recording.Recorder`).
 
     Returns
     -------
@@ -168,6 +171,10 @@ def generate(scene, output, trials=None, seed=None, workers=1, progress=True, sc
         scene = scene.with_overrides(overrides)
     if int(workers) != workers or workers < 1:
         raise ValueError(f"workers must be an integer >= 1, got {workers}")
+    if rerun is not None:
+        from sqfit.recording import check_recording_path
+
+        check_recording_path(rerun)
     root = Path(output)
     _prepare(root, scene)
     present = {p.name for p in (root / "trials").iterdir()}  # one listing, not a stat per trial
@@ -175,6 +182,12 @@ def generate(scene, output, trials=None, seed=None, workers=1, progress=True, sc
     skipped = scene.experiment.trials - len(todo)
     results = _run(scene, todo, root, int(workers), scheduler, progress)
     _atomic_write_text(root / "annotations.json", json.dumps(build_annotations(root), sort_keys=True) + "\n")
+    if rerun is not None:
+        from sqfit.recording import Recorder
+
+        with Recorder(rerun) as recorder:
+            for trial in iter_trials(root):
+                recorder.log_loaded_trial(trial)
     return {"written": sum(r is not None for r in results), "skipped": skipped,
             "resampled": int(sum(r or 0 for r in results))}
 
@@ -255,13 +268,15 @@ def add_arguments(parser):
     parser.add_argument("--scheduler", default=None,
                         help="Dask scheduler address tcp://HOST:PORT (overrides --workers; the output "
                              "directory must be on a file system the workers share)")
+    parser.add_argument("--rerun", metavar="FILE.rrd", default=None,
+                        help="also write a rerun recording of the dataset: cameras, masks, ground truth")
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
 
 
 def run(args):
     scene = load_scene(args.scene)
     summary = generate(scene, args.output, trials=args.trials, seed=args.seed, workers=args.workers,
-                       progress=not args.no_progress, scheduler=args.scheduler)
+                       progress=not args.no_progress, scheduler=args.scheduler, rerun=args.rerun)
     print(f"{args.output}: {summary['written']} trial(s) written, {summary['skipped']} already there, "
           f"{summary['resampled']} unobservable draw(s) re-sampled")
     return 0

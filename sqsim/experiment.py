@@ -55,6 +55,9 @@ def add_arguments(parser):
     parser.add_argument("--seed", type=int, default=None, help="experiment seed (default: the scene's)")
     parser.add_argument("--workers", type=int, default=1, help="local worker processes")
     parser.add_argument("--scheduler", default=None, help="Dask scheduler address tcp://HOST:PORT (overrides --workers)")
+    parser.add_argument("--rerun", metavar="FILE.rrd", default=None,
+                        help="also write a rerun recording: cameras, masks, ground truth and every stage of "
+                             "every fit (re-running into a finished output directory only records)")
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
 
 
@@ -64,7 +67,7 @@ def run(args):
     scene = load_scene(args.scene)
     summary = run_experiment(scene, args.output, trials=args.trials, chains=parse_chains(args.chains),
                              seed=args.seed, workers=args.workers, scheduler=args.scheduler,
-                             progress=not args.no_progress)
+                             progress=not args.no_progress, rerun=args.rerun)
     from .report import screen_summary
 
     print(screen_summary(summary))
@@ -106,7 +109,7 @@ def parse_chains(text):
 # --------------------------------------------------------------------------- driver
 
 def run_experiment(scene, output, *, trials=None, chains=None, seed=None, workers=1, scheduler=None,
-                   progress=True, figures=True):
+                   progress=True, figures=True, rerun=None):
     """Run (or resume) an experiment and write all outputs.
 
     Parameters
@@ -123,6 +126,9 @@ def run_experiment(scene, output, *, trials=None, chains=None, seed=None, worker
         Show a progress bar with an ETA.
     figures : bool
         Also draw ``violin.png`` and ``example.png``.
+    rerun : str or Path, optional
+        Also write a rerun recording (``.rrd``) of all trials: the masks are simulated again
+        (deterministic), the fits come from the records (:func:`record_rerun`).
 
     Returns
     -------
@@ -145,6 +151,10 @@ def run_experiment(scene, output, *, trials=None, chains=None, seed=None, worker
         check_chain(chain)
     if int(workers) < 1:
         raise ValueError(f"--workers must be >= 1, got {workers}")
+    if rerun is not None:
+        from sqfit.recording import check_recording_path
+
+        check_recording_path(rerun)
     out = Path(output)
     out.mkdir(parents=True, exist_ok=True)
     _check_or_write_config(out, scene, chains)
@@ -158,7 +168,34 @@ def run_experiment(scene, output, *, trials=None, chains=None, seed=None, worker
 
     new = _map_trials(scene_dict, pending, jsonl, workers, scheduler, progress)
     records += new
-    return write_reports(out, scene, chains, records, figures)
+    summary = write_reports(out, scene, chains, records, figures)
+    if rerun is not None:
+        record_rerun(rerun, scene, [r for r in records if r["trial"] < scene.experiment.trials and r["chain"] in chains])
+    return summary
+
+
+def record_rerun(path, scene, records):
+    """Write a rerun recording of an experiment's trials (``sqfit.recording`` layout).
+
+    Each trial is simulated again from the scene (its masks and noisy cameras are deterministic);
+    ground truth and the per-stage estimates come from ``records`` (``trials.jsonl``).
+    """
+    from sqfit.recording import Recorder
+
+    from .render import get_renderer
+    from .trial import simulate_trial
+
+    renderer = get_renderer(scene.masks.renderer, scene.intrinsics)
+    by_trial = {}
+    for r in records:
+        by_trial.setdefault(r["trial"], []).append(r)
+    with Recorder(path) as recorder:
+        for index in sorted(by_trial):
+            sim = simulate_trial(scene, index, renderer)
+            name = f"{index:06d}"
+            recorder.log_trial(name, sim.cameras, sim.images, sim.true_cameras, [o.to_dict() for o in sim.objects])
+            for r in sorted(by_trial[index], key=lambda r: (r["object"], r["chain"])):
+                recorder.log_fit(name, r["object"], r["chain"], r["stages"], sim.cameras)
 
 
 def _check_or_write_config(out, scene, chains):
