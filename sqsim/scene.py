@@ -637,15 +637,18 @@ def surely_not_visible(objects, draws, cameras):
     from sqfit.superquadric import mesh_anchors
 
     m = _ANCHOR_MARGIN
-    for _, size, shape, position, rotation in draws:
-        points = mesh_anchors(sqfit.Superquadric(size, shape, position, rotation), objects.mesh_resolution)
-        for cam in cameras:
-            k = cam.intrinsics
-            pixels, depth = sqfit.project(cam, points)
-            if depth.min() <= ZNEAR - m:
-                return True
-            if depth.min() > ZNEAR + m and (pixels.min() < 1.0 - m or pixels[:, 0].max() > k.width - 1.0 + m
-                                           or pixels[:, 1].max() > k.height - 1.0 + m):
+    points = np.concatenate([mesh_anchors(sqfit.Superquadric(size, shape, position, rotation), objects.mesh_resolution)
+                             for _, size, shape, position, rotation in draws])
+    for cam in cameras:  # sqfit.project's arithmetic, without its per-call checks
+        k = cam.intrinsics
+        local = (points - cam.center) @ cam.rotation
+        depth = local[:, 2]
+        if depth.min() <= ZNEAR - m:
+            return True
+        if depth.min() > ZNEAR + m:
+            u = k.fx * local[:, 0] / depth + k.cx
+            v = k.fy * local[:, 1] / depth + k.cy
+            if min(u.min(), v.min()) < 1.0 - m or u.max() > k.width - 1.0 + m or v.max() > k.height - 1.0 + m:
                 return True
     return False
 

@@ -115,7 +115,7 @@ def simulate_trial(scene, index, renderer=None):
     if any((noise.erosion_px, noise.dilation_px, noise.boundary_jitter_px, noise.dropout, noise.false_blobs)):
         images = np.stack([corrupt_image(im, noise, mask_rng) for im in clean])
     else:
-        images = clean.copy()
+        images = clean  # both read-only below: no copy needed
     pose_rng = np.random.default_rng(child_seed(seed, SEED_STREAMS["pose_noise"]))
     cameras = perturb_cameras(true_cameras, noise.pose_rotation_deg, noise.pose_translation_m, pose_rng)
     for a in (clean, images):

@@ -177,6 +177,36 @@ def test_png_round_trip_is_exact_and_deterministic(tmp_path):
     assert (tmp_path / "a.png").read_bytes() == (tmp_path / "b.png").read_bytes()
 
 
+def test_png_is_8_bit_for_small_ids_and_16_bit_otherwise(tmp_path):
+    from PIL import Image
+
+    small = np.zeros((6, 7), np.uint16)
+    small[2:4, 1:5] = 255
+    write_mask_png(tmp_path / "s.png", small)
+    write_mask_png(tmp_path / "w.png", small.astype(np.int64) + 256 * (small > 0))
+    with Image.open(tmp_path / "s.png") as a, Image.open(tmp_path / "w.png") as b:
+        assert a.mode == "L" and b.mode.startswith("I")
+    got = read_mask_png(tmp_path / "s.png")
+    assert got.dtype == np.uint16 and np.array_equal(got, small)
+    assert np.array_equal(read_mask_png(tmp_path / "w.png"), small.astype(np.int64) + 256 * (small > 0))
+    with pytest.raises(ValueError, match=r"instance ids in \[0, 65535\]"):
+        write_mask_png(tmp_path / "x.png", np.full((2, 2), 70000))
+    with pytest.raises(ValueError, match=r"instance ids in \[0, 65535\]"):
+        write_mask_png(tmp_path / "x.png", np.full((2, 2), -1))
+    with pytest.raises(ValueError, match="must hold integer instance ids, got dtype float64"):
+        write_mask_png(tmp_path / "x.png", np.zeros((2, 2)))
+    with pytest.raises(ValueError, match=r"must have shape \(h, w\)"):
+        write_mask_png(tmp_path / "x.png", np.zeros((2, 2, 2), np.uint16))
+
+
+def test_resuming_a_dataset_of_another_format_version_is_refused(scene_file, tmp_path):
+    generate(load_scene(scene_file), tmp_path / "d", trials=1, progress=False)
+    meta = json.loads((tmp_path / "d" / "dataset.json").read_text())
+    (tmp_path / "d" / "dataset.json").write_text(json.dumps({**meta, "version": 1}))
+    with pytest.raises(ValueError, match=r"holds a dataset of another format/version \('sqkit-dataset' v1\)"):
+        generate(load_scene(scene_file), tmp_path / "d", trials=2, progress=False)
+
+
 def test_reader_errors(tmp_path):
     with pytest.raises(OSError, match="trial directory not found"):
         load_trial(tmp_path / "none")
