@@ -53,8 +53,6 @@ FORMAT = "sqkit-dataset"
 #: strategy: files ~30 % smaller and 2.7x faster to write than version 1 (always 16-bit, default
 #: strategy), which made PNG writing the largest cost of ``sqsim generate``. Readers accept both.
 FORMAT_VERSION = 2
-#: zlib strategy Z_RLE (Pillow's ``compress_type``): masks are long runs of equal ids.
-_PNG_ZLIB_RLE = 3
 
 
 @dataclass(frozen=True, eq=False)
@@ -118,8 +116,6 @@ def write_mask_png(path, image):
     8-bit when every id is < 256, else 16-bit (:data:`FORMAT_VERSION` 2); :func:`read_mask_png`
     returns ``uint16`` either way.
     """
-    from PIL import Image
-
     image = np.asarray(image)
     if image.ndim != 2:
         raise ValueError(f"image must have shape (h, w), got {image.shape}")
@@ -128,9 +124,44 @@ def write_mask_png(path, image):
     top = int(image.max()) if image.size else 0
     if top > np.iinfo(np.uint16).max or (image.dtype.kind == "i" and image.size and image.min() < 0):
         raise ValueError("image must hold instance ids in [0, 65535]")
-    narrow = top < 256
-    image = np.ascontiguousarray(image, dtype=np.uint8 if narrow else np.uint16)
-    Image.fromarray(image).save(path, format="PNG", compress_level=6, compress_type=_PNG_ZLIB_RLE)
+    Path(path).write_bytes(encode_png(image.astype(np.uint8 if top < 256 else ">u2", copy=False)))
+
+
+def _png_chunk(kind, data):
+    import zlib
+
+    return len(data).to_bytes(4, "big") + kind + data + zlib.crc32(kind + data).to_bytes(4, "big")
+
+
+def encode_png(image):
+    """PNG bytes of a greyscale image: no row filter, zlib's run-length strategy.
+
+    Written here rather than through Pillow or OpenCV because both always filter rows adaptively,
+    which on instance masks costs more than compressing them: 0.79 ms (Pillow) and 0.80 ms
+    (OpenCV, even with ``IMWRITE_PNG_FILTER_NONE``) against 0.40 ms for a 640 x 480 8-bit mask
+    here (measured for ``sqsim generate``, README "Simulated datasets"); the files are as small
+    as Pillow's with the same strategy. Any PNG reader decodes them.
+
+    Parameters
+    ----------
+    image : (h, w) uint8 or big-endian uint16 (``">u2"``)
+
+    Returns
+    -------
+    png : bytes
+    """
+    import zlib
+
+    image = np.asarray(image)
+    if image.ndim != 2 or image.dtype.str not in ("|u1", ">u2"):
+        raise ValueError(f"image must be (h, w) uint8 or big-endian uint16, got {image.dtype.str} {image.shape}")
+    h, w = image.shape
+    rows = np.zeros((h, 1 + w * image.itemsize), dtype=np.uint8)  # filter byte 0 ("none") per row
+    rows[:, 1:] = np.ascontiguousarray(image).view(np.uint8).reshape(h, -1)
+    deflate = zlib.compressobj(6, zlib.DEFLATED, 15, 9, zlib.Z_RLE)
+    header = w.to_bytes(4, "big") + h.to_bytes(4, "big") + bytes([8 * image.itemsize, 0, 0, 0, 0])
+    return (b"\x89PNG\r\n\x1a\n" + _png_chunk(b"IHDR", header)
+            + _png_chunk(b"IDAT", deflate.compress(rows.tobytes()) + deflate.flush()) + _png_chunk(b"IEND", b""))
 
 
 def _read_json(path):

@@ -199,6 +199,27 @@ def test_png_is_8_bit_for_small_ids_and_16_bit_otherwise(tmp_path):
         write_mask_png(tmp_path / "x.png", np.zeros((2, 2, 2), np.uint16))
 
 
+@pytest.mark.parametrize("dtype, top", [(np.uint8, 255), (">u2", 65535)])
+def test_encoded_png_decodes_the_same_in_pillow_and_opencv(tmp_path, dtype, top):
+    import io
+
+    import cv2
+    from PIL import Image
+
+    from sqfit.io import encode_png
+
+    image = np.random.default_rng(1).integers(0, top + 1, (37, 53)).astype(dtype)
+    image[5:30] = 0  # long runs, as in masks
+    png = encode_png(image)
+    with Image.open(io.BytesIO(png)) as im:
+        im.load()
+        assert np.array_equal(np.array(im).astype(np.int64), image.astype(np.int64))
+    decoded = cv2.imdecode(np.frombuffer(png, np.uint8), cv2.IMREAD_UNCHANGED)
+    assert np.array_equal(decoded.astype(np.int64), image.astype(np.int64))
+    with pytest.raises(ValueError, match="must be .h, w. uint8 or big-endian uint16, got <u2"):
+        encode_png(image.astype("<u2"))
+
+
 def test_resuming_a_dataset_of_another_format_version_is_refused(scene_file, tmp_path):
     generate(load_scene(scene_file), tmp_path / "d", trials=1, progress=False)
     meta = json.loads((tmp_path / "d" / "dataset.json").read_text())
