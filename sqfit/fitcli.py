@@ -35,8 +35,9 @@ def add_arguments(parser):
     parser.add_argument("--no-cleanup", dest="cleanup", action="store_false",
                         help="use masks as given (default: keep each mask's largest component and fill its holes)")
     parser.add_argument("--seed", type=int, default=0, help="seed of the mask sampling")
-    parser.add_argument("--rerun", metavar="FILE.rrd", default=None,
-                        help="also write a rerun recording: cameras, masks, ground truth, every stage of every fit")
+    from .recording import add_arguments as add_rerun_arguments
+
+    add_rerun_arguments(parser, "cameras, masks, ground truth, every stage of every fit")
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
 
 
@@ -46,11 +47,11 @@ def _rng(seed, trial_name, object_id):
 
 
 def fit_dataset(dataset, output, chain, samples=C.DEFAULT_SAMPLES, sampling="uniform", polygon="hull",
-                seed=0, progress=True, cleanup=True, rerun=None):
+                seed=0, progress=True, cleanup=True, rerun=None, rerun_trials=None):
     """Fit every object of every trial; returns ``(records written, errors)``.
 
     ``rerun``: path of an ``.rrd`` file to record the trials and the stages of every fit into
-    (:class:`sqfit.recording.Recorder`; needs rerun-sdk).
+    (:class:`sqfit.recording.Recorder`; needs rerun-sdk), at most ``rerun_trials`` trials.
     """
     from contextlib import nullcontext
 
@@ -70,7 +71,7 @@ def fit_dataset(dataset, output, chain, samples=C.DEFAULT_SAMPLES, sampling="uni
     if rerun is not None:
         from .recording import Recorder
 
-        recorder = Recorder(rerun)
+        recorder = Recorder(rerun, max_trials=rerun_trials)
     with open(out_path, "w", encoding="utf-8") as out, (recorder or nullcontext()):
         for path in tqdm(paths, desc="sqfit fit", unit="trial", disable=not progress):
             try:
@@ -102,6 +103,7 @@ def fit_dataset(dataset, output, chain, samples=C.DEFAULT_SAMPLES, sampling="uni
 
 def run(args):
     n, errors = fit_dataset(args.dataset, args.output, args.chain, args.samples, args.sampling, args.polygon,
-                            args.seed, progress=not args.no_progress, cleanup=args.cleanup, rerun=args.rerun)
+                            args.seed, progress=not args.no_progress, cleanup=args.cleanup, rerun=args.rerun,
+                            rerun_trials=args.rerun_trials)
     print(f"wrote {n} fit record(s) to {args.output}; {errors} not ok")
     return 0

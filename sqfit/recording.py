@@ -29,7 +29,7 @@ from pathlib import Path
 
 import numpy as np
 
-__all__ = ["Recorder", "check_recording_path", "STAGE_TIMELINE", "MESH_RESOLUTION"]
+__all__ = ["Recorder", "check_recording_path", "DEFAULT_MAX_TRIALS", "STAGE_TIMELINE", "MESH_RESOLUTION"]
 
 #: Name of the timeline holding the per-stage estimates.
 STAGE_TIMELINE = "stage"
@@ -39,6 +39,8 @@ MESH_RESOLUTION = 24
 SILHOUETTE_DIRECTIONS = 64
 #: Trials beyond this number are recorded but get no tab of their own in the default blueprint.
 MAX_TABS = 50
+#: Trials recorded by default (a paper trial with one fit takes ~0.4 MB; 100 000 would take 40 GB).
+DEFAULT_MAX_TRIALS = 100
 
 _GT_COLOR = (40, 200, 90, 110)
 _CHAIN_COLORS = [(230, 80, 60, 200), (60, 120, 230, 200), (230, 170, 40, 200), (170, 70, 200, 200),
@@ -52,7 +54,15 @@ def _superquadric_mesh(sq):
     return np.asarray(mesh.vertices, dtype=np.float32), np.asarray(mesh.faces, dtype=np.uint32)
 
 
-def check_recording_path(path):
+def add_arguments(parser, contents):
+    """``--rerun FILE.rrd`` and ``--rerun-trials N`` for a command line; ``contents`` for the help."""
+    parser.add_argument("--rerun", metavar="FILE.rrd", default=None,
+                        help=f"also write a rerun recording: {contents} (open it with 'rerun FILE.rrd')")
+    parser.add_argument("--rerun-trials", metavar="N", type=int, default=DEFAULT_MAX_TRIALS,
+                        help="record at most the first N trials")
+
+
+def check_recording_path(path, max_trials=None):
     """Fail early, before hours of work, if a recording cannot be written to ``path``.
 
     Returns
@@ -62,13 +72,15 @@ def check_recording_path(path):
     Raises
     ------
     ValueError
-        ``path`` does not end in ``.rrd``.
+        ``path`` does not end in ``.rrd``, or ``max_trials`` is neither None nor an integer >= 1.
     ImportError
         rerun-sdk is not installed (with the command that installs it).
     """
     path = Path(path)
     if path.suffix != ".rrd":
         raise ValueError(f"rerun recording path must end in .rrd, got {str(path)!r}")
+    if max_trials is not None and (isinstance(max_trials, bool) or int(max_trials) != max_trials or max_trials < 1):
+        raise ValueError(f"the number of trials to record (--rerun-trials) must be an integer >= 1, got {max_trials!r}")
     try:
         import rerun  # noqa: F401
     except ImportError:
@@ -85,17 +97,20 @@ class Recorder:
         Output file, must end in ``.rrd``; its directory is created.
     application_id : str
         Shown by the viewer.
+    max_trials : int or None
+        Record only the first ``max_trials`` distinct trials logged (``None``: all); later ones
+        are counted in :attr:`skipped` and named in a note on stderr at :meth:`close`.
 
     Raises
     ------
     ValueError
-        ``path`` does not end in ``.rrd``.
+        ``path`` does not end in ``.rrd``, or ``max_trials`` is not an integer >= 1.
     ImportError
         rerun-sdk is not installed (with the command that installs it).
     """
 
-    def __init__(self, path, application_id="sqkit"):
-        path = check_recording_path(path)
+    def __init__(self, path, application_id="sqkit", max_trials=None):
+        path = check_recording_path(path, max_trials)
         import rerun as rr
 
         path.parent.mkdir(parents=True, exist_ok=True)
@@ -105,6 +120,9 @@ class Recorder:
         self._stream.save(str(path))
         self._trials = []
         self._chains = {}
+        self.max_trials = max_trials
+        #: Trials not recorded because of ``max_trials``.
+        self.skipped = set()
 
     def __enter__(self):
         return self
@@ -124,6 +142,23 @@ class Recorder:
         self._stream.flush()
         self._stream.disconnect()
         self._stream = None
+        if self.skipped:
+            import sys
+
+            print(f"rerun: recorded {len(self._trials)} trial(s) in {self.path}; {len(self.skipped)} more not "
+                  f"recorded (limit max_trials / --rerun-trials = {self.max_trials})", file=sys.stderr)
+
+    def admits(self, trial):
+        """Whether ``trial`` is (or can still be) recorded under ``max_trials``."""
+        return trial in self._trials or self.max_trials is None or len(self._trials) < self.max_trials
+
+    def _admit(self, trial):
+        if not self.admits(trial):
+            self.skipped.add(trial)
+            return False
+        if trial not in self._trials:
+            self._trials.append(trial)
+        return True
 
     # --- trials ------------------------------------------------------------------------------
 
@@ -143,11 +178,16 @@ class Recorder:
         ground_truth : list of dict
             ``gt.json`` object records (``id``, ``kind``, ``params`` for superquadrics, ``size``,
             ``position``, ``rotation``).
+
+        Returns
+        -------
+        recorded : bool
+            False when ``max_trials`` other trials are already recorded.
         """
+        if not self._admit(name):
+            return False
         rr, log = self._rr, self._stream.log
         root = f"trials/{name}"
-        if name not in self._trials:
-            self._trials.append(name)
         ids = sorted({int(o["id"]) for o in ground_truth}
                      | ({int(i) for i in np.unique(images)} - {0} if images is not None else set()))
         log(root, rr.AnnotationContext([(0, "background", (0, 0, 0))]
@@ -163,10 +203,11 @@ class Recorder:
                 log(f"{root}/cameras/view_{v:02d}/mask", rr.SegmentationImage(image), static=True)
         for obj in ground_truth:
             self._log_ground_truth(f"{root}/ground_truth/object_{int(obj['id'])}", obj)
+        return True
 
     def log_loaded_trial(self, trial):
         """Record a :class:`sqfit.io.Trial` (cameras, masks, true cameras, ``gt.json`` objects)."""
-        self.log_trial(trial.name, trial.cameras, trial.images, trial.true_cameras, trial.objects)
+        return self.log_trial(trial.name, trial.cameras, trial.images, trial.true_cameras, trial.objects)
 
     def _log_camera(self, entity, cam):
         rr = self._rr
@@ -206,7 +247,14 @@ class Recorder:
         cameras : list of Camera
             The trial's cameras (view ``VV`` = position in the list); each stage's silhouette is
             drawn in each of them.
+
+        Returns
+        -------
+        recorded : bool
+            False when the trial is beyond ``max_trials``.
         """
+        if not self._admit(trial):
+            return False
         from .silhouette import silhouette
         from .superquadric import Superquadric
 
@@ -239,3 +287,4 @@ class Recorder:
                 else:  # part of the estimate is behind the camera: no outline in this view
                     stream.log(path, rr.Clear(recursive=False))
         stream.reset_time()
+        return True

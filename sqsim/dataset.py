@@ -19,7 +19,7 @@ from pathlib import Path
 
 import numpy as np
 
-from sqfit.io import FORMAT, FORMAT_VERSION, iter_trials, load_trial, trial_dirs, write_mask_png
+from sqfit.io import FORMAT, FORMAT_VERSION, load_trial, trial_dirs, write_mask_png
 
 from . import __version__
 from .scene import OBJECT_KINDS, load_scene, parse_scene
@@ -136,7 +136,8 @@ def _prepare(root, scene):
     _atomic_write_text(meta_path, _dumps(meta))
 
 
-def generate(scene, output, trials=None, seed=None, workers=1, progress=True, scheduler=None, rerun=None):
+def generate(scene, output, trials=None, seed=None, workers=1, progress=True, scheduler=None, rerun=None,
+             rerun_trials=None):
     """Write (or complete) a dataset.
 
     Parameters
@@ -154,8 +155,10 @@ def generate(scene, output, trials=None, seed=None, workers=1, progress=True, sc
         Dask scheduler address ``tcp://HOST:PORT`` (overrides ``workers``); the workers must see
         ``output`` on a shared file system. The bytes written do not depend on where a trial ran.
     rerun : str or os.PathLike, optional
-        Also write a rerun recording (``.rrd``) of every trial of the dataset: cameras, masks,
-        ground truth (:class:`sqfit.recording.Recorder`).
+        Also write a rerun recording (``.rrd``) of the dataset's trials: cameras, masks, ground
+        truth (:class:`sqfit.recording.Recorder`).
+    rerun_trials : int, optional
+        Record only the first ``rerun_trials`` trials (default: all).
 
     Returns
     -------
@@ -174,7 +177,7 @@ def generate(scene, output, trials=None, seed=None, workers=1, progress=True, sc
     if rerun is not None:
         from sqfit.recording import check_recording_path
 
-        check_recording_path(rerun)
+        check_recording_path(rerun, rerun_trials)
     root = Path(output)
     _prepare(root, scene)
     present = {p.name for p in (root / "trials").iterdir()}  # one listing, not a stat per trial
@@ -185,9 +188,12 @@ def generate(scene, output, trials=None, seed=None, workers=1, progress=True, sc
     if rerun is not None:
         from sqfit.recording import Recorder
 
-        with Recorder(rerun) as recorder:
-            for trial in iter_trials(root):
-                recorder.log_loaded_trial(trial)
+        with Recorder(rerun, max_trials=rerun_trials) as recorder:
+            for path in trial_dirs(root):
+                if not recorder.admits(path.name):
+                    recorder.skipped.add(path.name)  # counted, not read
+                    continue
+                recorder.log_loaded_trial(load_trial(path))
     return {"written": sum(r is not None for r in results), "skipped": skipped,
             "resampled": int(sum(r or 0 for r in results))}
 
@@ -268,15 +274,17 @@ def add_arguments(parser):
     parser.add_argument("--scheduler", default=None,
                         help="Dask scheduler address tcp://HOST:PORT (overrides --workers; the output "
                              "directory must be on a file system the workers share)")
-    parser.add_argument("--rerun", metavar="FILE.rrd", default=None,
-                        help="also write a rerun recording of the dataset: cameras, masks, ground truth")
+    from sqfit.recording import add_arguments as add_rerun_arguments
+
+    add_rerun_arguments(parser, "the dataset's cameras, masks and ground truth")
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
 
 
 def run(args):
     scene = load_scene(args.scene)
     summary = generate(scene, args.output, trials=args.trials, seed=args.seed, workers=args.workers,
-                       progress=not args.no_progress, scheduler=args.scheduler, rerun=args.rerun)
+                       progress=not args.no_progress, scheduler=args.scheduler, rerun=args.rerun,
+                       rerun_trials=args.rerun_trials)
     print(f"{args.output}: {summary['written']} trial(s) written, {summary['skipped']} already there, "
           f"{summary['resampled']} unobservable draw(s) re-sampled")
     return 0

@@ -55,9 +55,10 @@ def add_arguments(parser):
     parser.add_argument("--seed", type=int, default=None, help="experiment seed (default: the scene's)")
     parser.add_argument("--workers", type=int, default=1, help="local worker processes")
     parser.add_argument("--scheduler", default=None, help="Dask scheduler address tcp://HOST:PORT (overrides --workers)")
-    parser.add_argument("--rerun", metavar="FILE.rrd", default=None,
-                        help="also write a rerun recording: cameras, masks, ground truth and every stage of "
-                             "every fit (re-running into a finished output directory only records)")
+    from sqfit.recording import add_arguments as add_rerun_arguments
+
+    add_rerun_arguments(parser, "cameras, masks, ground truth and every stage of every fit (re-running into a "
+                                "finished output directory only records)")
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
 
 
@@ -67,7 +68,8 @@ def run(args):
     scene = load_scene(args.scene)
     summary = run_experiment(scene, args.output, trials=args.trials, chains=parse_chains(args.chains),
                              seed=args.seed, workers=args.workers, scheduler=args.scheduler,
-                             progress=not args.no_progress, rerun=args.rerun)
+                             progress=not args.no_progress, rerun=args.rerun,
+                             rerun_trials=args.rerun_trials)
     from .report import screen_summary
 
     print(screen_summary(summary))
@@ -109,7 +111,7 @@ def parse_chains(text):
 # --------------------------------------------------------------------------- driver
 
 def run_experiment(scene, output, *, trials=None, chains=None, seed=None, workers=1, scheduler=None,
-                   progress=True, figures=True, rerun=None):
+                   progress=True, figures=True, rerun=None, rerun_trials=None):
     """Run (or resume) an experiment and write all outputs.
 
     Parameters
@@ -128,7 +130,8 @@ def run_experiment(scene, output, *, trials=None, chains=None, seed=None, worker
         Also draw ``violin.png`` and ``example.png``.
     rerun : str or Path, optional
         Also write a rerun recording (``.rrd``) of all trials: the masks are simulated again
-        (deterministic), the fits come from the records (:func:`record_rerun`).
+        (deterministic), the fits come from the records (:func:`record_rerun`); at most
+        ``rerun_trials`` trials (default: all).
 
     Returns
     -------
@@ -154,7 +157,7 @@ def run_experiment(scene, output, *, trials=None, chains=None, seed=None, worker
     if rerun is not None:
         from sqfit.recording import check_recording_path
 
-        check_recording_path(rerun)
+        check_recording_path(rerun, rerun_trials)
     out = Path(output)
     out.mkdir(parents=True, exist_ok=True)
     _check_or_write_config(out, scene, chains)
@@ -170,11 +173,12 @@ def run_experiment(scene, output, *, trials=None, chains=None, seed=None, worker
     records += new
     summary = write_reports(out, scene, chains, records, figures)
     if rerun is not None:
-        record_rerun(rerun, scene, [r for r in records if r["trial"] < scene.experiment.trials and r["chain"] in chains])
+        record_rerun(rerun, scene, [r for r in records if r["trial"] < scene.experiment.trials and r["chain"] in chains],
+                     rerun_trials)
     return summary
 
 
-def record_rerun(path, scene, records):
+def record_rerun(path, scene, records, max_trials=None):
     """Write a rerun recording of an experiment's trials (``sqfit.recording`` layout).
 
     Each trial is simulated again from the scene (its masks and noisy cameras are deterministic);
@@ -189,10 +193,13 @@ def record_rerun(path, scene, records):
     by_trial = {}
     for r in records:
         by_trial.setdefault(r["trial"], []).append(r)
-    with Recorder(path) as recorder:
+    with Recorder(path, max_trials=max_trials) as recorder:
         for index in sorted(by_trial):
-            sim = simulate_trial(scene, index, renderer)
             name = f"{index:06d}"
+            if not recorder.admits(name):
+                recorder.skipped.add(name)
+                continue
+            sim = simulate_trial(scene, index, renderer)
             recorder.log_trial(name, sim.cameras, sim.images, sim.true_cameras, [o.to_dict() for o in sim.objects])
             for r in sorted(by_trial[index], key=lambda r: (r["object"], r["chain"])):
                 recorder.log_fit(name, r["object"], r["chain"], r["stages"], sim.cameras)

@@ -134,6 +134,22 @@ def test_recording_errors(tmp_path):
             rec.log_trial("t", [sqfit_camera()], np.zeros((2, 4, 4)))
 
 
+def test_only_the_first_trials_are_recorded_when_limited(dataset, tmp_path, capsys):
+    scene = parse_scene(SCENE, source="<test>")
+    generate(scene, dataset / "data", progress=False, rerun=tmp_path / "one.rrd", rerun_trials=1)
+    err = capsys.readouterr().err
+    assert "recorded 1 trial(s)" in err and "1 more not recorded" in err
+    got = read(tmp_path / "one.rrd")
+    assert {e.split("/")[2] for e in got if e.startswith("/trials/")} == {"000000"}
+    fit_dataset(dataset / "data", tmp_path / "f.jsonl", "1-2", progress=False, rerun=tmp_path / "f.rrd", rerun_trials=1)
+    got = read(tmp_path / "f.rrd")
+    assert {e.split("/")[2] for e in got if e.startswith("/trials/")} == {"000000"}
+    assert "/trials/000000/fits/1-2/object_2" in got
+    with pytest.raises(ValueError, match=r"--rerun-trials\) must be an integer >= 1, got 0"):
+        generate(scene, tmp_path / "x", progress=False, rerun=tmp_path / "x.rrd", rerun_trials=0)
+    assert not (tmp_path / "x").exists()
+
+
 def test_cli_fit_rerun(dataset, tmp_path):
     out = subprocess.run([sys.executable, "-m", "sqfit.cli", "fit", str(dataset / "data"), "-o",
                           str(tmp_path / "f.jsonl"), "--chain", "1-2", "--rerun", str(tmp_path / "f.rrd"),
