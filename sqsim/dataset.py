@@ -98,9 +98,19 @@ def _ignore_sigint():
     signal.signal(signal.SIGINT, signal.SIG_IGN)
 
 
+_PARSED = {}
+
+
 def _worker(scene_dict, index, root):
-    # Runs in a fresh (spawned) process: the renderer and its OpenGL context are created here.
-    return index, write_trial(scene_dict, index, root)
+    # Runs in a worker process: the renderer and its OpenGL context are created here. The parsed
+    # scene is kept, so its cameras are built once per process, not once per trial.
+    key = json.dumps(scene_dict, sort_keys=True)
+    scene = _PARSED.get(key)
+    if scene is None:
+        scene = parse_scene(scene_dict, source="<dataset>")
+        _PARSED.clear()
+        _PARSED[key] = scene
+    return index, write_trial(scene, index, root)
 
 
 def _comparable(scene_dict):
