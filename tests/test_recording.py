@@ -166,3 +166,15 @@ def sqfit_camera():
     import sqfit
 
     return sqfit.Camera(sqfit.Intrinsics(4, 4, 2.0, 2.0, 2.0, 2.0), np.eye(4))
+
+
+def test_mesh_kinds_are_recorded_as_oriented_boxes(tmp_path):
+    scene = parse_scene({**SCENE, "objects": {**SCENE["objects"], "kind": "box", "count": 1},
+                         "experiment": {**SCENE["experiment"], "trials": 1}}, source="<test>")
+    generate(scene, tmp_path / "d", progress=False, rerun=tmp_path / "d.rrd")
+    gt = read(tmp_path / "d.rrd")["/trials/000000/ground_truth/object_1"]
+    from sqfit.io import load_trial
+
+    obj = load_trial(tmp_path / "d" / "trials" / "000000").objects[0]
+    assert np.allclose(column(gt, "Boxes3D:half_sizes")[0][0], obj["size"])
+    assert np.allclose(column(gt, "Transform3D:translation")[0][0], obj["position"])
