@@ -40,6 +40,8 @@ def main():
     parser.add_argument("--trials", type=int, default=100)
     parser.add_argument("--renderer", default=None, help="osmesa | egl | polygon (default: the scene's)")
     parser.add_argument("--repeat", type=int, default=3, help="alternating rounds (best is reported)")
+    parser.add_argument("--dir", default=None, help="where the temporary dataset is written (default: the system's "
+                                                    "temporary directory; e.g. /dev/shm to leave out the disk)")
     args = parser.parse_args()
 
     from sqsim.dataset import write_trial
@@ -63,7 +65,7 @@ def main():
             simulate_trial(scene, i, renderer)
 
     def whole():
-        root = Path(tempfile.mkdtemp(prefix="bench-trial-"))
+        root = Path(tempfile.mkdtemp(prefix="bench-trial-", dir=args.dir))
         try:
             (root / "trials").mkdir()
             for i in range(args.trials):
@@ -81,7 +83,8 @@ def main():
     k = scene.intrinsics
     load = ", ".join(f"{x:.1f}" for x in os.getloadavg())
     print(f"scene={Path(args.scene).name}  renderer={scene.masks.renderer}  image={k.width}x{k.height}  "
-          f"trials={args.trials}  masks={n_masks}  repeat={args.repeat}  load average={load}")
+          f"trials={args.trials}  masks={n_masks}  repeat={args.repeat}  dir={args.dir or tempfile.gettempdir()}  "
+          f"load average={load}")
     print(f"| {'stage':32s} | masks/s (wall) | masks/s (CPU) | ms/trial (CPU) |")
     print(f"|{'-' * 34}|----------------|---------------|----------------|")
     for name, (wall, cpu) in best.items():
