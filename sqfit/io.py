@@ -140,7 +140,8 @@ def encode_png(image):
     (README "Simulated datasets"): Pillow always filters rows adaptively, which on masks costs
     more than compressing them (0.79 ms per mask with the same zlib strategy), and OpenCV's
     libpng writer takes 0.80 ms even with ``IMWRITE_PNG_FILTER_NONE``; this takes 0.40 ms. Files
-    are as small as Pillow's with the same strategy, and any PNG reader decodes them.
+    are smaller than Pillow's with the same strategy (825 B against 1190 B per mask), and any PNG
+    reader decodes them.
 
     Parameters
     ----------
