@@ -173,8 +173,8 @@ def run_experiment(scene, output, *, trials=None, chains=None, seed=None, worker
     records += new
     summary = write_reports(out, scene, chains, records, figures)
     if rerun is not None:
-        record_rerun(rerun, scene, [r for r in records if r["trial"] < scene.experiment.trials and r["chain"] in chains],
-                     rerun_trials)
+        kept = [r for r in records if r["trial"] < scene.experiment.trials and r["chain"] in chains]
+        record_rerun(rerun, scene, kept, rerun_trials)
     return summary
 
 
