@@ -26,9 +26,22 @@ CONNECT_TIMEOUT_S = 20
 IN_FLIGHT_PER_WORKER = 2
 
 
-def _slots(client):
-    threads = client.nthreads()
-    return max(sum(threads.values()), 1)
+#: Seconds between two looks at a Dask cluster's size (workers may join or leave during a run).
+RESIZE_INTERVAL_S = 2.0
+
+
+def _cluster_slots(client):
+    """Worker threads of a Dask cluster now, polled at most every ``RESIZE_INTERVAL_S``."""
+    import time
+
+    state = {"at": -float("inf"), "slots": 1}
+
+    def slots():
+        now = time.monotonic()
+        if now - state["at"] >= RESIZE_INTERVAL_S:
+            state["at"], state["slots"] = now, max(sum(client.nthreads().values()), 1)
+        return state["slots"]
+    return slots
 
 
 def map_unordered(fn, args, *, workers=1, scheduler=None, initializer=None, in_flight=None,
@@ -40,7 +53,7 @@ def map_unordered(fn, args, *, workers=1, scheduler=None, initializer=None, in_f
     fn : callable
         Importable by the workers (a module-level function); takes and returns plain data.
     args : iterable of tuple
-        Consumed lazily, ``in_flight`` at a time.
+        Consumed lazily, as slots free up.
     workers : int
         Local processes (ignored with ``scheduler``), >= 1.
     scheduler : str, optional
@@ -48,7 +61,8 @@ def map_unordered(fn, args, *, workers=1, scheduler=None, initializer=None, in_f
     initializer : callable, optional
         Run once in each local worker process (e.g. to ignore SIGINT).
     in_flight : int, optional
-        Maximum submitted, unfinished tasks (default: ``IN_FLIGHT_PER_WORKER`` per worker slot).
+        Maximum submitted, unfinished tasks (default: ``IN_FLIGHT_PER_WORKER`` per worker slot;
+        on a Dask cluster the slots are its worker threads, re-read as workers join or leave).
     wait_on_exit : bool
         On an error or interrupt, wait for the local workers to finish their running task (needed
         when a task must not be killed half-way, e.g. while it writes files).
@@ -72,29 +86,36 @@ def map_unordered(fn, args, *, workers=1, scheduler=None, initializer=None, in_f
         except (OSError, TimeoutError) as exc:
             raise OSError(f"cannot connect to the Dask scheduler {scheduler!r}: {exc}") from None
         executor = client.get_executor()
-        slots = _slots(client)
+        cluster_slots = _cluster_slots(client)
     else:
         import multiprocessing
         from concurrent.futures import ProcessPoolExecutor
 
         executor = ProcessPoolExecutor(int(workers), mp_context=multiprocessing.get_context("spawn"),
                                        initializer=initializer)
-        slots = int(workers)
-    limit = int(in_flight) if in_flight is not None else IN_FLIGHT_PER_WORKER * slots
     pending = iter(args)
     futures = set()
-    try:
-        for a in pending:
+
+    def capacity():
+        if in_flight is not None:
+            return int(in_flight)
+        return IN_FLIGHT_PER_WORKER * (int(workers) if client is None else cluster_slots())
+
+    def refill():
+        while len(futures) < capacity():
+            a = next(pending, None)
+            if a is None:
+                return
             futures.add(executor.submit(fn, *a))
-            if len(futures) >= limit:
-                break
+
+    try:
+        refill()
         while futures:
             finished, futures = wait(futures, return_when=FIRST_COMPLETED)
             for future in finished:
-                for a in pending:
-                    futures.add(executor.submit(fn, *a))
-                    break
-                yield future.result()
+                result = future.result()
+                refill()
+                yield result
     finally:
         for future in futures:
             future.cancel()

@@ -32,3 +32,23 @@ def test_map_unordered_errors():
         list(map_unordered(_square, [(1,)], workers=0))
     with pytest.raises(ValueError, match="in_flight must be an integer >= 1"):
         list(map_unordered(_square, [(1,)], workers=2, in_flight=0))
+
+
+def test_cluster_slots_follow_workers_joining(monkeypatch):
+    import sqsim.parallel as parallel
+
+    class FakeClient:
+        threads = {}
+
+        def nthreads(self):
+            return dict(self.threads)
+
+    client = FakeClient()
+    monkeypatch.setattr(parallel, "RESIZE_INTERVAL_S", 0.0)
+    slots = parallel._cluster_slots(client)
+    assert slots() == 1  # no worker yet: still submit
+    client.threads = {"a": 2, "b": 1}
+    assert slots() == 3
+    monkeypatch.setattr(parallel, "RESIZE_INTERVAL_S", 3600.0)
+    client.threads = {}
+    assert slots() == 3  # not polled again within the interval
