@@ -101,6 +101,12 @@ def test_fit_records_every_stage_on_the_stage_timeline(dataset, tmp_path):
         last = np.asarray(column(got[e], "Mesh3D:vertex_positions")[-1], dtype=np.float64)
         assert len(last) == 6 * 24**2 + 2 and np.allclose(sqfit.superquadric.implicit(sq, last), 1.0, atol=1e-2)
         assert "Mesh3D:vertex_positions" in got[e]["components"]
+    from rerun.chunk import RrdReader  # the default blueprint: one 3D view per trial
+
+    reader = RrdReader(str(tmp_path / "fits.rrd"))
+    views = {c.entity_path for c in reader.stream(store=reader.blueprints()[0]) if c.entity_path.count("/") == 2
+             and c.entity_path.startswith("/view/")}
+    assert len(views) == 2
     outline = got["/trials/000001/cameras/view_01/fits/1-2-3D/object_2"]
     assert "LineStrips2D:strips" in outline["components"] and outline["rows"]["stage"] == 3
     assert "SegmentationImage:buffer" in got["/trials/000000/cameras/view_00/mask"]["components"]
