@@ -3,7 +3,8 @@
 Samples observable trials of a scene (default: scenes/paper.toml, 3 views each), then times
 ``Renderer.render(objects, cameras)`` alone (the number the README quotes, target >= 150
 masks/s per process) and the whole ``simulate_trial`` (sampling, meshing, re-sampling,
-rendering, noise) for reference.
+rendering, noise) for reference; ``bench_trial.py`` times whole trials including writing, in
+wall-clock and CPU time.
 
     OPENBLAS_NUM_THREADS=1 .venv/bin/python benchmarks/bench_render.py [--trials 100] [--renderer osmesa]
 

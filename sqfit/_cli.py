@@ -55,6 +55,6 @@ def dispatch(argv, commands, prog, description):
     except KeyboardInterrupt:
         print(f"{prog} {args.command}: interrupted", file=sys.stderr)
         return 130
-    except (ValueError, OSError) as exc:
+    except (ValueError, OSError, ImportError) as exc:  # ImportError: a missing optional dependency
         print(f"{prog} {args.command}: error: {exc}", file=sys.stderr)
         return 2

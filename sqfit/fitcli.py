@@ -49,6 +49,9 @@ def add_arguments(parser):
     parser.add_argument("--no-cleanup", dest="cleanup", action="store_false",
                         help="use masks as given (default: keep each mask's largest component and fill its holes)")
     parser.add_argument("--seed", type=int, default=0, help="seed of the mask sampling")
+    from .recording import add_arguments as add_rerun_arguments
+
+    add_rerun_arguments(parser, "cameras, masks, ground truth, every stage of every fit")
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
 
 
@@ -58,8 +61,14 @@ def _rng(seed, trial_name, object_id):
 
 
 def fit_dataset(dataset, output, chain, samples=C.DEFAULT_SAMPLES, sampling="uniform", polygon="hull",
-                seed=0, progress=True, cleanup=True):
-    """Fit every object of every trial; returns ``(records written, errors)``."""
+                seed=0, progress=True, cleanup=True, rerun=None, rerun_trials=None):
+    """Fit every object of every trial; returns ``(records written, errors)``.
+
+    ``rerun``: path of an ``.rrd`` file to record the trials and the stages of every fit into
+    (:class:`sqfit.recording.Recorder`; needs rerun-sdk), at most ``rerun_trials`` trials.
+    """
+    from contextlib import nullcontext
+
     from tqdm import tqdm
 
     from . import io
@@ -72,7 +81,12 @@ def fit_dataset(dataset, output, chain, samples=C.DEFAULT_SAMPLES, sampling="uni
     out_path = Path(output)
     if out_path.parent and not out_path.parent.exists():
         out_path.parent.mkdir(parents=True)
-    with open(out_path, "w", encoding="utf-8") as out:
+    recorder = None
+    if rerun is not None:
+        from .recording import Recorder
+
+        recorder = Recorder(rerun, max_trials=rerun_trials)
+    with open(out_path, "w", encoding="utf-8") as out, (recorder or nullcontext()):
         for path in tqdm(paths, desc="sqfit fit", unit="trial", disable=not progress):
             try:
                 trial = io.load_trial(path)
@@ -83,12 +97,17 @@ def fit_dataset(dataset, output, chain, samples=C.DEFAULT_SAMPLES, sampling="uni
                 n_records += 1
                 n_errors += 1
                 continue
+            if recorder is not None:
+                recorder.log_loaded_trial(trial)
             for oid in ids:
                 record = {"trial": trial.name, "object_id": oid}
                 try:
                     views = io.observe_views(trial.cameras, trial.images, oid, samples, sampling,
                                              _rng(seed, trial.name, oid), cleanup)
-                    record.update(views.record(fit(views.observations, chain, options=options)))
+                    result = fit(views.observations, chain, options=options)
+                    record.update(views.record(result))
+                    if recorder is not None:
+                        recorder.log_fit(trial.name, oid, chain, result.stages, trial.cameras)
                 except (OSError, ValueError, TypeError) as exc:
                     record.update({"chain": chain, "status": "error", "message": str(exc)})
                 n_errors += record["status"] != "ok"
@@ -111,6 +130,7 @@ def run(args):
     if args.dataset is None:
         raise ValueError("give a DATASET directory, or --coco FILE with --poses PATH")
     n, errors = fit_dataset(args.dataset, args.output, args.chain, args.samples, args.sampling, args.polygon,
-                            args.seed, progress=not args.no_progress, cleanup=args.cleanup)
+                            args.seed, progress=not args.no_progress, cleanup=args.cleanup, rerun=args.rerun,
+                            rerun_trials=args.rerun_trials)
     print(f"wrote {n} fit record(s) to {args.output}; {errors} not ok")
     return 0

@@ -9,7 +9,8 @@ Layout
     DIR/dataset.json                   optional: {"format": "sqkit-dataset", "version": 1, ...}
     DIR/annotations.json               optional: COCO instances (not needed by this reader)
     DIR/trials/NNNNNN/cameras.json     required
-    DIR/trials/NNNNNN/masks/view_VV.png  required: one per view, uint16 instance ids, 0 = background
+    DIR/trials/NNNNNN/masks/view_VV.png  required: one per view, instance ids, 0 = background
+                                         (8- or 16-bit greyscale; read as uint16)
     DIR/trials/NNNNNN/gt.json          optional: ground truth
 
 ``cameras.json``::
@@ -49,7 +50,10 @@ __all__ = ["Trial", "load_trial", "iter_trials", "trial_dirs", "observations", "
            "ViewObservations", "observe_views", "read_mask_png", "write_mask_png", "FORMAT", "FORMAT_VERSION"]
 
 FORMAT = "sqkit-dataset"
-FORMAT_VERSION = 1
+#: 2: masks are written 8-bit when every id is < 256 (16-bit otherwise) with zlib's run-length
+#: strategy: files ~30 % smaller and 2.7x faster to write than version 1 (always 16-bit, default
+#: strategy), which made PNG writing the largest cost of ``sqsim generate``. Readers accept both.
+FORMAT_VERSION = 2
 
 
 @dataclass(frozen=True, eq=False)
@@ -108,13 +112,58 @@ def read_mask_png(path):
 
 
 def write_mask_png(path, image):
-    """Write ``(h, w) uint16`` ids as a 16-bit greyscale PNG; same array -> same bytes."""
-    from PIL import Image
+    """Write ``(h, w)`` instance ids (uint16 range) as a greyscale PNG; same array -> same bytes.
 
-    image = np.ascontiguousarray(image, dtype=np.uint16)
+    8-bit when every id is < 256, else 16-bit (:data:`FORMAT_VERSION` 2); :func:`read_mask_png`
+    returns ``uint16`` either way.
+    """
+    image = np.asarray(image)
     if image.ndim != 2:
         raise ValueError(f"image must have shape (h, w), got {image.shape}")
-    Image.fromarray(image).save(path, format="PNG", compress_level=6)
+    if image.dtype.kind not in "biu":
+        raise ValueError(f"image must hold integer instance ids, got dtype {image.dtype}")
+    top = int(image.max()) if image.size else 0
+    if top > np.iinfo(np.uint16).max or (image.dtype.kind == "i" and image.size and image.min() < 0):
+        raise ValueError("image must hold instance ids in [0, 65535]")
+    Path(path).write_bytes(encode_png(image.astype(np.uint8 if top < 256 else ">u2", copy=False)))
+
+
+def _png_chunk(kind, data):
+    import zlib
+
+    return len(data).to_bytes(4, "big") + kind + data + zlib.crc32(kind + data).to_bytes(4, "big")
+
+
+def encode_png(image):
+    """PNG bytes of a greyscale image: no row filter, zlib's run-length strategy.
+
+    Written here rather than through Pillow or OpenCV, measured on 640 x 480 8-bit paper masks
+    (README "Simulated datasets"): Pillow always filters rows adaptively, which on masks costs
+    more than compressing them (0.79 ms per mask with the same zlib strategy), and OpenCV's
+    libpng writer takes 0.80 ms even with ``IMWRITE_PNG_FILTER_NONE``; this takes 0.40 ms. Files
+    are smaller than Pillow's with the same strategy (825 B against 1190 B per mask), and any PNG
+    reader decodes them.
+
+    Parameters
+    ----------
+    image : (h, w) uint8 or big-endian uint16 (``">u2"``)
+
+    Returns
+    -------
+    png : bytes
+    """
+    import zlib
+
+    image = np.asarray(image)
+    if image.ndim != 2 or image.dtype.str not in ("|u1", ">u2"):
+        raise ValueError(f"image must be (h, w) uint8 or big-endian uint16, got {image.dtype.str} {image.shape}")
+    h, w = image.shape
+    rows = np.zeros((h, 1 + w * image.itemsize), dtype=np.uint8)  # filter byte 0 ("none") per row
+    rows[:, 1:] = np.ascontiguousarray(image).view(np.uint8).reshape(h, -1)
+    deflate = zlib.compressobj(6, zlib.DEFLATED, 15, 9, zlib.Z_RLE)
+    header = w.to_bytes(4, "big") + h.to_bytes(4, "big") + bytes([8 * image.itemsize, 0, 0, 0, 0])
+    return (b"\x89PNG\r\n\x1a\n" + _png_chunk(b"IHDR", header)
+            + _png_chunk(b"IDAT", deflate.compress(rows.tobytes()) + deflate.flush()) + _png_chunk(b"IEND", b""))
 
 
 def _read_json(path):

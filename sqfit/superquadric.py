@@ -27,6 +27,7 @@ from ._checks import check_shape
 
 __all__ = [
     "Superquadric",
+    "mesh_anchors",
     "euler_to_matrix",
     "euler_derivatives",
     "rotation_and_derivatives",
@@ -458,17 +459,53 @@ def _cube_sphere_cached(resolution):
     return lattice, faces
 
 
+def _lattice_directions(lattice, resolution):
+    # Equiangular cube-sphere directions: even spacing in angle, then radial projection.
+    return np.tan(np.pi / 4 * (2.0 * lattice / int(resolution) - 1.0))
+
+
+def mesh_anchors(sq, resolution=32):
+    """A few vertices of :func:`to_mesh` ``(sq, resolution)``, without building the mesh.
+
+    The cube-sphere lattice points at the cube's corners and, for an even ``resolution``, at the
+    centres of its faces and edges (the superquadric's axis tips among them). Cheap (at most 26
+    points), so a caller can reject a superquadric whose mesh would leave the view before meshing.
+
+    Parameters
+    ----------
+    sq : Superquadric
+    resolution : int
+        As for :func:`to_mesh`, >= 2.
+
+    Returns
+    -------
+    points : (8, 3) or (26, 3) float
+        World coordinates, equal (to rounding) to rows of ``to_mesh(sq, resolution).vertices``.
+    """
+    n = int(resolution)
+    if n < 2:
+        raise ValueError(f"resolution must be an integer >= 2, got {resolution}")
+    steps = (0, n // 2, n) if n % 2 == 0 else (0, n)
+    grid = np.array(np.meshgrid(steps, steps, steps, indexing="ij")).reshape(3, -1).T
+    lattice = grid[np.any((grid == 0) | (grid == n), axis=1)]  # on the cube's surface
+    local = project_to_surface(_lattice_directions(lattice, n), sq.shape)
+    return _to_world(sq, local * np.asarray(sq.size))
+
+
 def _unit_mesh(resolution, shape):
     """Vertices (on the unit-size surface) and outward faces of a cube-sphere mesh."""
     if int(resolution) < 2:
         raise ValueError(f"resolution must be an integer >= 2, got {resolution}")
     lattice, faces = _cube_sphere(resolution)
-    # Equiangular cube-sphere directions: even spacing in angle, then radial projection.
-    directions = np.tan(np.pi / 4 * (2.0 * lattice / int(resolution) - 1.0))
-    vertices = project_to_surface(directions, shape)
-    tri = vertices[faces]
-    normal = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
-    inward = np.einsum("ij,ij->i", normal, tri.sum(axis=1)) < 0
+    vertices = project_to_surface(_lattice_directions(lattice, resolution), shape)
+    # Orientation test: normal . (sum of the corners) < 0. Written out per coordinate (the same
+    # products and sums as np.cross / sum(axis=1), so the same signs), 3x faster on 12k faces.
+    coords = np.ascontiguousarray(vertices.T)
+    p0, p1, p2 = (np.take(coords, np.ascontiguousarray(faces[:, k]), axis=1) for k in range(3))
+    a, b = p1 - p0, p2 - p0
+    c = p0 + p1 + p2
+    inward = ((a[1] * b[2] - a[2] * b[1]) * c[0] + (a[2] * b[0] - a[0] * b[2]) * c[1]
+              + (a[0] * b[1] - a[1] * b[0]) * c[2]) < 0
     faces[inward] = faces[inward][:, ::-1]
     return vertices, faces
 

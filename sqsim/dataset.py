@@ -103,9 +103,19 @@ def _ignore_sigint():
     signal.signal(signal.SIGINT, signal.SIG_IGN)
 
 
+_PARSED = {}
+
+
 def _worker(scene_dict, index, root):
-    # Runs in a fresh (spawned) process: the renderer and its OpenGL context are created here.
-    return index, write_trial(scene_dict, index, root)
+    # Runs in a worker process: the renderer and its OpenGL context are created here. The parsed
+    # scene is kept, so its cameras are built once per process, not once per trial.
+    key = json.dumps(scene_dict, sort_keys=True)
+    scene = _PARSED.get(key)
+    if scene is None:
+        scene = parse_scene(scene_dict, source="<dataset>")
+        _PARSED.clear()
+        _PARSED[key] = scene
+    return index, write_trial(scene, index, root)
 
 
 def _comparable(scene_dict):
@@ -141,7 +151,8 @@ def _prepare(root, scene):
     _atomic_write_text(meta_path, _dumps(meta))
 
 
-def generate(scene, output, trials=None, seed=None, workers=1, progress=True, colmap=False):
+def generate(scene, output, trials=None, seed=None, workers=1, progress=True, scheduler=None, rerun=None,
+             rerun_trials=None, colmap=False):
     """Write (or complete) a dataset.
 
     Parameters
@@ -155,6 +166,14 @@ def generate(scene, output, trials=None, seed=None, workers=1, progress=True, co
         Processes (``1``: in this process; otherwise a spawn-context process pool).
     progress : bool
         Show a tqdm progress bar on stderr.
+    scheduler : str, optional
+        Dask scheduler address ``tcp://HOST:PORT`` (overrides ``workers``); the workers must see
+        ``output`` on a shared file system. The bytes written do not depend on where a trial ran.
+    rerun : str or os.PathLike, optional
+        Also write a rerun recording (``.rrd``) of the dataset's trials: cameras, masks, ground
+        truth (:class:`sqfit.recording.Recorder`).
+    rerun_trials : int, optional
+        Record only the first ``rerun_trials`` trials (default: all).
     colmap : bool
         Also write the cameras as a COLMAP text model ``DIR/sparse/0`` (:mod:`sqsim.export`).
 
@@ -175,11 +194,19 @@ def generate(scene, output, trials=None, seed=None, workers=1, progress=True, co
     if colmap and is_sequence(scene):
         raise ValueError("--colmap exports trial datasets; a sequence scene (trajectory.kind = "
                          f"{scene.trajectory.kind!r}) writes its poses as TUM trajectories (true.tum, odometry.tum)")
+    if rerun is not None and is_sequence(scene):
+        raise ValueError("--rerun records trial datasets; recording a sequence scene (trajectory.kind = "
+                         f"{scene.trajectory.kind!r}) is not supported yet")
+    if rerun is not None:
+        from sqfit.recording import check_recording_path
+
+        check_recording_path(rerun, rerun_trials)
     root = Path(output)
     _prepare(root, scene)
-    todo = [i for i in range(scene.experiment.trials) if not (root / "trials" / trial_name(i)).exists()]
+    present = {p.name for p in (root / "trials").iterdir()}  # one listing, not a stat per trial
+    todo = [i for i in range(scene.experiment.trials) if trial_name(i) not in present]
     skipped = scene.experiment.trials - len(todo)
-    results = _run(scene, todo, root, int(workers), progress)
+    results = _run(scene, todo, root, int(workers), scheduler, progress)
     if is_sequence(scene):
         finish_sequence_dataset(root)
     else:
@@ -188,36 +215,41 @@ def generate(scene, output, trials=None, seed=None, workers=1, progress=True, co
         from .export import write_colmap_model
 
         write_colmap_model(root)
+    if rerun is not None:
+        from sqfit.recording import Recorder
+
+        with Recorder(rerun, max_trials=rerun_trials) as recorder:
+            for path in trial_dirs(root):
+                if not recorder.admits(path.name):
+                    recorder.skipped.add(path.name)  # counted, not read
+                    continue
+                recorder.log_loaded_trial(load_trial(path))
     return {"written": sum(r is not None for r in results), "skipped": skipped,
             "resampled": int(sum(r or 0 for r in results))}
 
 
-def _run(scene, todo, root, workers, progress):
+def _run(scene, todo, root, workers, scheduler, progress):
     from tqdm import tqdm
 
     bar = tqdm(total=len(todo), unit="trial", disable=not progress or not todo, desc="generate")
     results = []
     try:
-        if workers == 1 or len(todo) <= 1:
+        if scheduler is None and (workers == 1 or len(todo) <= 1):
             for i in todo:
                 results.append(write_trial(scene, i, root))
                 bar.update()
             return results
-        import multiprocessing
-        from concurrent.futures import ProcessPoolExecutor, as_completed
+        from .parallel import map_unordered
 
+        # Bounded submissions (sqsim.parallel): on Ctrl-C or an error the queued trials are
+        # dropped and each worker finishes (and renames) the trial it is writing; local workers
+        # ignore SIGINT so none dies half-way through a trial.
         scene_dict = scene.to_dict()
-        pool = ProcessPoolExecutor(workers, mp_context=multiprocessing.get_context("spawn"),
-                                   initializer=_ignore_sigint)
-        try:
-            futures = [pool.submit(_worker, scene_dict, i, str(root)) for i in todo]
-            for fut in as_completed(futures):
-                results.append(fut.result()[1])
-                bar.update()
-        finally:
-            # On Ctrl-C or an error: drop queued trials, let each worker finish (and rename) the
-            # trial it is writing; workers ignore SIGINT so none dies half-way through a trial.
-            pool.shutdown(wait=True, cancel_futures=True)
+        args = ((scene_dict, i, str(root.resolve())) for i in todo)
+        for _, resampled in map_unordered(_worker, args, workers=workers, scheduler=scheduler,
+                                          initializer=_ignore_sigint, wait_on_exit=True):
+            results.append(resampled)
+            bar.update()
         return results
     finally:
         bar.close()
@@ -273,6 +305,12 @@ def add_arguments(parser):
     parser.add_argument("--trials", type=int, default=None, help="number of trials (default: experiment.trials)")
     parser.add_argument("--seed", type=int, default=None, help="seed (default: experiment.seed)")
     parser.add_argument("--workers", type=int, default=1, help="worker processes")
+    parser.add_argument("--scheduler", default=None,
+                        help="Dask scheduler address tcp://HOST:PORT (overrides --workers; the output "
+                             "directory must be on a file system the workers share)")
+    from sqfit.recording import add_arguments as add_rerun_arguments
+
+    add_rerun_arguments(parser, "the dataset's cameras, masks and ground truth")
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
     parser.add_argument("--colmap", action="store_true",
                         help="also write the cameras as a COLMAP text model DIR/sparse/0 (for sqfit fit --coco)")
@@ -281,7 +319,8 @@ def add_arguments(parser):
 def run(args):
     scene = load_scene(args.scene)
     summary = generate(scene, args.output, trials=args.trials, seed=args.seed, workers=args.workers,
-                       progress=not args.no_progress, colmap=args.colmap)
+                       progress=not args.no_progress, scheduler=args.scheduler, rerun=args.rerun,
+                       rerun_trials=args.rerun_trials, colmap=args.colmap)
     print(f"{args.output}: {summary['written']} trial(s) written, {summary['skipped']} already there, "
           f"{summary['resampled']} unobservable draw(s) re-sampled")
     return 0

@@ -55,6 +55,10 @@ def add_arguments(parser):
     parser.add_argument("--seed", type=int, default=None, help="experiment seed (default: the scene's)")
     parser.add_argument("--workers", type=int, default=1, help="local worker processes")
     parser.add_argument("--scheduler", default=None, help="Dask scheduler address tcp://HOST:PORT (overrides --workers)")
+    from sqfit.recording import add_arguments as add_rerun_arguments
+
+    add_rerun_arguments(parser, "cameras, masks, ground truth and every stage of every fit (re-running into a "
+                                "finished output directory only records)")
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
 
 
@@ -64,7 +68,8 @@ def run(args):
     scene = load_scene(args.scene)
     summary = run_experiment(scene, args.output, trials=args.trials, chains=parse_chains(args.chains),
                              seed=args.seed, workers=args.workers, scheduler=args.scheduler,
-                             progress=not args.no_progress)
+                             progress=not args.no_progress, rerun=args.rerun,
+                             rerun_trials=args.rerun_trials)
     from .report import screen_summary
 
     print(screen_summary(summary))
@@ -106,7 +111,7 @@ def parse_chains(text):
 # --------------------------------------------------------------------------- driver
 
 def run_experiment(scene, output, *, trials=None, chains=None, seed=None, workers=1, scheduler=None,
-                   progress=True, figures=True):
+                   progress=True, figures=True, rerun=None, rerun_trials=None):
     """Run (or resume) an experiment and write all outputs.
 
     Parameters
@@ -123,6 +128,10 @@ def run_experiment(scene, output, *, trials=None, chains=None, seed=None, worker
         Show a progress bar with an ETA.
     figures : bool
         Also draw ``violin.png`` and ``example.png``.
+    rerun : str or Path, optional
+        Also write a rerun recording (``.rrd``) of all trials: the masks are simulated again
+        (deterministic), the fits come from the records (:func:`record_rerun`); at most
+        ``rerun_trials`` trials (default: all).
 
     Returns
     -------
@@ -145,6 +154,10 @@ def run_experiment(scene, output, *, trials=None, chains=None, seed=None, worker
         check_chain(chain)
     if int(workers) < 1:
         raise ValueError(f"--workers must be >= 1, got {workers}")
+    if rerun is not None:
+        from sqfit.recording import check_recording_path
+
+        check_recording_path(rerun, rerun_trials)
     out = Path(output)
     out.mkdir(parents=True, exist_ok=True)
     _check_or_write_config(out, scene, chains)
@@ -158,7 +171,38 @@ def run_experiment(scene, output, *, trials=None, chains=None, seed=None, worker
 
     new = _map_trials(scene_dict, pending, jsonl, workers, scheduler, progress)
     records += new
-    return write_reports(out, scene, chains, records, figures)
+    summary = write_reports(out, scene, chains, records, figures)
+    if rerun is not None:
+        kept = [r for r in records if r["trial"] < scene.experiment.trials and r["chain"] in chains]
+        record_rerun(rerun, scene, kept, rerun_trials)
+    return summary
+
+
+def record_rerun(path, scene, records, max_trials=None):
+    """Write a rerun recording of an experiment's trials (``sqfit.recording`` layout).
+
+    Each trial is simulated again from the scene (its masks and noisy cameras are deterministic);
+    ground truth and the per-stage estimates come from ``records`` (``trials.jsonl``).
+    """
+    from sqfit.recording import Recorder
+
+    from .render import get_renderer
+    from .trial import simulate_trial
+
+    renderer = get_renderer(scene.masks.renderer, scene.intrinsics)
+    by_trial = {}
+    for r in records:
+        by_trial.setdefault(r["trial"], []).append(r)
+    with Recorder(path, max_trials=max_trials) as recorder:
+        for index in sorted(by_trial):
+            name = f"{index:06d}"
+            if not recorder.admits(name):
+                recorder.skipped.add(name)
+                continue
+            sim = simulate_trial(scene, index, renderer)
+            recorder.log_trial(name, sim.cameras, sim.images, sim.true_cameras, [o.to_dict() for o in sim.objects])
+            for r in sorted(by_trial[index], key=lambda r: (r["object"], r["chain"])):
+                recorder.log_fit(name, r["object"], r["chain"], r["stages"], sim.cameras)
 
 
 def _check_or_write_config(out, scene, chains):
@@ -236,36 +280,11 @@ def _map_trials(scene_dict, pending, jsonl, workers, scheduler, progress):
 
 
 def _run_parallel(scene_dict, pending, workers, scheduler, write):
-    from concurrent.futures import FIRST_COMPLETED, wait
+    from .parallel import map_unordered
 
-    client = None
-    if scheduler is not None:
-        from distributed import Client
-
-        client = Client(scheduler)
-        executor = client.get_executor()
-    else:
-        import multiprocessing
-        from concurrent.futures import ProcessPoolExecutor
-
-        # spawn: no OpenGL context or thread state is inherited from this process.
-        executor = ProcessPoolExecutor(int(workers), mp_context=multiprocessing.get_context("spawn"))
-    futures = set()
-    try:
-        futures = {executor.submit(fit_trial, scene_dict, i, c) for i, c in pending.items()}
-        while futures:
-            finished, futures = wait(futures, return_when=FIRST_COMPLETED)
-            for future in finished:
-                write(future.result())
-    except BaseException:
-        for future in futures:
-            future.cancel()
-        raise
-    finally:
-        if client is None:
-            executor.shutdown(wait=False, cancel_futures=True)
-        else:
-            client.close()
+    args = ((scene_dict, i, c) for i, c in pending.items())
+    for records in map_unordered(fit_trial, args, workers=workers, scheduler=scheduler):
+        write(records)
 
 
 # --------------------------------------------------------------------------- one trial (worker)

@@ -35,6 +35,7 @@ from __future__ import annotations
 
 import os
 import sys
+import threading
 
 import numpy as np
 
@@ -70,6 +71,7 @@ void main() { id = v_instance; }
 """
 
 _RENDERERS = {}
+_RENDERERS_LOCK = threading.Lock()
 
 
 def get_renderer(backend="osmesa", intrinsics=None):
@@ -96,9 +98,10 @@ def get_renderer(backend="osmesa", intrinsics=None):
     if not isinstance(intrinsics, Intrinsics):
         raise ValueError(f"intrinsics must be a sqfit.Intrinsics, got {type(intrinsics).__name__}")
     key = (backend, intrinsics)
-    if key not in _RENDERERS:
-        _RENDERERS[key] = PolygonRenderer(intrinsics) if backend == "polygon" else GLRenderer(backend, intrinsics)
-    return _RENDERERS[key]
+    with _RENDERERS_LOCK:
+        if key not in _RENDERERS:
+            _RENDERERS[key] = PolygonRenderer(intrinsics) if backend == "polygon" else GLRenderer(backend, intrinsics)
+        return _RENDERERS[key]
 
 
 class Renderer:
@@ -216,6 +219,9 @@ class GLRenderer(Renderer):
         _select_platform(backend)
         self.backend = backend
         self._platform = _make_platform(backend, intrinsics.width, intrinsics.height)
+        # One context per renderer: threads of one process (e.g. a Dask worker with several
+        # threads) take turns, since an OpenGL context is current in one thread at a time.
+        self._lock = threading.Lock()
         self._platform.make_current()
         self._init_gl()
 
@@ -272,6 +278,10 @@ class GLRenderer(Renderer):
         return vertices.astype(np.float64), faces.size
 
     def _render(self, meshes, ids, outward, cameras, images):
+        with self._lock:
+            self._render_locked(meshes, ids, outward, cameras, images)
+
+    def _render_locked(self, meshes, ids, outward, cameras, images):
         from OpenGL import GL
 
         self._platform.make_current()

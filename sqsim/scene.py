@@ -49,7 +49,7 @@ from ._scene_values import (_bool, _choice, _float, _int, _optional_path, _range
 __all__ = ["Scene", "ExperimentConfig", "CameraConfig", "TrajectoryConfig", "ObjectsConfig",
            "MasksConfig", "NoiseConfig", "FitConfig", "SceneObject", "OBJECT_KINDS",
            "load_scene", "parse_scene", "trial_seed", "child_seed", "camera_poses", "make_object",
-           "sample_objects", "geometry_visible", "ZNEAR"]
+           "sample_objects", "draw_objects", "make_objects", "surely_not_visible", "geometry_visible", "ZNEAR"]
 
 OBJECT_KINDS = ("superquadric", "box", "cylinder", "capsule", "cone", "mesh")
 RENDERERS = ("osmesa", "egl", "polygon")
@@ -238,8 +238,13 @@ class Scene:
 
     def cameras(self):
         """The true cameras of every trial: ``list[sqfit.Camera]`` on the trajectory."""
-        intr = self.intrinsics
-        return [sqfit.Camera(intr, T) for T in camera_poses(self.trajectory)]
+        # Built once per scene (cameras are immutable): every trial and re-draw asks for them.
+        cached = self.__dict__.get("_cameras")
+        if cached is None:
+            intr = self.intrinsics
+            cached = tuple(sqfit.Camera(intr, T) for T in camera_poses(self.trajectory))
+            object.__setattr__(self, "_cameras", cached)
+        return list(cached)
 
 
 def load_scene(path):
@@ -532,15 +537,78 @@ def sample_objects(objects, rng):
     objects : list of SceneObject
         Ids ``1 .. count``.
     """
+    return make_objects(objects, draw_objects(objects, rng))
+
+
+def draw_objects(objects, rng):
+    """The random values of ``objects.count`` objects, without building them (no meshing).
+
+    Returns
+    -------
+    draws : list of tuple
+        ``(id, size (3,), shape (2,), position (3,), rotation (3,))`` per object, drawn in the
+        order of the module docstring; :func:`make_objects` builds them.
+    """
     out = []
     for oid in range(1, objects.count + 1):
         size = rng.uniform(*objects.size, 3)
         shape = rng.uniform(*objects.shape, 2)
         position = rng.uniform(*objects.position, 3)
         rotation = rng.uniform(*objects.rotation, 3)
-        out.append(make_object(oid, objects.kind, size, shape, position, rotation, objects.path,
-                               objects.mesh_resolution))
+        out.append((oid, size, shape, position, rotation))
     return out
+
+
+def make_objects(objects, draws):
+    """Build the objects of :func:`draw_objects` (``objects.kind``, meshed)."""
+    return [make_object(oid, objects.kind, size, shape, position, rotation, objects.path, objects.mesh_resolution)
+            for oid, size, shape, position, rotation in draws]
+
+
+#: Margin (pixels and metres) by which a mesh anchor must fail :func:`geometry_visible`'s test
+#: for :func:`surely_not_visible` to reject: far above rounding, so that it never rejects a draw
+#: the full test would accept.
+_ANCHOR_MARGIN = 1e-6
+
+
+def surely_not_visible(objects, draws, cameras):
+    """Whether a draw is certain to fail :func:`geometry_visible`, judged before meshing.
+
+    Superquadrics only (other kinds: always ``False``): a few vertices of each mesh
+    (``sqfit.superquadric.mesh_anchors``) are tested with the same rule, by a margin. ``True``
+    implies ``geometry_visible`` of the built objects is ``False``, so re-drawing at once gives the
+    same trials as building and testing every draw, only faster.
+
+    Parameters
+    ----------
+    objects : ObjectsConfig
+    draws : list
+        From :func:`draw_objects`.
+    cameras : list of sqfit.Camera
+
+    Returns
+    -------
+    hidden : bool
+    """
+    if objects.kind != "superquadric":
+        return False
+    from sqfit.superquadric import mesh_anchors
+
+    m = _ANCHOR_MARGIN
+    points = np.concatenate([mesh_anchors(sqfit.Superquadric(size, shape, position, rotation), objects.mesh_resolution)
+                             for _, size, shape, position, rotation in draws])
+    for cam in cameras:  # sqfit.project's arithmetic, without its per-call checks
+        k = cam.intrinsics
+        local = (points - cam.center) @ cam.rotation
+        depth = local[:, 2]
+        if depth.min() <= ZNEAR - m:
+            return True
+        if depth.min() > ZNEAR + m:
+            u = k.fx * local[:, 0] / depth + k.cx
+            v = k.fy * local[:, 1] / depth + k.cy
+            if min(u.min(), v.min()) < 1.0 - m or u.max() > k.width - 1.0 + m or v.max() > k.height - 1.0 + m:
+                return True
+    return False
 
 
 def geometry_visible(objects, cameras):

@@ -19,7 +19,7 @@ from sqfit.io import observations_from_images
 
 from .noise import corrupt_image, perturb_cameras
 from .render import get_renderer
-from .scene import child_seed, geometry_visible, sample_objects, trial_seed
+from .scene import child_seed, draw_objects, geometry_visible, make_objects, surely_not_visible, trial_seed
 
 __all__ = ["SimulatedTrial", "simulate_trial", "sample_trial", "observations", "SEED_STREAMS"]
 
@@ -81,7 +81,10 @@ def sample_trial(scene, index, renderer=None):
     cameras = scene.cameras()
     min_area = max(scene.masks.min_area_px, 1)
     for attempt in range(scene.objects.max_attempts):
-        objects = sample_objects(scene.objects, rng)
+        draws = draw_objects(scene.objects, rng)
+        if surely_not_visible(scene.objects, draws, cameras):  # most re-draws end here, unmeshed
+            continue
+        objects = make_objects(scene.objects, draws)
         if not geometry_visible(objects, cameras):
             continue
         images = renderer.render(objects, cameras)
@@ -115,7 +118,7 @@ def simulate_trial(scene, index, renderer=None):
     if any((noise.erosion_px, noise.dilation_px, noise.boundary_jitter_px, noise.dropout, noise.false_blobs)):
         images = np.stack([corrupt_image(im, noise, mask_rng) for im in clean])
     else:
-        images = clean.copy()
+        images = clean  # both read-only below: no copy needed
     pose_rng = np.random.default_rng(child_seed(seed, SEED_STREAMS["pose_noise"]))
     cameras = perturb_cameras(true_cameras, noise.pose_rotation_deg, noise.pose_translation_m, pose_rng)
     for a in (clean, images):

@@ -177,6 +177,57 @@ def test_png_round_trip_is_exact_and_deterministic(tmp_path):
     assert (tmp_path / "a.png").read_bytes() == (tmp_path / "b.png").read_bytes()
 
 
+def test_png_is_8_bit_for_small_ids_and_16_bit_otherwise(tmp_path):
+    from PIL import Image
+
+    small = np.zeros((6, 7), np.uint16)
+    small[2:4, 1:5] = 255
+    write_mask_png(tmp_path / "s.png", small)
+    write_mask_png(tmp_path / "w.png", small.astype(np.int64) + 256 * (small > 0))
+    with Image.open(tmp_path / "s.png") as a, Image.open(tmp_path / "w.png") as b:
+        assert a.mode == "L" and b.mode.startswith("I")
+    got = read_mask_png(tmp_path / "s.png")
+    assert got.dtype == np.uint16 and np.array_equal(got, small)
+    assert np.array_equal(read_mask_png(tmp_path / "w.png"), small.astype(np.int64) + 256 * (small > 0))
+    with pytest.raises(ValueError, match=r"instance ids in \[0, 65535\]"):
+        write_mask_png(tmp_path / "x.png", np.full((2, 2), 70000))
+    with pytest.raises(ValueError, match=r"instance ids in \[0, 65535\]"):
+        write_mask_png(tmp_path / "x.png", np.full((2, 2), -1))
+    with pytest.raises(ValueError, match="must hold integer instance ids, got dtype float64"):
+        write_mask_png(tmp_path / "x.png", np.zeros((2, 2)))
+    with pytest.raises(ValueError, match=r"must have shape \(h, w\)"):
+        write_mask_png(tmp_path / "x.png", np.zeros((2, 2, 2), np.uint16))
+
+
+@pytest.mark.parametrize("dtype, top", [(np.uint8, 255), (">u2", 65535)])
+def test_encoded_png_decodes_the_same_in_pillow_and_opencv(tmp_path, dtype, top):
+    import io
+
+    import cv2
+    from PIL import Image
+
+    from sqfit.io import encode_png
+
+    image = np.random.default_rng(1).integers(0, top + 1, (37, 53)).astype(dtype)
+    image[5:30] = 0  # long runs, as in masks
+    png = encode_png(image)
+    with Image.open(io.BytesIO(png)) as im:
+        im.load()
+        assert np.array_equal(np.array(im).astype(np.int64), image.astype(np.int64))
+    decoded = cv2.imdecode(np.frombuffer(png, np.uint8), cv2.IMREAD_UNCHANGED)
+    assert np.array_equal(decoded.astype(np.int64), image.astype(np.int64))
+    with pytest.raises(ValueError, match="must be .h, w. uint8 or big-endian uint16, got <u2"):
+        encode_png(image.astype("<u2"))
+
+
+def test_resuming_a_dataset_of_another_format_version_is_refused(scene_file, tmp_path):
+    generate(load_scene(scene_file), tmp_path / "d", trials=1, progress=False)
+    meta = json.loads((tmp_path / "d" / "dataset.json").read_text())
+    (tmp_path / "d" / "dataset.json").write_text(json.dumps({**meta, "version": 1}))
+    with pytest.raises(ValueError, match=r"holds a dataset of another format/version \('sqkit-dataset' v1\)"):
+        generate(load_scene(scene_file), tmp_path / "d", trials=2, progress=False)
+
+
 def test_reader_errors(tmp_path):
     with pytest.raises(OSError, match="trial directory not found"):
         load_trial(tmp_path / "none")
@@ -211,20 +262,46 @@ def test_reader_errors(tmp_path):
 
 
 def test_ctrl_c_with_workers_stops_cleanly(scene_file, tmp_path):
-    # Ctrl-C reaches the whole process group: the run must stop (no hang), exit 130, and leave only
-    # complete trials that a re-run accepts.
-    scene_file.write_text(SCENE.replace("trials = 4", "trials = 400"))
+    # Ctrl-C reaches the whole process group: the run must stop promptly (no hang, however many
+    # trials are left), exit 130, and leave only complete trials that a re-run accepts. A million
+    # trials cannot finish before the signal, so the test cannot pass by the run ending on its own.
+    scene_file.write_text(SCENE.replace("trials = 4", "trials = 1000000"))
     out = tmp_path / "d"
     cmd = [sys.executable, "-m", "sqsim.cli", "generate", str(scene_file), "-o", str(out), "--workers", "2",
            "--no-progress"]
     proc = subprocess.Popen(cmd, stderr=subprocess.PIPE, text=True, start_new_session=True)
-    deadline = time.time() + 60
-    while time.time() < deadline and not list((out / "trials").glob("0*")):
+    deadline = time.time() + 120
+    while time.time() < deadline and proc.poll() is None and not list((out / "trials").glob("0*")):
         time.sleep(0.05)
+    assert proc.poll() is None, "the run ended before it was interrupted"
+    assert list((out / "trials").glob("0*")), "no trial written in 120 s"
     os.killpg(proc.pid, signal.SIGINT)
+    sent = time.time()
     _, err = proc.communicate(timeout=60)
+    assert time.time() - sent < 20, f"took {time.time() - sent:.1f} s to stop"
     assert proc.returncode == 130 and "interrupted" in err
     names = [p.name for p in (out / "trials").iterdir()]
-    assert 1 <= len(names) < 400 and not [n for n in names if n.startswith(".")]
+    assert 1 <= len(names) < 1000 and not [n for n in names if n.startswith(".")]
     for name in names:
         load_trial(out / "trials" / name)
+
+
+def test_dask_local_cluster_writes_the_same_bytes(scene_file, tmp_path):
+    distributed = pytest.importorskip("distributed")
+    scene = load_scene(scene_file)
+    generate(scene, tmp_path / "one", workers=1, progress=False)
+    # One worker process with two threads: the threads share (and take turns on) its renderer.
+    with distributed.LocalCluster(n_workers=1, threads_per_worker=2, processes=True,
+                                  dashboard_address=None) as cluster:
+        summary = generate(scene, tmp_path / "dask", scheduler=cluster.scheduler_address, progress=False)
+    assert summary["written"] == 4
+    assert files(tmp_path / "one") == files(tmp_path / "dask")
+
+
+def test_generate_unreachable_scheduler(scene_file, tmp_path, monkeypatch):
+    pytest.importorskip("distributed")
+    import sqsim.parallel
+
+    monkeypatch.setattr(sqsim.parallel, "CONNECT_TIMEOUT_S", 2)
+    with pytest.raises(OSError, match="cannot connect to the Dask scheduler 'tcp://127.0.0.1:9'"):
+        generate(load_scene(scene_file), tmp_path / "d", scheduler="tcp://127.0.0.1:9", progress=False)

@@ -185,3 +185,21 @@ def test_pose_maps_local_to_world():
     local = np.array([[1.0, 0.0, 0.0]])
     world = (sq.pose @ np.append(local[0], 1.0))[:3]
     np.testing.assert_allclose(sqm.to_local(sq, world[None]), local, atol=1e-12)
+
+
+@pytest.mark.parametrize("resolution, count", [(32, 26), (7, 8), (2, 26)])
+def test_mesh_anchors_are_vertices_of_the_mesh(resolution, count):
+    from sqfit.superquadric import mesh_anchors, to_mesh
+
+    sq = Superquadric([0.4, 1.2, 2.0], [0.15, 1.7], [1.0, -2.0, 0.5], [0.3, -1.1, 2.5])
+    anchors = mesh_anchors(sq, resolution)
+    vertices = np.asarray(to_mesh(sq, resolution).vertices)
+    assert anchors.shape == (count, 3)
+    gaps = np.linalg.norm(anchors[:, None] - vertices[None], axis=2).min(axis=1)
+    assert gaps.max() < 1e-12
+    # the axis tips are among them for an even resolution
+    if resolution % 2 == 0:
+        tips = sq.position + (sq.rotation_matrix * np.asarray(sq.size)).T
+        assert np.linalg.norm(anchors[:, None] - tips[None], axis=2).min(axis=0).max() < 1e-9
+    with pytest.raises(ValueError, match="resolution must be an integer >= 2"):
+        mesh_anchors(sq, 1)
