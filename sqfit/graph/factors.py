@@ -35,7 +35,12 @@ def silhouette_factor(noise, camera_key, pose_key, shape_key, rays):
         Tc = values.atPose3(camera_key).matrix()
         Tl = values.atPose3(pose_key).matrix()
         s = values.atVector(shape_key)
-        r, Jc, Jl, Js, d = silhouette_residuals(Tc, Tl, s, rays, warm.get("d"))
+        with np.errstate(all="ignore"):
+            r, Jc, Jl, Js, d = silhouette_residuals(Tc, Tl, s, rays, warm.get("d"))
+        if not (np.all(np.isfinite(r)) and np.all(np.isfinite(Jc)) and np.all(np.isfinite(Jl))
+                and np.all(np.isfinite(Js))):
+            raise FloatingPointError(f"silhouette factor ({gtsam.DefaultKeyFormatter(camera_key)}, "
+                                     f"{gtsam.DefaultKeyFormatter(pose_key)}): non-finite residual at shape {s}")
         warm["d"] = d
         if jacobians is not None:
             jacobians[0], jacobians[1], jacobians[2] = Jc, Jl, Js

@@ -1,0 +1,225 @@
+"""Inputs, options and results of the factor graph (numpy only).
+
+Input interface (what a sequence reader provides):
+
+- ``intrinsics``: one :class:`sqfit.Intrinsics` for the whole sequence;
+- ``odometry_poses``: ``(n, 4, 4)`` ``T_world_camera`` (camera -> world) per frame; frame 0 is the
+  anchor of the graph (its prior), so the result lives in the odometry's world frame;
+- ``observations``: ``{(frame, object_id): sqfit.Observation}``. Only an observation's pixels are
+  used (its contour, and its box for the quadric baseline); where its camera was placed does not
+  matter, the graph puts it at the frame's pose. Data association comes from the instance ids: the
+  same ``object_id`` in two frames is the same object.
+
+Bad input: a non-finite or improper pose (a frame without a pose), an observation in a frame the
+poses do not cover, other intrinsics, or a key that is not ``(int, int)`` raise ``ValueError`` /
+``TypeError`` naming the frame or key. An object seen in fewer than 2 frames cannot be fitted and is
+skipped with a warning in the result (:attr:`SlamResult.skipped`).
+"""
+
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass, field, replace
+
+import numpy as np
+
+from .. import constants as C
+from .._checks import check_shape
+from ..camera import Camera, Intrinsics
+from ..observation import Observation
+from ..pipeline import DEFAULT_CHAIN
+
+__all__ = ["GraphOptions", "SlamResult", "Problem", "check_inputs", "observation_at"]
+
+#: Fewest frames an object must be seen in to be fitted (a single silhouette fixes no depth).
+MIN_FRAMES = 2
+
+
+@dataclass(frozen=True)
+class GraphOptions:
+    """Options of the graph methods (:mod:`sqfit.graph.solve`).
+
+    Attributes
+    ----------
+    n_contour : int
+        Rays per (frame, object) silhouette factor, >= 3.
+    silhouette_sigma : float
+        Expected RMS of a good view's ray residuals (``phi ~`` contour error relative to the
+        object's image radius, unitless), > 0: the factor's whitened norm is
+        ``RMS(phi) / silhouette_sigma``.
+    huber_k : float
+        Huber threshold on a silhouette (or box) factor's whitened norm, > 0: a whole bad mask is
+        down-weighted, not one ray.
+    odometry_sigma_deg, odometry_sigma_m : float
+        Standard deviations of a ``BetweenFactorPose3`` (per frame step), degrees and metres.
+    prior_sigma_deg, prior_sigma_m : float
+        Prior on frame 0's pose.
+    init_frames : int
+        A landmark is initialised by :func:`sqfit.fit` (chain ``init_chain``) from the first
+        ``init_frames`` frames that see it (fewer if it is seen in fewer), >= 2.
+    init_chain : str
+    bounds_weight : float
+        ``c_p`` of the size/shape bound penalty (eq. 7), >= 0.
+    box_sigma_px : float
+        Standard deviation of a box side, pixels (quadric baseline).
+    max_iterations : int
+        Levenberg-Marquardt iterations of the batch solves.
+    relative_tolerance : float
+        Levenberg-Marquardt relative error decrease to stop at.
+    """
+
+    n_contour: int = 32
+    silhouette_sigma: float = 0.01
+    huber_k: float = 1.345
+    odometry_sigma_deg: float = 0.5
+    odometry_sigma_m: float = 0.005
+    prior_sigma_deg: float = 0.01
+    prior_sigma_m: float = 0.001
+    init_frames: int = 3
+    init_chain: str = DEFAULT_CHAIN
+    bounds_weight: float = C.PENALTY_ANALYTIC
+    box_sigma_px: float = 2.0
+    max_iterations: int = 50
+    relative_tolerance: float = 1e-5
+
+    def __post_init__(self):
+        for name in ("n_contour", "init_frames", "max_iterations"):
+            v, lo = getattr(self, name), {"n_contour": 3, "init_frames": MIN_FRAMES}.get(name, 1)
+            if int(v) != v or v < lo:
+                raise ValueError(f"{name} must be an integer >= {lo}, got {v}")
+        for name in ("silhouette_sigma", "huber_k", "odometry_sigma_deg", "odometry_sigma_m",
+                     "prior_sigma_deg", "prior_sigma_m", "box_sigma_px", "relative_tolerance"):
+            v = getattr(self, name)
+            if not (np.isfinite(v) and v > 0):
+                raise ValueError(f"{name} must be a finite number > 0, got {v}")
+        if not (np.isfinite(self.bounds_weight) and self.bounds_weight >= 0):
+            raise ValueError(f"bounds_weight must be a finite number >= 0, got {self.bounds_weight}")
+
+    @classmethod
+    def coerce(cls, options):
+        """``None`` -> defaults, a dict -> GraphOptions (unknown keys raise ValueError naming them)."""
+        if options is None:
+            return cls()
+        if isinstance(options, cls):
+            return options
+        if isinstance(options, dict):
+            unknown = sorted(set(options) - set(cls.__dataclass_fields__))
+            if unknown:
+                raise ValueError(f"unknown graph option(s) {unknown}; valid: {sorted(cls.__dataclass_fields__)}")
+            return cls(**options)
+        raise TypeError(f"options must be None, a dict or a GraphOptions, got {type(options).__name__}")
+
+
+@dataclass
+class SlamResult:
+    """What one method made of a sequence.
+
+    Attributes
+    ----------
+    method : str
+    poses : (n, 4, 4) float
+        Estimated ``T_world_camera`` per frame.
+    objects : dict of int -> Superquadric
+        Fitted objects by id (ellipsoids, ``e = 1``, for the quadric baseline).
+    seconds, cpu_seconds : float
+        Wall and process CPU time of the whole method (initial fits included).
+    frame_seconds, frame_cpu_seconds : (n,) float or None
+        Incremental methods: wall and CPU time of each frame's update.
+    skipped : dict of int -> str
+        Objects left out, with the reason.
+    warnings : list of str
+    iterations : int
+        Optimiser iterations (batch) or updates (incremental).
+    error_initial, error_final : float or None
+        Graph error (``0.5 * sum`` of whitened robust squared residuals) before and after.
+    """
+
+    method: str
+    poses: np.ndarray
+    objects: dict = field(default_factory=dict)
+    seconds: float = 0.0
+    cpu_seconds: float = 0.0
+    frame_seconds: np.ndarray | None = None
+    frame_cpu_seconds: np.ndarray | None = None
+    skipped: dict = field(default_factory=dict)
+    warnings: list = field(default_factory=list)
+    iterations: int = 0
+    error_initial: float | None = None
+    error_final: float | None = None
+
+    def to_dict(self):
+        """A JSON-serialisable dict (poses as nested lists, objects as parameter vectors)."""
+        d = asdict(self)
+        d["poses"] = self.poses.tolist()
+        d["objects"] = {str(k): sq.to_vector().tolist() for k, sq in self.objects.items()}
+        d["skipped"] = {str(k): v for k, v in self.skipped.items()}
+        for key in ("frame_seconds", "frame_cpu_seconds"):
+            d[key] = None if d[key] is None else np.asarray(d[key]).tolist()
+        return d
+
+
+@dataclass(frozen=True)
+class Problem:
+    """Checked inputs: poses, observations by object, and the objects left out."""
+
+    intrinsics: Intrinsics
+    odometry_poses: np.ndarray
+    observations: dict
+    frames: dict  # object id -> sorted frames that see it (only objects that can be fitted)
+    skipped: dict
+    warnings: tuple
+
+    @property
+    def n_frames(self):
+        return len(self.odometry_poses)
+
+
+def _check_pose(T, i):
+    if not np.all(np.isfinite(T)):
+        raise ValueError(f"frame {i} has no pose: odometry_poses[{i}] contains NaN or inf")
+    R = T[:3, :3]
+    if (not np.allclose(T[3], [0, 0, 0, 1]) or not np.allclose(R @ R.T, np.eye(3), atol=1e-6)
+            or np.linalg.det(R) < 0):
+        raise ValueError(f"odometry_poses[{i}] is not a rigid transform (proper rotation, last row [0, 0, 0, 1])")
+
+
+def check_inputs(intrinsics, odometry_poses, observations):
+    """Coerce and check the graph's inputs (module docstring); returns a :class:`Problem`."""
+    if not isinstance(intrinsics, Intrinsics):
+        raise TypeError(f"intrinsics must be a sqfit.Intrinsics, got {type(intrinsics).__name__}")
+    poses = check_shape(odometry_poses, (None, 4, 4), "odometry_poses", finite=False)
+    if len(poses) == 0:
+        raise ValueError("odometry_poses must have at least one frame")
+    for i, T in enumerate(poses):
+        _check_pose(T, i)
+    if not isinstance(observations, dict):
+        raise TypeError(f"observations must be a dict {{(frame, object_id): Observation}}, got "
+                        f"{type(observations).__name__}")
+    obs, by_object = {}, {}
+    for key, o in observations.items():
+        if not (isinstance(key, tuple) and len(key) == 2 and all(isinstance(k, (int, np.integer)) for k in key)):
+            raise TypeError(f"observation key {key!r} must be a tuple (frame, object_id) of ints")
+        frame, oid = int(key[0]), int(key[1])
+        if not isinstance(o, Observation):
+            raise TypeError(f"observation {key}: must be a sqfit.Observation, got {type(o).__name__}")
+        if not 0 <= frame < len(poses):
+            raise ValueError(f"observation (frame {frame}, object {oid}): frame {frame} has no pose "
+                             f"(odometry_poses has {len(poses)} frames)")
+        if o.camera.intrinsics != intrinsics:
+            raise ValueError(f"observation (frame {frame}, object {oid}): its camera's intrinsics differ from "
+                             f"the sequence's")
+        obs[frame, oid] = o
+        by_object.setdefault(oid, []).append(frame)
+    frames, skipped, warnings = {}, {}, []
+    for oid in sorted(by_object):
+        seen = sorted(by_object[oid])
+        if len(seen) < MIN_FRAMES:
+            skipped[oid] = f"seen in {len(seen)} frame only (frame {seen[0]}); needs >= {MIN_FRAMES}"
+            warnings.append(f"object {oid}: skipped, {skipped[oid]}")
+        else:
+            frames[oid] = seen
+    return Problem(intrinsics, poses, obs, frames, skipped, tuple(warnings))
+
+
+def observation_at(observation, T_world_camera):
+    """The observation with its camera moved to ``T_world_camera`` (pixels unchanged)."""
+    return replace(observation, camera=Camera(observation.camera.intrinsics, T_world_camera))

@@ -1,0 +1,305 @@
+"""The factor graph and its baselines on one sequence (inputs: :mod:`sqfit.graph.problem`).
+
+Graph (GTSAM): a ``Pose3`` ``X(i)`` per frame, a ``PriorFactorPose3`` on ``X(0)`` at the first
+odometry pose, a ``BetweenFactorPose3`` per frame step from the odometry; per object ``j`` a
+landmark pose ``L(j)`` (``Pose3``, superquadric -> world) and a size/shape vector ``S(j)``
+(``[ax, ay, az, e1, e2]``) with the bound penalty (eq. 7) as a unary factor; one silhouette factor
+per (frame, object) (:func:`sqfit.graph.factors.silhouette_factor`) under a Huber-robust noise
+model. Each landmark starts from :func:`sqfit.fit` on the first frames that see it, at the current
+pose estimates.
+
+Methods (every one returns a :class:`sqfit.graph.problem.SlamResult`):
+
+- ``odometry``: the odometry poses, no objects;
+- ``fixed``: per-object :func:`sqfit.fit` on all frames that see the object, at the odometry
+  poses (no joint optimisation);
+- ``graph``: the graph above, batch Levenberg-Marquardt;
+- ``graph-isam2``: the same graph grown frame by frame with iSAM2 (one update per frame; a landmark
+  joins once it has been seen in ``init_frames`` frames, or at the last frame if seen in fewer);
+- ``quadric``: QuadricSLAM (:mod:`sqfit.graph.quadric`): ellipsoid landmarks ``L(j)``, radii
+  ``Q(j)``, one box factor per (frame, object) whose mask does not touch the image border, batch
+  Levenberg-Marquardt, initialised by the paper's linear method from all the object's boxes.
+"""
+
+from __future__ import annotations
+
+import time
+
+import gtsam
+import numpy as np
+from gtsam.symbol_shorthand import L, Q, S, X
+
+from .. import pipeline
+from .factors import bounds_factor, box_factor, silhouette_factor
+from .landmark import camera_rays, landmark_to_superquadric, superquadric_to_landmark
+from .problem import GraphOptions, SlamResult, check_inputs, observation_at
+from .quadric import initialise_quadric, observation_box, quadric_to_superquadric
+
+__all__ = ["METHODS", "run", "odometry", "fixed_pose_fits", "superquadric_graph", "quadric_graph"]
+
+
+class _Clock:
+    """Wall and process CPU time since construction."""
+
+    def __init__(self):
+        self.wall, self.cpu = time.perf_counter(), time.process_time()
+
+    def elapsed(self):
+        return time.perf_counter() - self.wall, time.process_time() - self.cpu
+
+
+def _noise(options):
+    rot, pos = np.radians(options.odometry_sigma_deg), options.odometry_sigma_m
+    prot, ppos = np.radians(options.prior_sigma_deg), options.prior_sigma_m
+    return {
+        "odometry": gtsam.noiseModel.Diagonal.Sigmas(np.array([rot] * 3 + [pos] * 3)),
+        "prior": gtsam.noiseModel.Diagonal.Sigmas(np.array([prot] * 3 + [ppos] * 3)),
+    }
+
+
+def _robust(dim, sigma, k):
+    """Huber on the factor's whitened norm; ``sigma`` and ``k`` per row (a factor of ``dim`` inlier
+    rows has a whitened norm of about ``sqrt(dim)``, so the threshold is ``k sqrt(dim)``)."""
+    return gtsam.noiseModel.Robust.Create(gtsam.noiseModel.mEstimator.Huber.Create(k * np.sqrt(dim)),
+                                          gtsam.noiseModel.Isotropic.Sigma(dim, sigma))
+
+
+def _pose_factors(problem, noise, frames):
+    """Prior on frame 0 and odometry between consecutive frames, for ``frames``."""
+    graph, poses = gtsam.NonlinearFactorGraph(), problem.odometry_poses
+    for i in frames:
+        if i == 0:
+            graph.add(gtsam.PriorFactorPose3(X(0), gtsam.Pose3(poses[0]), noise["prior"]))
+        else:
+            delta = gtsam.Pose3(np.linalg.inv(poses[i - 1]) @ poses[i])
+            graph.add(gtsam.BetweenFactorPose3(X(i - 1), X(i), delta, noise["odometry"]))
+    return graph
+
+
+def _poses(values, n):
+    return np.stack([values.atPose3(X(i)).matrix() for i in range(n)])
+
+
+def _initial_fit(problem, oid, frames, poses, options):
+    """:func:`sqfit.fit` of object ``oid`` on ``frames`` at ``poses`` (frame -> (4, 4)); a landmark
+    ``(T, shape)`` or the failure message."""
+    obs = [observation_at(problem.observations[f, oid], poses[f]) for f in frames]
+    res = pipeline.fit(obs, options.init_chain)
+    if not res.ok or res.superquadric is None:
+        return None, f"initial fit on frames {list(frames)} failed: {res.status}: {res.message}"
+    return superquadric_to_landmark(res.superquadric), ""
+
+
+def _add_landmark(graph, values, problem, oid, frames, landmark, options):
+    T, shape = landmark
+    values.insert(L(oid), gtsam.Pose3(T))
+    values.insert(S(oid), np.asarray(shape, dtype=np.float64))
+    graph.add(bounds_factor(S(oid), options.bounds_weight))
+    for f in frames:
+        graph.add(_silhouette(problem, f, oid, options))
+
+
+def _silhouette(problem, frame, oid, options):
+    rays = camera_rays(problem.observations[frame, oid], options.n_contour)
+    # the ray residuals carry contour_rays' weights 1 / sqrt(n): sigma per weighted row
+    sigma = options.silhouette_sigma / np.sqrt(len(rays))
+    return silhouette_factor(_robust(len(rays), sigma, options.huber_k), X(frame), L(oid),
+                             S(oid), rays)
+
+
+def _lm(graph, values, options):
+    params = gtsam.LevenbergMarquardtParams()
+    params.setMaxIterations(int(options.max_iterations))
+    params.setRelativeErrorTol(options.relative_tolerance)
+    optimizer = gtsam.LevenbergMarquardtOptimizer(graph, values, params)
+    out = optimizer.optimize()
+    return out, optimizer.iterations()
+
+
+def _objects(values, oids):
+    return {oid: landmark_to_superquadric(values.atPose3(L(oid)).matrix(), values.atVector(S(oid))) for oid in oids}
+
+
+def odometry(intrinsics, odometry_poses, observations, options=None):
+    """Baseline: the odometry poses as the trajectory, no objects."""
+    clock, problem = _Clock(), check_inputs(intrinsics, odometry_poses, observations)
+    wall, cpu = clock.elapsed()
+    return SlamResult("odometry", problem.odometry_poses.copy(), seconds=wall, cpu_seconds=cpu,
+                      skipped=dict(problem.skipped), warnings=list(problem.warnings))
+
+
+def fixed_pose_fits(intrinsics, odometry_poses, observations, options=None):
+    """Baseline: per-object :func:`sqfit.fit` on every frame that sees it, at the odometry poses."""
+    clock, options = _Clock(), GraphOptions.coerce(options)
+    problem = check_inputs(intrinsics, odometry_poses, observations)
+    result = SlamResult("fixed", problem.odometry_poses.copy(), skipped=dict(problem.skipped),
+                        warnings=list(problem.warnings))
+    for oid, frames in problem.frames.items():
+        landmark, message = _initial_fit(problem, oid, frames, problem.odometry_poses, options)
+        if landmark is None:
+            _skip(result, oid, message)
+        else:
+            result.objects[oid] = landmark_to_superquadric(*landmark)
+    result.seconds, result.cpu_seconds = clock.elapsed()
+    return result
+
+
+def _skip(result, oid, reason):
+    result.skipped[oid] = reason
+    result.warnings.append(f"object {oid}: skipped, {reason}")
+
+
+def superquadric_graph(intrinsics, odometry_poses, observations, options=None, incremental=False):
+    """Joint camera-pose and superquadric optimisation (module docstring): batch Levenberg-Marquardt,
+    or iSAM2 frame by frame with ``incremental=True``.
+
+    Parameters
+    ----------
+    intrinsics : Intrinsics
+    odometry_poses : (n, 4, 4) float
+        ``T_world_camera`` per frame.
+    observations : dict of (int, int) -> Observation
+        ``(frame, object_id) -> observation``.
+    options : GraphOptions or dict, optional
+    incremental : bool
+
+    Returns
+    -------
+    result : SlamResult
+    """
+    options = GraphOptions.coerce(options)
+    problem = check_inputs(intrinsics, odometry_poses, observations)
+    if incremental:
+        return _isam2(problem, options)
+    clock = _Clock()
+    result = SlamResult("graph", problem.odometry_poses.copy(), skipped=dict(problem.skipped),
+                        warnings=list(problem.warnings))
+    noise = _noise(options)
+    graph = _pose_factors(problem, noise, range(problem.n_frames))
+    values = gtsam.Values()
+    for i, T in enumerate(problem.odometry_poses):
+        values.insert(X(i), gtsam.Pose3(T))
+    added = []
+    for oid, frames in problem.frames.items():
+        landmark, message = _initial_fit(problem, oid, frames[:options.init_frames], problem.odometry_poses, options)
+        if landmark is None:
+            _skip(result, oid, message)
+            continue
+        _add_landmark(graph, values, problem, oid, frames, landmark, options)
+        added.append(oid)
+    result.error_initial = graph.error(values)
+    out, result.iterations = _lm(graph, values, options)
+    result.error_final = graph.error(out)
+    result.poses, result.objects = _poses(out, problem.n_frames), _objects(out, added)
+    result.seconds, result.cpu_seconds = clock.elapsed()
+    return result
+
+
+def _isam2(problem, options):
+    clock = _Clock()
+    n = problem.n_frames
+    result = SlamResult("graph-isam2", problem.odometry_poses.copy(), skipped=dict(problem.skipped),
+                        warnings=list(problem.warnings), frame_seconds=np.zeros(n), frame_cpu_seconds=np.zeros(n))
+    params = gtsam.ISAM2Params()
+    params.setRelinearizeThreshold(0.01)
+    params.relinearizeSkip = 1
+    isam = gtsam.ISAM2(params)
+    noise = _noise(options)
+    by_frame = {}
+    for oid, frames in problem.frames.items():
+        for f in frames:
+            by_frame.setdefault(f, []).append(oid)
+    pending, added, failed, estimate = {}, set(), set(), gtsam.Values()
+    current = {}  # frame -> (4, 4) current estimate, for the initial fits
+    for i in range(n):
+        step = _Clock()
+        graph, values = _pose_factors(problem, noise, [i]), gtsam.Values()
+        if i == 0:
+            T = problem.odometry_poses[0]
+        else:
+            delta = np.linalg.inv(problem.odometry_poses[i - 1]) @ problem.odometry_poses[i]
+            T = estimate.atPose3(X(i - 1)).matrix() @ delta
+        values.insert(X(i), gtsam.Pose3(T))
+        current[i] = T
+        for oid in by_frame.get(i, []):
+            if oid in failed:
+                continue
+            if oid in added:
+                graph.add(_silhouette(problem, i, oid, options))
+                continue
+            pending.setdefault(oid, []).append(i)
+            frames = pending[oid]
+            if len(frames) < options.init_frames and not (i == n - 1 and len(frames) >= 2):
+                continue
+            landmark, message = _initial_fit(problem, oid, frames, current, options)
+            if landmark is None:
+                _skip(result, oid, message)
+                failed.add(oid)
+                continue
+            _add_landmark(graph, values, problem, oid, frames, landmark, options)
+            added.add(oid)
+        isam.update(graph, values)
+        estimate = isam.calculateEstimate()
+        for f in range(i + 1):
+            current[f] = estimate.atPose3(X(f)).matrix()
+        result.frame_seconds[i], result.frame_cpu_seconds[i] = step.elapsed()
+    for oid in problem.frames:
+        if oid not in added and oid not in result.skipped:
+            _skip(result, oid, f"seen in {len(pending.get(oid, []))} frames, fewer than needed to initialise")
+    result.iterations = n
+    result.error_final = isam.getFactorsUnsafe().error(estimate)
+    result.poses, result.objects = _poses(estimate, n), _objects(estimate, sorted(added))
+    result.seconds, result.cpu_seconds = clock.elapsed()
+    return result
+
+
+def quadric_graph(intrinsics, odometry_poses, observations, options=None):
+    """Baseline: QuadricSLAM's dual quadrics from boxes in the same graph, batch Levenberg-Marquardt."""
+    clock, options = _Clock(), GraphOptions.coerce(options)
+    problem = check_inputs(intrinsics, odometry_poses, observations)
+    result = SlamResult("quadric", problem.odometry_poses.copy(), skipped=dict(problem.skipped),
+                        warnings=list(problem.warnings))
+    noise, K = _noise(options), intrinsics.K
+    graph = _pose_factors(problem, noise, range(problem.n_frames))
+    values = gtsam.Values()
+    for i, T in enumerate(problem.odometry_poses):
+        values.insert(X(i), gtsam.Pose3(T))
+    added = []
+    for oid, frames in problem.frames.items():
+        frames = [f for f in frames if not problem.observations[f, oid].touches_border]
+        boxes = [observation_box(problem.observations[f, oid]) for f in frames]
+        Z, radii = initialise_quadric(problem.odometry_poses[frames], K, boxes)
+        if Z is None:
+            _skip(result, oid, f"no quadric from the boxes of {len(frames)} untruncated frames")
+            continue
+        values.insert(L(oid), gtsam.Pose3(Z))
+        values.insert(Q(oid), radii)
+        for f, box in zip(frames, boxes):
+            graph.add(box_factor(_robust(4, options.box_sigma_px, options.huber_k), X(f), L(oid), Q(oid), K, box))
+        added.append(oid)
+    result.error_initial = graph.error(values)
+    out, result.iterations = _lm(graph, values, options)
+    result.error_final = graph.error(out)
+    result.poses = _poses(out, problem.n_frames)
+    result.objects = {oid: quadric_to_superquadric(out.atPose3(L(oid)).matrix(), out.atVector(Q(oid)))
+                      for oid in added}
+    result.seconds, result.cpu_seconds = clock.elapsed()
+    return result
+
+
+#: Every method by name, in table order.
+METHODS = {
+    "odometry": odometry,
+    "fixed": fixed_pose_fits,
+    "quadric": quadric_graph,
+    "graph": superquadric_graph,
+    "graph-isam2": lambda *args, **kw: superquadric_graph(*args, **kw, incremental=True),
+}
+
+
+def run(intrinsics, odometry_poses, observations, methods=tuple(METHODS), options=None):
+    """Run several methods on one sequence; ``{method: SlamResult}`` in the order given."""
+    unknown = [m for m in methods if m not in METHODS]
+    if unknown:
+        raise ValueError(f"unknown method(s) {unknown}; valid: {list(METHODS)}")
+    return {m: METHODS[m](intrinsics, odometry_poses, observations, options) for m in methods}
