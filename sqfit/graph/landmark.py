@@ -40,11 +40,16 @@ from ..raycost import contour_rays, ray_residuals
 from ..superquadric import Superquadric
 
 __all__ = ["N_SHAPE", "camera_rays", "silhouette_residuals", "bounds_residuals", "landmark_to_superquadric",
-           "superquadric_to_landmark", "relative_pose"]
+           "superquadric_to_landmark", "relative_pose", "EVAL_LOWER", "EVAL_UPPER"]
 
 #: Length of the size/shape vector ``[ax, ay, az, e1, e2]``.
 N_SHAPE = 5
 _SHAPE_LO, _SHAPE_HI = LOWER_BOUNDS[:N_SHAPE], UPPER_BOUNDS[:N_SHAPE]
+#: The silhouette residual is evaluated at the size/shape vector clipped to these (metres, unitless;
+#: convex shapes with finite powers), with zero Jacobian columns where clipped: an optimiser's trial
+#: step outside the bounds meets the bound penalty, not a non-finite residual.
+EVAL_LOWER = np.array([0.01, 0.01, 0.01, 0.05, 0.05])
+EVAL_UPPER = np.array([np.inf, np.inf, np.inf, 2.0, 2.0])
 
 
 def camera_rays(observation, n_contour):
@@ -89,7 +94,8 @@ def silhouette_residuals(T_world_camera, T_world_sq, shape, rays, d0=None):
     T_world_sq : (4, 4) float
         Landmark pose (superquadric -> world).
     shape : (5,) float
-        ``[ax, ay, az, e1, e2]``.
+        ``[ax, ay, az, e1, e2]``; clipped to ``[EVAL_LOWER, EVAL_UPPER]`` (zero Jacobian columns
+        where clipped).
     rays : RaySet
         Camera-frame rays (:func:`camera_rays`).
     d0 : (n,) float, optional
@@ -111,7 +117,8 @@ def silhouette_residuals(T_world_camera, T_world_sq, shape, rays, d0=None):
     R_sc, t_sc = relative_pose(T_world_camera, T_world_sq)
     b = rays.directions
     local = replace(rays, origins=np.broadcast_to(t_sc, b.shape), directions=b @ R_sc.T)
-    xi = np.concatenate([shape, np.zeros(C.N_PARAMS - N_SHAPE)])
+    clipped = np.clip(shape, EVAL_LOWER, EVAL_UPPER)
+    xi = np.concatenate([clipped, np.zeros(C.N_PARAMS - N_SHAPE)])
     r, J, d = ray_residuals(xi, local, 0.0, d0)
     n = len(rays)
     r, J = r[:n], J[:n]
@@ -120,7 +127,8 @@ def silhouette_residuals(T_world_camera, T_world_sq, shape, rays, d0=None):
     J_landmark = np.hstack([np.cross(g, y), -g])
     g_c = g @ R_sc
     J_camera = np.hstack([d[:, None] * np.cross(b, g_c), g_c])
-    return r, J_camera, J_landmark, J[:, :N_SHAPE], d
+    J_shape = J[:, :N_SHAPE] * (clipped == shape)
+    return r, J_camera, J_landmark, J_shape, d
 
 
 def bounds_residuals(shape, weight=C.PENALTY_ANALYTIC):

@@ -28,7 +28,8 @@ from ..camera import Camera, Intrinsics
 from ..observation import Observation
 from ..pipeline import DEFAULT_CHAIN
 
-__all__ = ["GraphOptions", "SlamResult", "Problem", "check_inputs", "observation_at"]
+__all__ = ["GraphOptions", "SlamResult", "Problem", "check_inputs", "observation_at", "parallax_deg",
+           "ready_to_initialise"]
 
 #: Fewest frames an object must be seen in to be fitted (a single silhouette fixes no depth).
 MIN_FRAMES = 2
@@ -53,14 +54,22 @@ class GraphOptions:
         Standard deviations of a ``BetweenFactorPose3`` (per frame step), degrees and metres.
     prior_sigma_deg, prior_sigma_m : float
         Prior on frame 0's pose.
-    init_frames : int
-        A landmark is initialised by :func:`sqfit.fit` (chain ``init_chain``) from the first
-        ``init_frames`` frames that see it (fewer if it is seen in fewer), >= 2.
+    init_frames, init_parallax_deg : int, float
+        A landmark is initialised by :func:`sqfit.fit` (chain ``init_chain``) from the first frames
+        that see it: at least ``init_frames`` (>= 2) and until the parallax of its mask centroid
+        between the first and the last of them reaches ``init_parallax_deg`` (all its frames if it
+        never does). Silhouettes from a short baseline fix the size and depth poorly.
     init_chain : str
     bounds_weight : float
         ``c_p`` of the size/shape bound penalty (eq. 7), >= 0.
+    landmark_prior_sigma_deg, landmark_prior_sigma_m, shape_prior_sigma : float
+        Weak priors on each landmark's pose and size/shape vector at its initial fit (degrees,
+        metres, metres or unitless): they fix what a symmetric shape leaves unobserved.
     box_sigma_px : float
         Standard deviation of a box side, pixels (quadric baseline).
+    isam2_dogleg : bool
+        iSAM2 steps by Powell's dogleg (trust region; evaluates the whole graph's error at every
+        update) instead of Gauss-Newton.
     max_iterations : int
         Levenberg-Marquardt iterations of the batch solves.
     relative_tolerance : float
@@ -68,16 +77,21 @@ class GraphOptions:
     """
 
     n_contour: int = 32
-    silhouette_sigma: float = 0.01
+    silhouette_sigma: float = 0.03
     huber_k: float = 1.345
     odometry_sigma_deg: float = 0.5
     odometry_sigma_m: float = 0.005
     prior_sigma_deg: float = 0.01
     prior_sigma_m: float = 0.001
     init_frames: int = 3
+    init_parallax_deg: float = 20.0
     init_chain: str = DEFAULT_CHAIN
     bounds_weight: float = C.PENALTY_ANALYTIC
+    landmark_prior_sigma_deg: float = 90.0
+    landmark_prior_sigma_m: float = 10.0
+    shape_prior_sigma: float = 10.0
     box_sigma_px: float = 2.0
+    isam2_dogleg: bool = False
     max_iterations: int = 50
     relative_tolerance: float = 1e-5
 
@@ -87,7 +101,8 @@ class GraphOptions:
             if int(v) != v or v < lo:
                 raise ValueError(f"{name} must be an integer >= {lo}, got {v}")
         for name in ("silhouette_sigma", "huber_k", "odometry_sigma_deg", "odometry_sigma_m",
-                     "prior_sigma_deg", "prior_sigma_m", "box_sigma_px", "relative_tolerance"):
+                     "prior_sigma_deg", "prior_sigma_m", "landmark_prior_sigma_deg", "init_parallax_deg",
+                     "landmark_prior_sigma_m", "shape_prior_sigma", "box_sigma_px", "relative_tolerance"):
             v = getattr(self, name)
             if not (np.isfinite(v) and v > 0):
                 raise ValueError(f"{name} must be a finite number > 0, got {v}")
@@ -131,6 +146,10 @@ class SlamResult:
         Optimiser iterations (batch) or updates (incremental).
     error_initial, error_final : float or None
         Graph error (``0.5 * sum`` of whitened robust squared residuals) before and after.
+    status : str
+        ``"ok"``, or ``"failed"`` when the optimiser stopped on an error (``message`` says which);
+        ``poses`` are then the odometry and ``objects`` empty.
+    message : str
     """
 
     method: str
@@ -145,6 +164,19 @@ class SlamResult:
     iterations: int = 0
     error_initial: float | None = None
     error_final: float | None = None
+    status: str = "ok"
+    message: str = ""
+
+    @property
+    def ok(self):
+        return self.status == "ok"
+
+    def fail(self, where, exc):
+        """Flag the result as failed by ``exc`` (an optimiser error) at ``where``."""
+        first = next((line for line in str(exc).splitlines() if line.strip()), type(exc).__name__)
+        self.status, self.message = "failed", f"{where}: {type(exc).__name__}: {first.strip()}"
+        self.objects = {}
+        self.warnings.append(self.message)
 
     def to_dict(self):
         """A JSON-serialisable dict (poses as nested lists, objects as parameter vectors)."""
@@ -218,6 +250,44 @@ def check_inputs(intrinsics, odometry_poses, observations):
         else:
             frames[oid] = seen
     return Problem(intrinsics, poses, obs, frames, skipped, tuple(warnings))
+
+
+def parallax_deg(first, last, T_first, T_last):
+    """Angle at the triangulated mask centroid between two cameras' centres, degrees (0 when the
+    centroid rays do not meet in front of both cameras).
+
+    Parameters
+    ----------
+    first, last : Observation
+    T_first, T_last : (4, 4) float
+        The frames' ``T_world_camera``.
+    """
+    from ..camera import bearings
+
+    c = np.stack([T_first[:3, 3], T_last[:3, 3]])
+    d = np.stack([T[:3, :3] @ bearings(o.camera, o.centroid[None])[0] for o, T in ((first, T_first), (last, T_last))])
+    # closest points c_i + t_i d_i of the two rays
+    A = np.array([[d[0] @ d[0], -d[0] @ d[1]], [d[0] @ d[1], -d[1] @ d[1]]])
+    rhs = np.array([d[0] @ (c[1] - c[0]), d[1] @ (c[1] - c[0])])
+    if abs(np.linalg.det(A)) < 1e-12:
+        return 0.0
+    t = np.linalg.solve(A, rhs)
+    if np.any(t <= 0):
+        return 0.0
+    X = 0.5 * (c[0] + t[0] * d[0] + c[1] + t[1] * d[1])
+    u, v = c[0] - X, c[1] - X
+    return float(np.degrees(np.arccos(np.clip(u @ v / (np.linalg.norm(u) * np.linalg.norm(v)), -1.0, 1.0))))
+
+
+def ready_to_initialise(problem, oid, frames, poses, options):
+    """True when ``frames`` (the first frames seeing ``oid``, in order) are enough for its initial
+    fit (:class:`GraphOptions`: ``init_frames`` and ``init_parallax_deg``); ``poses`` maps a frame to
+    its current ``T_world_camera``."""
+    if len(frames) < options.init_frames:
+        return False
+    first, last = frames[0], frames[-1]
+    return parallax_deg(problem.observations[first, oid], problem.observations[last, oid], poses[first],
+                        poses[last]) >= options.init_parallax_deg
 
 
 def observation_at(observation, T_world_camera):

@@ -15,7 +15,8 @@ Methods (every one returns a :class:`sqfit.graph.problem.SlamResult`):
   poses (no joint optimisation);
 - ``graph``: the graph above, batch Levenberg-Marquardt;
 - ``graph-isam2``: the same graph grown frame by frame with iSAM2 (one update per frame; a landmark
-  joins once it has been seen in ``init_frames`` frames, or at the last frame if seen in fewer);
+  joins once its first frames are enough for its initial fit (``init_frames``, ``init_parallax_deg``),
+  or at the last frame if they never are);
 - ``quadric``: QuadricSLAM (:mod:`sqfit.graph.quadric`): ellipsoid landmarks ``L(j)``, radii
   ``Q(j)``, one box factor per (frame, object) whose mask does not touch the image border, batch
   Levenberg-Marquardt, initialised by the paper's linear method from all the object's boxes.
@@ -32,10 +33,15 @@ from gtsam.symbol_shorthand import L, Q, S, X
 from .. import pipeline
 from .factors import bounds_factor, box_factor, silhouette_factor
 from .landmark import camera_rays, landmark_to_superquadric, superquadric_to_landmark
-from .problem import GraphOptions, SlamResult, check_inputs, observation_at
+from .problem import GraphOptions, SlamResult, check_inputs, observation_at, ready_to_initialise
 from .quadric import initialise_quadric, observation_box, quadric_to_superquadric
 
 __all__ = ["METHODS", "run", "odometry", "fixed_pose_fits", "superquadric_graph", "quadric_graph"]
+
+
+#: What the optimisers raise on a bad system (gtsam's indeterminate-system error is a RuntimeError;
+#: a factor's non-finite residual a FloatingPointError): the method's result is flagged failed.
+_SOLVER_ERRORS = (RuntimeError, FloatingPointError)
 
 
 class _Clock:
@@ -92,9 +98,15 @@ def _initial_fit(problem, oid, frames, poses, options):
 
 def _add_landmark(graph, values, problem, oid, frames, landmark, options):
     T, shape = landmark
+    shape = np.asarray(shape, dtype=np.float64)
     values.insert(L(oid), gtsam.Pose3(T))
-    values.insert(S(oid), np.asarray(shape, dtype=np.float64))
+    values.insert(S(oid), shape)
     graph.add(bounds_factor(S(oid), options.bounds_weight))
+    # Weak priors at the initial fit: the rotation of a shape with a symmetry axis (and e.g. e1 of a
+    # shape seen only side-on) is not observed, which iSAM2's undamped Gauss-Newton cannot solve.
+    rot, pos, size = np.radians(options.landmark_prior_sigma_deg), options.landmark_prior_sigma_m, options.shape_prior_sigma
+    graph.add(gtsam.PriorFactorPose3(L(oid), gtsam.Pose3(T), gtsam.noiseModel.Diagonal.Sigmas(np.array([rot] * 3 + [pos] * 3))))
+    graph.add(gtsam.PriorFactorVector(S(oid), shape, gtsam.noiseModel.Isotropic.Sigma(len(shape), size)))
     for f in frames:
         graph.add(_silhouette(problem, f, oid, options))
 
@@ -181,16 +193,22 @@ def superquadric_graph(intrinsics, odometry_poses, observations, options=None, i
         values.insert(X(i), gtsam.Pose3(T))
     added = []
     for oid, frames in problem.frames.items():
-        landmark, message = _initial_fit(problem, oid, frames[:options.init_frames], problem.odometry_poses, options)
+        first = next((frames[:k] for k in range(2, len(frames) + 1)
+                      if ready_to_initialise(problem, oid, frames[:k], problem.odometry_poses, options)), frames)
+        landmark, message = _initial_fit(problem, oid, first, problem.odometry_poses, options)
         if landmark is None:
             _skip(result, oid, message)
             continue
         _add_landmark(graph, values, problem, oid, frames, landmark, options)
         added.append(oid)
-    result.error_initial = graph.error(values)
-    out, result.iterations = _lm(graph, values, options)
-    result.error_final = graph.error(out)
-    result.poses, result.objects = _poses(out, problem.n_frames), _objects(out, added)
+    try:
+        result.error_initial = graph.error(values)
+        out, result.iterations = _lm(graph, values, options)
+    except _SOLVER_ERRORS as exc:
+        result.fail("Levenberg-Marquardt", exc)
+    else:
+        result.error_final = graph.error(out)
+        result.poses, result.objects = _poses(out, problem.n_frames), _objects(out, added)
     result.seconds, result.cpu_seconds = clock.elapsed()
     return result
 
@@ -201,6 +219,8 @@ def _isam2(problem, options):
     result = SlamResult("graph-isam2", problem.odometry_poses.copy(), skipped=dict(problem.skipped),
                         warnings=list(problem.warnings), frame_seconds=np.zeros(n), frame_cpu_seconds=np.zeros(n))
     params = gtsam.ISAM2Params()
+    if options.isam2_dogleg:
+        params.setOptimizationParams(gtsam.ISAM2DoglegParams())
     params.setRelinearizeThreshold(0.01)
     params.relinearizeSkip = 1
     isam = gtsam.ISAM2(params)
@@ -229,7 +249,7 @@ def _isam2(problem, options):
                 continue
             pending.setdefault(oid, []).append(i)
             frames = pending[oid]
-            if len(frames) < options.init_frames and not (i == n - 1 and len(frames) >= 2):
+            if not (ready_to_initialise(problem, oid, frames, current, options) or (i == n - 1 and len(frames) >= 2)):
                 continue
             landmark, message = _initial_fit(problem, oid, frames, current, options)
             if landmark is None:
@@ -238,7 +258,12 @@ def _isam2(problem, options):
                 continue
             _add_landmark(graph, values, problem, oid, frames, landmark, options)
             added.add(oid)
-        isam.update(graph, values)
+        try:
+            isam.update(graph, values)
+        except _SOLVER_ERRORS as exc:
+            result.fail(f"iSAM2 update at frame {i}", exc)
+            result.seconds, result.cpu_seconds = clock.elapsed()
+            return result
         estimate = isam.calculateEstimate()
         for f in range(i + 1):
             current[f] = estimate.atPose3(X(f)).matrix()
@@ -277,12 +302,16 @@ def quadric_graph(intrinsics, odometry_poses, observations, options=None):
         for f, box in zip(frames, boxes):
             graph.add(box_factor(_robust(4, options.box_sigma_px, options.huber_k), X(f), L(oid), Q(oid), K, box))
         added.append(oid)
-    result.error_initial = graph.error(values)
-    out, result.iterations = _lm(graph, values, options)
-    result.error_final = graph.error(out)
-    result.poses = _poses(out, problem.n_frames)
-    result.objects = {oid: quadric_to_superquadric(out.atPose3(L(oid)).matrix(), out.atVector(Q(oid)))
-                      for oid in added}
+    try:
+        result.error_initial = graph.error(values)
+        out, result.iterations = _lm(graph, values, options)
+    except _SOLVER_ERRORS as exc:
+        result.fail("Levenberg-Marquardt", exc)
+    else:
+        result.error_final = graph.error(out)
+        result.poses = _poses(out, problem.n_frames)
+        result.objects = {oid: quadric_to_superquadric(out.atPose3(L(oid)).matrix(), out.atVector(Q(oid)))
+                          for oid in added}
     result.seconds, result.cpu_seconds = clock.elapsed()
     return result
 
