@@ -181,99 +181,121 @@ def superquadric_graph(intrinsics, odometry_poses, observations, options=None, i
     """
     options = GraphOptions.coerce(options)
     problem = check_inputs(intrinsics, odometry_poses, observations)
-    if incremental:
-        return _isam2(problem, options)
-    clock = _Clock()
+    return _isam2(problem, options) if incremental else _batch(problem, options)
+
+
+class _Growth:
+    """Grows the graph frame by frame (shared by the batch windows and iSAM2): each new frame's pose,
+    chained from the current estimate of the previous one by the odometry step, its odometry factor,
+    its silhouette factors, and the landmarks whose first frames have become enough for their
+    initial fit (at the current pose estimates)."""
+
+    def __init__(self, problem, options, result):
+        self.problem, self.options, self.result = problem, options, result
+        self.noise = _noise(options)
+        self.by_frame = {}
+        for oid, frames in problem.frames.items():
+            for f in frames:
+                self.by_frame.setdefault(f, []).append(oid)
+        self.pending, self.added, self.failed, self.current = {}, [], set(), {}
+
+    def add(self, frames):
+        """``(graph, values)`` of the new factors and variables for ``frames`` (the next frames)."""
+        problem, odo = self.problem, self.problem.odometry_poses
+        graph, values = _pose_factors(problem, self.noise, frames), gtsam.Values()
+        for i in frames:
+            T = odo[0] if i == 0 else self.current[i - 1] @ np.linalg.inv(odo[i - 1]) @ odo[i]
+            values.insert(X(i), gtsam.Pose3(T))
+            self.current[i] = T
+            for oid in self.by_frame.get(i, []):
+                self._observe(graph, values, i, oid)
+        return graph, values
+
+    def _observe(self, graph, values, i, oid):
+        if oid in self.failed:
+            return
+        if oid in self.added:
+            graph.add(_silhouette(self.problem, i, oid, self.options))
+            return
+        frames = self.pending.setdefault(oid, [])
+        frames.append(i)
+        last = i == self.problem.n_frames - 1
+        if not (ready_to_initialise(self.problem, oid, frames, self.current, self.options) or (last and len(frames) >= 2)):
+            return
+        landmark, message = _initial_fit(self.problem, oid, frames, self.current, self.options)
+        if landmark is None:
+            _skip(self.result, oid, message)
+            self.failed.add(oid)
+            return
+        _add_landmark(graph, values, self.problem, oid, frames, landmark, self.options)
+        self.added.append(oid)
+
+    def update(self, estimate, n):
+        """Take the estimate of frames ``0 .. n-1``."""
+        for f in range(n):
+            self.current[f] = estimate.atPose3(X(f)).matrix()
+
+    def finish(self):
+        for oid in self.problem.frames:
+            if oid not in self.added and oid not in self.result.skipped:
+                _skip(self.result, oid, f"seen in {len(self.pending.get(oid, []))} frames, too few to initialise")
+
+
+def _batch(problem, options):
+    """Levenberg-Marquardt over growing windows of ``batch_window`` frames, each solve started from
+    the previous one's solution (GraphOptions)."""
+    clock, n = _Clock(), problem.n_frames
     result = SlamResult("graph", problem.odometry_poses.copy(), skipped=dict(problem.skipped),
                         warnings=list(problem.warnings))
-    noise = _noise(options)
-    graph = _pose_factors(problem, noise, range(problem.n_frames))
-    values = gtsam.Values()
-    for i, T in enumerate(problem.odometry_poses):
-        values.insert(X(i), gtsam.Pose3(T))
-    added = []
-    for oid, frames in problem.frames.items():
-        first = next((frames[:k] for k in range(2, len(frames) + 1)
-                      if ready_to_initialise(problem, oid, frames[:k], problem.odometry_poses, options)), frames)
-        landmark, message = _initial_fit(problem, oid, first, problem.odometry_poses, options)
-        if landmark is None:
-            _skip(result, oid, message)
-            continue
-        _add_landmark(graph, values, problem, oid, frames, landmark, options)
-        added.append(oid)
+    growth = _Growth(problem, options, result)
+    graph, values = gtsam.NonlinearFactorGraph(), gtsam.Values()
+    window = options.batch_window or n
     try:
-        result.error_initial = graph.error(values)
-        out, result.iterations = _lm(graph, values, options)
+        for start in range(0, n, window):
+            new_graph, new_values = growth.add(range(start, min(start + window, n)))
+            for k in range(new_graph.size()):
+                graph.add(new_graph.at(k))
+            values.insert(new_values)
+            result.error_initial = graph.error(values)
+            values, iterations = _lm(graph, values, options)
+            result.iterations += iterations
+            growth.update(values, min(start + window, n))
     except _SOLVER_ERRORS as exc:
         result.fail("Levenberg-Marquardt", exc)
     else:
-        result.error_final = graph.error(out)
-        result.poses, result.objects = _poses(out, problem.n_frames), _objects(out, added)
+        growth.finish()
+        result.error_final = graph.error(values)
+        result.poses, result.objects = _poses(values, n), _objects(values, growth.added)
     result.seconds, result.cpu_seconds = clock.elapsed()
     return result
 
 
 def _isam2(problem, options):
-    clock = _Clock()
-    n = problem.n_frames
+    clock, n = _Clock(), problem.n_frames
     result = SlamResult("graph-isam2", problem.odometry_poses.copy(), skipped=dict(problem.skipped),
                         warnings=list(problem.warnings), frame_seconds=np.zeros(n), frame_cpu_seconds=np.zeros(n))
     params = gtsam.ISAM2Params()
     if options.isam2_dogleg:
         params.setOptimizationParams(gtsam.ISAM2DoglegParams())
-    params.setRelinearizeThreshold(0.01)
+    params.setRelinearizeThreshold(options.isam2_relinearize_threshold)
     params.relinearizeSkip = 1
     isam = gtsam.ISAM2(params)
-    noise = _noise(options)
-    by_frame = {}
-    for oid, frames in problem.frames.items():
-        for f in frames:
-            by_frame.setdefault(f, []).append(oid)
-    pending, added, failed, estimate = {}, set(), set(), gtsam.Values()
-    current = {}  # frame -> (4, 4) current estimate, for the initial fits
+    growth = _Growth(problem, options, result)
     for i in range(n):
         step = _Clock()
-        graph, values = _pose_factors(problem, noise, [i]), gtsam.Values()
-        if i == 0:
-            T = problem.odometry_poses[0]
-        else:
-            delta = np.linalg.inv(problem.odometry_poses[i - 1]) @ problem.odometry_poses[i]
-            T = estimate.atPose3(X(i - 1)).matrix() @ delta
-        values.insert(X(i), gtsam.Pose3(T))
-        current[i] = T
-        for oid in by_frame.get(i, []):
-            if oid in failed:
-                continue
-            if oid in added:
-                graph.add(_silhouette(problem, i, oid, options))
-                continue
-            pending.setdefault(oid, []).append(i)
-            frames = pending[oid]
-            if not (ready_to_initialise(problem, oid, frames, current, options) or (i == n - 1 and len(frames) >= 2)):
-                continue
-            landmark, message = _initial_fit(problem, oid, frames, current, options)
-            if landmark is None:
-                _skip(result, oid, message)
-                failed.add(oid)
-                continue
-            _add_landmark(graph, values, problem, oid, frames, landmark, options)
-            added.add(oid)
         try:
-            isam.update(graph, values)
+            isam.update(*growth.add([i]))
         except _SOLVER_ERRORS as exc:
             result.fail(f"iSAM2 update at frame {i}", exc)
             result.seconds, result.cpu_seconds = clock.elapsed()
             return result
         estimate = isam.calculateEstimate()
-        for f in range(i + 1):
-            current[f] = estimate.atPose3(X(f)).matrix()
+        growth.update(estimate, i + 1)
         result.frame_seconds[i], result.frame_cpu_seconds[i] = step.elapsed()
-    for oid in problem.frames:
-        if oid not in added and oid not in result.skipped:
-            _skip(result, oid, f"seen in {len(pending.get(oid, []))} frames, fewer than needed to initialise")
+    growth.finish()
     result.iterations = n
     result.error_final = isam.getFactorsUnsafe().error(estimate)
-    result.poses, result.objects = _poses(estimate, n), _objects(estimate, sorted(added))
+    result.poses, result.objects = _poses(estimate, n), _objects(estimate, sorted(growth.added))
     result.seconds, result.cpu_seconds = clock.elapsed()
     return result
 
