@@ -13,3 +13,9 @@ def test_cli_help_works():
     for prog in ("sqsim", "sqfit"):
         out = subprocess.run([sys.executable, "-m", f"{prog}.cli", "--help"], capture_output=True, text=True)
         assert out.returncode == 0 and "COMMAND" in out.stdout, out.stderr
+
+
+def test_sqfit_does_not_import_gtsam_but_sqfit_graph_does():
+    code = ("import sys, sqfit, sqfit.cli; assert 'gtsam' not in sys.modules, 'sqfit imported gtsam'; "
+            "import sqfit.graph; assert 'gtsam' in sys.modules")
+    subprocess.run([sys.executable, "-c", code], check=True)
