@@ -49,6 +49,17 @@ def test_camera_rays_are_pixel_bearings_whatever_the_observation_pose():
     np.testing.assert_array_equal(a.origins, 0.0)
 
 
+def test_moving_rays_keeps_every_per_ray_array():
+    # e.g. the partial-visibility work's per-ray flags: the factor must hand them to raycost unchanged
+    rays = _rays()
+    object.__setattr__(rays, "two_sided", np.arange(len(rays)) % 2 == 0)
+    moved = landmark._moved(rays, np.ones((len(rays), 3)), 2 * rays.directions)
+    np.testing.assert_array_equal(moved.two_sided, rays.two_sided)
+    np.testing.assert_array_equal(moved.modes, rays.modes)
+    np.testing.assert_array_equal(moved.origins, 1.0)
+    np.testing.assert_array_equal(rays.origins, 0.0)  # the camera-frame rays are untouched
+
+
 def test_silhouette_residual_is_small_at_the_truth_and_grows_away_from_it():
     rays = _rays()
     T, s = landmark.superquadric_to_landmark(SQ)
@@ -255,6 +266,16 @@ def test_bad_input_is_named(mutate, error, match):
     mutate(args)
     with pytest.raises(error, match=match):
         graph.check_inputs(args["intr"], args["poses"], args["obs"])
+
+
+def test_a_mask_touching_the_border_is_used_with_a_warning():
+    intr, poses, obs = _tiny()
+    cam = sqfit.Camera(intr, poses[0])
+    mask = np.zeros((intr.height, intr.width), bool)
+    mask[0:40, 100:160] = True
+    obs[0, 1] = sqfit.Observation.from_mask(cam, mask, rng=0)
+    problem = graph.check_inputs(intr, poses, obs)
+    assert "frame 0, object 1: mask touches the image border" in problem.warnings[0]
 
 
 def test_bad_options_and_methods_are_named():

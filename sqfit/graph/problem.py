@@ -13,7 +13,8 @@ Input interface (what a sequence reader provides):
 Bad input: a non-finite or improper pose (a frame without a pose), an observation in a frame the
 poses do not cover, other intrinsics, or a key that is not ``(int, int)`` raise ``ValueError`` /
 ``TypeError`` naming the frame or key. An object seen in fewer than 2 frames cannot be fitted and is
-skipped with a warning in the result (:attr:`SlamResult.skipped`).
+skipped with a warning in the result (:attr:`SlamResult.skipped`). A mask touching the image border
+is used, with a warning (as :func:`sqfit.fit` does): its outline is not all silhouette.
 """
 
 from __future__ import annotations
@@ -251,7 +252,9 @@ def check_inputs(intrinsics, odometry_poses, observations):
                              f"the sequence's")
         obs[frame, oid] = o
         by_object.setdefault(oid, []).append(frame)
-    frames, skipped, warnings = {}, {}, []
+    frames, skipped = {}, {}
+    warnings = [f"frame {f}, object {j}: mask touches the image border (truncated silhouette)"
+                for (f, j), o in sorted(obs.items()) if o.touches_border]
     for oid in sorted(by_object):
         seen = sorted(by_object[oid])
         if len(seen) < MIN_FRAMES:
