@@ -45,12 +45,14 @@ class GraphOptions:
     n_contour : int
         Rays per (frame, object) silhouette factor, >= 3.
     silhouette_sigma : float
-        Expected RMS of a good view's ray residuals (``phi ~`` contour error relative to the
-        object's image radius, unitless), > 0: the factor's whitened norm is
-        ``RMS(phi) / silhouette_sigma``.
+        Standard deviation of one ray residual ``phi`` of a good mask (unitless: about the contour
+        error over the object's image radius), > 0. Default 0.03: ~4x the pixelisation error of the
+        synthetic sequences' exact masks (0.008), for errors correlated along the outline. Compared
+        during development with 0.02 and 0.05 on 3 seeds of 20-frame, 3-object sequences (batch):
+        mean ATE 0.029 / 0.023 / 0.020 m, per-sequence median IoU 0.85-0.95 for all three.
     huber_k : float
-        Huber threshold on a silhouette (or box) factor's whitened norm, > 0: a whole bad mask is
-        down-weighted, not one ray.
+        Huber threshold per row, > 0: a factor whose RMS whitened ray residual exceeds ``huber_k``
+        is down-weighted as a whole (a bad mask), not ray by ray.
     odometry_sigma_deg, odometry_sigma_m : float
         Standard deviations of a ``BetweenFactorPose3`` (per frame step), degrees and metres.
     prior_sigma_deg, prior_sigma_m : float
@@ -73,6 +75,10 @@ class GraphOptions:
         Levenberg-Marquardt from the previous solution (0: all frames at once from the odometry).
         Measured: from dead-reckoned odometry, late frames' silhouettes miss their objects by more
         than the objects' size and one solve of the whole sequence can end in a wrong minimum.
+    window_relative_tolerance : float
+        Relative error decrease at which the solves of the windows before the last stop: they only
+        bring the new frames near (measured, 3 seeds of the benchmark: 0.03 instead of 1e-3 cut the
+        batch time by a third at the same accuracy); the last solve runs to ``relative_tolerance``.
     isam2_relinearize_threshold : float
         iSAM2 relinearises a variable when its update exceeds this (tangent-space norm).
     isam2_dogleg : bool
@@ -100,6 +106,7 @@ class GraphOptions:
     shape_prior_sigma: float = 10.0
     box_sigma_px: float = 2.0
     batch_window: int = 10
+    window_relative_tolerance: float = 0.03
     isam2_relinearize_threshold: float = 0.01
     isam2_dogleg: bool = False
     max_iterations: int = 50
@@ -112,6 +119,7 @@ class GraphOptions:
                 raise ValueError(f"{name} must be an integer >= {lo}, got {v}")
         for name in ("silhouette_sigma", "huber_k", "odometry_sigma_deg", "odometry_sigma_m",
                      "prior_sigma_deg", "prior_sigma_m", "landmark_prior_sigma_deg", "init_parallax_deg", "isam2_relinearize_threshold",
+                     "window_relative_tolerance",
                      "landmark_prior_sigma_m", "shape_prior_sigma", "box_sigma_px", "relative_tolerance"):
             v = getattr(self, name)
             if not (np.isfinite(v) and v > 0):

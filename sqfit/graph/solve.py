@@ -13,7 +13,8 @@ Methods (every one returns a :class:`sqfit.graph.problem.SlamResult`):
 - ``odometry``: the odometry poses, no objects;
 - ``fixed``: per-object :func:`sqfit.fit` on all frames that see the object, at the odometry
   poses (no joint optimisation);
-- ``graph``: the graph above, batch Levenberg-Marquardt;
+- ``graph``: the graph above, batch Levenberg-Marquardt over growing windows of ``batch_window``
+  frames, each solve from the previous solution and the new frames chained by the odometry;
 - ``graph-isam2``: the same graph grown frame by frame with iSAM2 (one update per frame; a landmark
   joins once its first frames are enough for its initial fit (``init_frames``, ``init_parallax_deg``),
   or at the last frame if they never are);
@@ -25,6 +26,7 @@ Methods (every one returns a :class:`sqfit.graph.problem.SlamResult`):
 from __future__ import annotations
 
 import time
+from dataclasses import replace
 
 import gtsam
 import numpy as np
@@ -257,7 +259,9 @@ def _batch(problem, options):
                 graph.add(new_graph.at(k))
             values.insert(new_values)
             result.error_initial = graph.error(values)
-            values, iterations = _lm(graph, values, options)
+            final = start + window >= n
+            values, iterations = _lm(graph, values, options if final else
+                                     replace(options, relative_tolerance=options.window_relative_tolerance))
             result.iterations += iterations
             growth.update(values, min(start + window, n))
     except _SOLVER_ERRORS as exc:
