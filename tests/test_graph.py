@@ -292,3 +292,19 @@ def test_bad_options_and_methods_are_named():
         graph.run(intr, poses, obs, methods=["slam"])
     with pytest.raises(TypeError, match="must be a sqfit.Observation"):
         landmark.camera_rays("mask", 8)
+
+
+def test_an_optimiser_error_is_flagged_in_the_result(monkeypatch):
+    from sqfit.graph import solve
+
+    def fail(graph, values, options):
+        raise RuntimeError("\nIndeterminate linear system detected while working near variable l1")
+
+    monkeypatch.setattr(solve, "_lm", fail)
+    intr, poses, obs = _tiny()
+    for method in ("graph", "quadric"):
+        res = graph.METHODS[method](intr, poses, obs)
+        assert not res.ok and res.status == "failed" and res.objects == {}
+        assert res.message == "Levenberg-Marquardt: RuntimeError: Indeterminate linear system detected while " \
+                              "working near variable l1"
+        np.testing.assert_array_equal(res.poses, poses)
