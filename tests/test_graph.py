@@ -11,6 +11,7 @@ import sqfit  # noqa: E402
 from sqfit import graph  # noqa: E402
 from sqfit.graph import factors, landmark, quadric  # noqa: E402
 from sqfit.graph.testing import object_ious, position_rmse, synthetic_sequence  # noqa: E402
+from sqfit.metrics import iou_3d  # noqa: E402
 from sqfit.testing import polygon_mask  # noqa: E402
 from _numeric import central_difference  # noqa: E402
 
@@ -308,3 +309,29 @@ def test_an_optimiser_error_is_flagged_in_the_result(monkeypatch):
         assert res.message == "Levenberg-Marquardt: RuntimeError: Indeterminate linear system detected while " \
                               "working near variable l1"
         np.testing.assert_array_equal(res.poses, poses)
+
+
+def test_a_landmark_left_in_a_poor_minimum_is_refitted(small):
+    from sqfit.graph import problem as gproblem, solve
+
+    seq, _ = small
+    options = graph.GraphOptions()
+    prob = gproblem.check_inputs(seq.intrinsics, seq.true_poses, seq.observations)
+    values = gtsam.Values()
+    for i, T in enumerate(seq.true_poses):
+        values.insert(X(i), gtsam.Pose3(T))
+    for oid, sq in seq.objects.items():
+        if oid == 2:  # a poor minimum: axes swapped, flat, shifted
+            sq = sqfit.Superquadric(np.array(sq.size)[[2, 0, 1]], (1.8, 0.2), np.array(sq.position) + 0.15, sq.rotation)
+        T, s = landmark.superquadric_to_landmark(sq)
+        values.insert(L(oid), gtsam.Pose3(T))
+        values.insert(S(oid), s)
+    misfit = {oid: solve._object_misfit(prob, values, oid, options) for oid in seq.objects}
+    assert misfit[2] > options.refit_misfit > max(misfit[1], misfit[3]), misfit
+    result = graph.SlamResult("graph", seq.true_poses)
+    assert solve._refit(prob, values, list(seq.objects), options, result)
+    assert [w.split(":")[0] for w in result.warnings] == ["object 2"]
+    refit = landmark.landmark_to_superquadric(values.atPose3(L(2)).matrix(), values.atVector(S(2)))
+    assert solve._object_misfit(prob, values, 2, options) < options.refit_misfit
+    assert iou_3d(refit, seq.objects[2]) > 0.8
+    assert not solve._refit(prob, values, list(seq.objects), graph.GraphOptions(refit_misfit=0), result)

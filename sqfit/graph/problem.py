@@ -79,6 +79,10 @@ class GraphOptions:
         Relative error decrease at which the solves of the windows before the last stop: they only
         bring the new frames near (measured, 3 seeds of the benchmark: 0.03 instead of 1e-3 cut the
         batch time by a third at the same accuracy); the last solve runs to ``relative_tolerance``.
+    refit_misfit : float
+        After the batch solve, a landmark whose RMS whitened ray residual is above this (a poor
+        local minimum: its silhouettes disagree) is re-initialised by :func:`sqfit.fit` on all its
+        frames at the solved poses, kept if it fits better, and the graph solved again; 0 disables.
     isam2_relinearize_threshold : float
         iSAM2 relinearises a variable when its update exceeds this (tangent-space norm).
     isam2_dogleg : bool
@@ -107,6 +111,7 @@ class GraphOptions:
     box_sigma_px: float = 2.0
     batch_window: int = 10
     window_relative_tolerance: float = 0.03
+    refit_misfit: float = 0.5
     isam2_relinearize_threshold: float = 0.01
     isam2_dogleg: bool = False
     max_iterations: int = 50
@@ -124,8 +129,9 @@ class GraphOptions:
             v = getattr(self, name)
             if not (np.isfinite(v) and v > 0):
                 raise ValueError(f"{name} must be a finite number > 0, got {v}")
-        if not (np.isfinite(self.bounds_weight) and self.bounds_weight >= 0):
-            raise ValueError(f"bounds_weight must be a finite number >= 0, got {self.bounds_weight}")
+        for name in ("bounds_weight", "refit_misfit"):
+            if not (np.isfinite(getattr(self, name)) and getattr(self, name) >= 0):
+                raise ValueError(f"{name} must be a finite number >= 0, got {getattr(self, name)}")
 
     @classmethod
     def coerce(cls, options):

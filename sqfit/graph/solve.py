@@ -264,6 +264,9 @@ def _batch(problem, options):
                                      replace(options, relative_tolerance=options.window_relative_tolerance))
             result.iterations += iterations
             growth.update(values, min(start + window, n))
+        if _refit(problem, values, growth.added, options, result):
+            values, iterations = _lm(graph, values, options)
+            result.iterations += iterations
     except _SOLVER_ERRORS as exc:
         result.fail("Levenberg-Marquardt", exc)
     else:
@@ -272,6 +275,44 @@ def _batch(problem, options):
         result.poses, result.objects = _poses(values, n), _objects(values, growth.added)
     result.seconds, result.cpu_seconds = clock.elapsed()
     return result
+
+
+def _object_misfit(problem, values, oid, options):
+    """RMS whitened ray residual of object ``oid``'s silhouette factors at ``values`` (1: a typical
+    ray one ``silhouette_sigma`` off)."""
+    sub, rows = gtsam.NonlinearFactorGraph(), 0
+    for f in problem.frames[oid]:
+        sub.add(_silhouette(problem, f, oid, options))
+        rows += options.n_contour
+    return float(np.sqrt(2.0 * sub.error(values) / rows))
+
+
+def _refit(problem, values, oids, options, result):
+    """Re-initialise the landmarks left in a poor minimum (misfit above ``refit_misfit``) by
+    :func:`sqfit.fit` on all their frames at the solved poses; keep a refit that fits better.
+    Returns whether a landmark changed."""
+    if options.refit_misfit <= 0:
+        return False
+    poses = _poses(values, problem.n_frames)
+    changed = False
+    for oid in oids:
+        before = _object_misfit(problem, values, oid, options)
+        if before <= options.refit_misfit:
+            continue
+        landmark, _ = _initial_fit(problem, oid, problem.frames[oid], poses, options)
+        if landmark is None:
+            continue
+        trial = gtsam.Values(values)
+        trial.update(L(oid), gtsam.Pose3(landmark[0]))
+        trial.update(S(oid), np.asarray(landmark[1], dtype=np.float64))
+        after = _object_misfit(problem, trial, oid, options)
+        if after < before:
+            values.update(L(oid), gtsam.Pose3(landmark[0]))
+            values.update(S(oid), np.asarray(landmark[1], dtype=np.float64))
+            result.warnings.append(f"object {oid}: re-initialised from all {len(problem.frames[oid])} frames "
+                                   f"(misfit {before:.2f} -> {after:.2f})")
+            changed = True
+    return changed
 
 
 def _isam2(problem, options):
