@@ -87,6 +87,9 @@ def relative_pose(T_world_camera, T_world_sq):
 def silhouette_residuals(T_world_camera, T_world_sq, shape, rays, d0=None):
     """3G residuals of one view of one landmark, and their Jacobians.
 
+    No input checks: this runs at every evaluation of every factor, on values GTSAM holds; the rays
+    are checked where they are made (:func:`camera_rays`).
+
     Parameters
     ----------
     T_world_camera : (4, 4) float
