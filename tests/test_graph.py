@@ -335,3 +335,27 @@ def test_a_landmark_left_in_a_poor_minimum_is_refitted(small):
     assert solve._object_misfit(prob, values, 2, options) < options.refit_misfit
     assert iou_3d(refit, seq.objects[2]) > 0.8
     assert not solve._refit(prob, values, list(seq.objects), graph.GraphOptions(refit_misfit=0), result)
+
+
+def test_observations_from_instance_images_match_the_masks():
+    seq = synthetic_sequence(2, n_frames=3, n_objects=2)
+    images = np.zeros((3, seq.intrinsics.height, seq.intrinsics.width), np.uint16)
+    for f, T in enumerate(seq.true_poses):
+        cam = sqfit.Camera(seq.intrinsics, T)
+        for oid, sq in seq.objects.items():  # drawn in id order: the later one is on top where they overlap
+            images[f][polygon_mask(sq, cam)] = oid
+    images[1, :3, :3] = 7  # a 9-pixel speck: below min_area_px
+    obs = graph.observations_from_instances(seq.intrinsics, seq.odometry_poses, images, min_area_px=50, rng=0)
+    assert set(obs) == {(f, oid) for f in range(3) for oid in seq.objects if (images[f] == oid).sum() >= 50}
+    o = obs[0, 1]
+    assert o.area_px == (images[0] == 1).sum() and np.allclose(o.camera.pose, seq.odometry_poses[0])
+    with pytest.raises(ValueError, match=r"instance_images\[1\] must be an integer \(height, width\)"):
+        graph.observations_from_instances(seq.intrinsics, seq.odometry_poses, [images[0], images[1][:, :10], images[2]])
+    with pytest.raises(ValueError, match="instance_images has 2 frames, poses 3"):
+        graph.observations_from_instances(seq.intrinsics, seq.odometry_poses, images[:2])
+    with pytest.raises(ValueError, match="min_area_px must be an integer >= 1"):
+        graph.observations_from_instances(seq.intrinsics, seq.odometry_poses, images, min_area_px=0)
+    with pytest.raises(ValueError, match=r"instance_images\[0\] must be an integer"):
+        graph.observations_from_instances(seq.intrinsics, seq.odometry_poses, images.astype(float))
+    with pytest.raises(TypeError, match="intrinsics must be a sqfit.Intrinsics"):
+        graph.observations_from_instances(None, seq.odometry_poses, images)

@@ -8,7 +8,8 @@ Input interface (what a sequence reader provides):
 - ``observations``: ``{(frame, object_id): sqfit.Observation}``. Only an observation's pixels are
   used (its contour, and its box for the quadric baseline); where its camera was placed does not
   matter, the graph puts it at the frame's pose. Data association comes from the instance ids: the
-  same ``object_id`` in two frames is the same object.
+  same ``object_id`` in two frames is the same object. :func:`observations_from_instances` makes
+  them from per-frame instance-id images.
 
 Bad input: a non-finite or improper pose (a frame without a pose), an observation in a frame the
 poses do not cover, other intrinsics, or a key that is not ``(int, int)`` raise ``ValueError`` /
@@ -29,7 +30,8 @@ from ..camera import Camera, Intrinsics
 from ..observation import Observation
 from ..pipeline import DEFAULT_CHAIN
 
-__all__ = ["GraphOptions", "SlamResult", "Problem", "check_inputs", "observation_at", "parallax_deg",
+__all__ = ["GraphOptions", "SlamResult", "Problem", "check_inputs", "observations_from_instances", "observation_at",
+           "parallax_deg",
            "ready_to_initialise"]
 
 #: Fewest frames an object must be seen in to be fitted (a single silhouette fixes no depth).
@@ -315,6 +317,51 @@ def ready_to_initialise(problem, oid, frames, poses, options):
     first, last = frames[0], frames[-1]
     return parallax_deg(problem.observations[first, oid], problem.observations[last, oid], poses[first],
                         poses[last]) >= options.init_parallax_deg
+
+
+def observations_from_instances(intrinsics, poses, instance_images, min_area_px=50, n_samples=C.DEFAULT_SAMPLES,
+                                rng=None):
+    """The graph's observations from per-frame instance-id images (what a sequence reader gives).
+
+    Parameters
+    ----------
+    intrinsics : Intrinsics
+    poses : (n, 4, 4) float
+        ``T_world_camera`` per frame, given to the observations' cameras (the graph uses only their
+        pixels; the odometry is the natural choice).
+    instance_images : (n, h, w) int or sequence of (h, w) int
+        Object id per pixel, 0 for background (e.g. uint16).
+    min_area_px : int
+        Instances with fewer pixels are left out (too small to say anything), >= 1.
+    n_samples : int
+    rng : None, int or numpy.random.Generator
+
+    Returns
+    -------
+    observations : dict of (int, int) -> Observation
+        ``(frame, object_id) -> Observation.from_mask`` of that instance's pixels.
+    """
+    if not isinstance(intrinsics, Intrinsics):
+        raise TypeError(f"intrinsics must be a sqfit.Intrinsics, got {type(intrinsics).__name__}")
+    poses = check_shape(poses, (None, 4, 4), "poses")
+    if len(instance_images) != len(poses):
+        raise ValueError(f"instance_images has {len(instance_images)} frames, poses {len(poses)}")
+    if int(min_area_px) != min_area_px or min_area_px < 1:
+        raise ValueError(f"min_area_px must be an integer >= 1, got {min_area_px}")
+    rng = np.random.default_rng(rng)
+    shape = (intrinsics.height, intrinsics.width)
+    observations = {}
+    for frame, (image, T) in enumerate(zip(instance_images, poses)):
+        image = np.asarray(image)
+        if image.shape != shape or image.dtype.kind not in "iu":
+            raise ValueError(f"instance_images[{frame}] must be an integer (height, width) = {shape} image, got "
+                             f"{image.dtype} {image.shape}")
+        camera = Camera(intrinsics, T)
+        ids, counts = np.unique(image[image != 0], return_counts=True)
+        for oid, count in zip(ids, counts):
+            if count >= min_area_px:
+                observations[frame, int(oid)] = Observation.from_mask(camera, image == oid, n_samples, rng=rng)
+    return observations
 
 
 def observation_at(observation, T_world_camera):
