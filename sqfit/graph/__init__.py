@@ -18,8 +18,9 @@ from .landmark import (bounds_residuals, camera_rays, landmark_to_superquadric, 
                        superquadric_to_landmark)
 from .problem import GraphOptions, SlamResult, check_inputs, observations_from_instances
 from .quadric import box_residuals, initialise_quadric
-from .solve import METHODS, fixed_pose_fits, odometry, quadric_graph, run, superquadric_graph
+from .solve import METHODS, fixed_pose_fits, odometry, quadric_graph, run, superquadric_graph, superquadric_isam2
 
 __all__ = ["GraphOptions", "SlamResult", "METHODS", "run", "odometry", "fixed_pose_fits", "superquadric_graph",
-           "quadric_graph", "check_inputs", "observations_from_instances", "camera_rays", "silhouette_residuals", "bounds_residuals",
-           "landmark_to_superquadric", "superquadric_to_landmark", "box_residuals", "initialise_quadric"]
+           "superquadric_isam2", "quadric_graph", "check_inputs", "observations_from_instances", "camera_rays",
+           "silhouette_residuals", "bounds_residuals", "landmark_to_superquadric", "superquadric_to_landmark",
+           "box_residuals", "initialise_quadric"]

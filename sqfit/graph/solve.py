@@ -38,7 +38,8 @@ from .landmark import camera_rays, landmark_to_superquadric, superquadric_to_lan
 from .problem import GraphOptions, SlamResult, check_inputs, observation_at, ready_to_initialise
 from .quadric import initialise_quadric, observation_box, quadric_to_superquadric
 
-__all__ = ["METHODS", "run", "odometry", "fixed_pose_fits", "superquadric_graph", "quadric_graph"]
+__all__ = ["METHODS", "run", "odometry", "fixed_pose_fits", "superquadric_graph", "superquadric_isam2",
+           "quadric_graph"]
 
 
 #: What the optimisers raise on a bad system (gtsam's indeterminate-system error is a RuntimeError;
@@ -184,6 +185,11 @@ def superquadric_graph(intrinsics, odometry_poses, observations, options=None, i
     options = GraphOptions.coerce(options)
     problem = check_inputs(intrinsics, odometry_poses, observations)
     return _isam2(problem, options) if incremental else _batch(problem, options)
+
+
+def superquadric_isam2(intrinsics, odometry_poses, observations, options=None):
+    """:func:`superquadric_graph` with ``incremental=True`` (iSAM2, frame by frame)."""
+    return superquadric_graph(intrinsics, odometry_poses, observations, options, incremental=True)
 
 
 class _Growth:
@@ -389,7 +395,7 @@ METHODS = {
     "fixed": fixed_pose_fits,
     "quadric": quadric_graph,
     "graph": superquadric_graph,
-    "graph-isam2": lambda *args, **kw: superquadric_graph(*args, **kw, incremental=True),
+    "graph-isam2": superquadric_isam2,
 }
 
 
