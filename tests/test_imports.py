@@ -28,3 +28,9 @@ def test_sequence_readers_import_no_optional_library():
             "bad = [m for m in ('OpenGL', 'pyrender', 'sqsim', 'evo', 'gtsam') if m in sys.modules]; "
             "assert not bad, bad")
     subprocess.run([sys.executable, "-c", code], check=True)
+
+
+def test_sqfit_does_not_import_gtsam_but_sqfit_graph_does():
+    code = ("import sys, sqfit, sqfit.cli; assert 'gtsam' not in sys.modules, 'sqfit imported gtsam'; "
+            "import sqfit.graph; assert 'gtsam' in sys.modules")
+    subprocess.run([sys.executable, "-c", code], check=True)

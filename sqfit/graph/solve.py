@@ -1,0 +1,407 @@
+"""The factor graph and its baselines on one sequence (inputs: :mod:`sqfit.graph.problem`).
+
+Graph (GTSAM): a ``Pose3`` ``X(i)`` per frame, a ``PriorFactorPose3`` on ``X(0)`` at the first
+odometry pose, a ``BetweenFactorPose3`` per frame step from the odometry; per object ``j`` a
+landmark pose ``L(j)`` (``Pose3``, superquadric -> world) and a size/shape vector ``S(j)``
+(``[ax, ay, az, e1, e2]``) with the bound penalty (eq. 7) as a unary factor; one silhouette factor
+per (frame, object) (:func:`sqfit.graph.factors.silhouette_factor`) under a Huber-robust noise
+model. Each landmark starts from :func:`sqfit.fit` on the first frames that see it, at the current
+pose estimates.
+
+Methods (every one returns a :class:`sqfit.graph.problem.SlamResult`):
+
+- ``odometry``: the odometry poses, no objects;
+- ``fixed``: per-object :func:`sqfit.fit` on all frames that see the object, at the odometry
+  poses (no joint optimisation);
+- ``graph``: the graph above, batch Levenberg-Marquardt over growing windows of ``batch_window``
+  frames, each solve from the previous solution and the new frames chained by the odometry;
+- ``graph-isam2``: the same graph grown frame by frame with iSAM2 (one update per frame; a landmark
+  joins once its first frames are enough for its initial fit (``init_frames``, ``init_parallax_deg``),
+  or at the last frame if they never are);
+- ``quadric``: QuadricSLAM (:mod:`sqfit.graph.quadric`): ellipsoid landmarks ``L(j)``, radii
+  ``Q(j)``, one box factor per (frame, object) whose mask does not touch the image border, batch
+  Levenberg-Marquardt, initialised by the paper's linear method from all the object's boxes.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import replace
+
+import gtsam
+import numpy as np
+from gtsam.symbol_shorthand import L, Q, S, X
+
+from .. import pipeline
+from .factors import bounds_factor, box_factor, silhouette_factor
+from .landmark import camera_rays, landmark_to_superquadric, superquadric_to_landmark
+from .problem import GraphOptions, SlamResult, check_inputs, observation_at, ready_to_initialise
+from .quadric import initialise_quadric, observation_box, quadric_to_superquadric
+
+__all__ = ["METHODS", "run", "odometry", "fixed_pose_fits", "superquadric_graph", "superquadric_isam2",
+           "quadric_graph"]
+
+
+#: What the optimisers raise on a bad system (gtsam's indeterminate-system error is a RuntimeError;
+#: a factor's non-finite residual a FloatingPointError): the method's result is flagged failed.
+_SOLVER_ERRORS = (RuntimeError, FloatingPointError)
+
+
+class _Clock:
+    """Wall and process CPU time since construction."""
+
+    def __init__(self):
+        self.wall, self.cpu = time.perf_counter(), time.process_time()
+
+    def elapsed(self):
+        return time.perf_counter() - self.wall, time.process_time() - self.cpu
+
+
+def _noise(options):
+    rot, pos = np.radians(options.odometry_sigma_deg), options.odometry_sigma_m
+    prot, ppos = np.radians(options.prior_sigma_deg), options.prior_sigma_m
+    return {
+        "odometry": gtsam.noiseModel.Diagonal.Sigmas(np.array([rot] * 3 + [pos] * 3)),
+        "prior": gtsam.noiseModel.Diagonal.Sigmas(np.array([prot] * 3 + [ppos] * 3)),
+    }
+
+
+def _robust(dim, sigma, k):
+    """Huber on the factor's whitened norm; ``sigma`` and ``k`` per row (a factor of ``dim`` inlier
+    rows has a whitened norm of about ``sqrt(dim)``, so the threshold is ``k sqrt(dim)``)."""
+    return gtsam.noiseModel.Robust.Create(gtsam.noiseModel.mEstimator.Huber.Create(k * np.sqrt(dim)),
+                                          gtsam.noiseModel.Isotropic.Sigma(dim, sigma))
+
+
+def _pose_factors(problem, noise, frames):
+    """Prior on frame 0 and odometry between consecutive frames, for ``frames``."""
+    graph, poses = gtsam.NonlinearFactorGraph(), problem.odometry_poses
+    for i in frames:
+        if i == 0:
+            graph.add(gtsam.PriorFactorPose3(X(0), gtsam.Pose3(poses[0]), noise["prior"]))
+        else:
+            delta = gtsam.Pose3(np.linalg.inv(poses[i - 1]) @ poses[i])
+            graph.add(gtsam.BetweenFactorPose3(X(i - 1), X(i), delta, noise["odometry"]))
+    return graph
+
+
+def _poses(values, n):
+    return np.stack([values.atPose3(X(i)).matrix() for i in range(n)])
+
+
+def _initial_fit(problem, oid, frames, poses, options):
+    """:func:`sqfit.fit` of object ``oid`` on ``frames`` at ``poses`` (frame -> (4, 4)); a landmark
+    ``(T, shape)`` or the failure message."""
+    obs = [observation_at(problem.observations[f, oid], poses[f]) for f in frames]
+    res = pipeline.fit(obs, options.init_chain)
+    if not res.ok or res.superquadric is None:
+        return None, f"initial fit on frames {list(frames)} failed: {res.status}: {res.message}"
+    return superquadric_to_landmark(res.superquadric), ""
+
+
+def _add_landmark(graph, values, problem, oid, frames, landmark, options):
+    T, shape = landmark
+    shape = np.asarray(shape, dtype=np.float64)
+    values.insert(L(oid), gtsam.Pose3(T))
+    values.insert(S(oid), shape)
+    graph.add(bounds_factor(S(oid), options.bounds_weight))
+    # Weak priors at the initial fit: the rotation of a shape with a symmetry axis (and e.g. e1 of a
+    # shape seen only side-on) is not observed, which iSAM2's undamped Gauss-Newton cannot solve.
+    rot, pos, size = np.radians(options.landmark_prior_sigma_deg), options.landmark_prior_sigma_m, options.shape_prior_sigma
+    graph.add(gtsam.PriorFactorPose3(L(oid), gtsam.Pose3(T), gtsam.noiseModel.Diagonal.Sigmas(np.array([rot] * 3 + [pos] * 3))))
+    graph.add(gtsam.PriorFactorVector(S(oid), shape, gtsam.noiseModel.Isotropic.Sigma(len(shape), size)))
+    for f in frames:
+        graph.add(_silhouette(problem, f, oid, options))
+
+
+def _silhouette(problem, frame, oid, options):
+    rays = camera_rays(problem.observations[frame, oid], options.n_contour)
+    # the ray residuals carry contour_rays' weights 1 / sqrt(n): sigma per weighted row
+    sigma = options.silhouette_sigma / np.sqrt(len(rays))
+    return silhouette_factor(_robust(len(rays), sigma, options.huber_k), X(frame), L(oid),
+                             S(oid), rays)
+
+
+def _lm(graph, values, options):
+    params = gtsam.LevenbergMarquardtParams()
+    params.setMaxIterations(int(options.max_iterations))
+    params.setRelativeErrorTol(options.relative_tolerance)
+    optimizer = gtsam.LevenbergMarquardtOptimizer(graph, values, params)
+    out = optimizer.optimize()
+    return out, optimizer.iterations()
+
+
+def _objects(values, oids):
+    return {oid: landmark_to_superquadric(values.atPose3(L(oid)).matrix(), values.atVector(S(oid))) for oid in oids}
+
+
+def odometry(intrinsics, odometry_poses, observations, options=None):
+    """Baseline: the odometry poses as the trajectory, no objects."""
+    clock, problem = _Clock(), check_inputs(intrinsics, odometry_poses, observations)
+    wall, cpu = clock.elapsed()
+    return SlamResult("odometry", problem.odometry_poses.copy(), seconds=wall, cpu_seconds=cpu,
+                      skipped=dict(problem.skipped), warnings=list(problem.warnings))
+
+
+def fixed_pose_fits(intrinsics, odometry_poses, observations, options=None):
+    """Baseline: per-object :func:`sqfit.fit` on every frame that sees it, at the odometry poses."""
+    clock, options = _Clock(), GraphOptions.coerce(options)
+    problem = check_inputs(intrinsics, odometry_poses, observations)
+    result = SlamResult("fixed", problem.odometry_poses.copy(), skipped=dict(problem.skipped),
+                        warnings=list(problem.warnings))
+    for oid, frames in problem.frames.items():
+        landmark, message = _initial_fit(problem, oid, frames, problem.odometry_poses, options)
+        if landmark is None:
+            _skip(result, oid, message)
+        else:
+            result.objects[oid] = landmark_to_superquadric(*landmark)
+    result.seconds, result.cpu_seconds = clock.elapsed()
+    return result
+
+
+def _skip(result, oid, reason):
+    result.skipped[oid] = reason
+    result.warnings.append(f"object {oid}: skipped, {reason}")
+
+
+def superquadric_graph(intrinsics, odometry_poses, observations, options=None, incremental=False):
+    """Joint camera-pose and superquadric optimisation (module docstring): batch Levenberg-Marquardt,
+    or iSAM2 frame by frame with ``incremental=True``.
+
+    Parameters
+    ----------
+    intrinsics : Intrinsics
+    odometry_poses : (n, 4, 4) float
+        ``T_world_camera`` per frame.
+    observations : dict of (int, int) -> Observation
+        ``(frame, object_id) -> observation``.
+    options : GraphOptions or dict, optional
+    incremental : bool
+
+    Returns
+    -------
+    result : SlamResult
+    """
+    options = GraphOptions.coerce(options)
+    problem = check_inputs(intrinsics, odometry_poses, observations)
+    return _isam2(problem, options) if incremental else _batch(problem, options)
+
+
+def superquadric_isam2(intrinsics, odometry_poses, observations, options=None):
+    """:func:`superquadric_graph` with ``incremental=True`` (iSAM2, frame by frame)."""
+    return superquadric_graph(intrinsics, odometry_poses, observations, options, incremental=True)
+
+
+class _Growth:
+    """Grows the graph frame by frame (shared by the batch windows and iSAM2): each new frame's pose,
+    chained from the current estimate of the previous one by the odometry step, its odometry factor,
+    its silhouette factors, and the landmarks whose first frames have become enough for their
+    initial fit (at the current pose estimates)."""
+
+    def __init__(self, problem, options, result):
+        self.problem, self.options, self.result = problem, options, result
+        self.noise = _noise(options)
+        self.by_frame = {}
+        for oid, frames in problem.frames.items():
+            for f in frames:
+                self.by_frame.setdefault(f, []).append(oid)
+        self.pending, self.added, self.failed, self.current = {}, [], set(), {}
+
+    def add(self, frames):
+        """``(graph, values)`` of the new factors and variables for ``frames`` (the next frames)."""
+        problem, odo = self.problem, self.problem.odometry_poses
+        graph, values = _pose_factors(problem, self.noise, frames), gtsam.Values()
+        for i in frames:
+            T = odo[0] if i == 0 else self.current[i - 1] @ np.linalg.inv(odo[i - 1]) @ odo[i]
+            values.insert(X(i), gtsam.Pose3(T))
+            self.current[i] = T
+            for oid in self.by_frame.get(i, []):
+                self._observe(graph, values, i, oid)
+        return graph, values
+
+    def _observe(self, graph, values, i, oid):
+        if oid in self.failed:
+            return
+        if oid in self.added:
+            graph.add(_silhouette(self.problem, i, oid, self.options))
+            return
+        frames = self.pending.setdefault(oid, [])
+        frames.append(i)
+        last = i == self.problem.n_frames - 1
+        if not (ready_to_initialise(self.problem, oid, frames, self.current, self.options) or (last and len(frames) >= 2)):
+            return
+        landmark, message = _initial_fit(self.problem, oid, frames, self.current, self.options)
+        if landmark is None:
+            _skip(self.result, oid, message)
+            self.failed.add(oid)
+            return
+        _add_landmark(graph, values, self.problem, oid, frames, landmark, self.options)
+        self.added.append(oid)
+
+    def update(self, estimate, n):
+        """Take the estimate of frames ``0 .. n-1``."""
+        for f in range(n):
+            self.current[f] = estimate.atPose3(X(f)).matrix()
+
+    def finish(self):
+        for oid in self.problem.frames:
+            if oid not in self.added and oid not in self.result.skipped:
+                _skip(self.result, oid, f"seen in {len(self.pending.get(oid, []))} frames, too few to initialise")
+
+
+def _batch(problem, options):
+    """Levenberg-Marquardt over growing windows of ``batch_window`` frames, each solve started from
+    the previous one's solution (GraphOptions)."""
+    clock, n = _Clock(), problem.n_frames
+    result = SlamResult("graph", problem.odometry_poses.copy(), skipped=dict(problem.skipped),
+                        warnings=list(problem.warnings))
+    growth = _Growth(problem, options, result)
+    graph, values = gtsam.NonlinearFactorGraph(), gtsam.Values()
+    window = options.batch_window or n
+    try:
+        for start in range(0, n, window):
+            new_graph, new_values = growth.add(range(start, min(start + window, n)))
+            for k in range(new_graph.size()):
+                graph.add(new_graph.at(k))
+            values.insert(new_values)
+            result.error_initial = graph.error(values)
+            final = start + window >= n
+            values, iterations = _lm(graph, values, options if final else
+                                     replace(options, relative_tolerance=options.window_relative_tolerance))
+            result.iterations += iterations
+            growth.update(values, min(start + window, n))
+        if _refit(problem, values, growth.added, options, result):
+            values, iterations = _lm(graph, values, options)
+            result.iterations += iterations
+    except _SOLVER_ERRORS as exc:
+        result.fail("Levenberg-Marquardt", exc)
+    else:
+        growth.finish()
+        result.error_final = graph.error(values)
+        result.poses, result.objects = _poses(values, n), _objects(values, growth.added)
+    result.seconds, result.cpu_seconds = clock.elapsed()
+    return result
+
+
+def _object_misfit(problem, values, oid, options):
+    """RMS whitened ray residual of object ``oid``'s silhouette factors at ``values`` (1: a typical
+    ray one ``silhouette_sigma`` off)."""
+    sub, rows = gtsam.NonlinearFactorGraph(), 0
+    for f in problem.frames[oid]:
+        sub.add(_silhouette(problem, f, oid, options))
+        rows += options.n_contour
+    return float(np.sqrt(2.0 * sub.error(values) / rows))
+
+
+def _refit(problem, values, oids, options, result):
+    """Re-initialise the landmarks left in a poor minimum (misfit above ``refit_misfit``) by
+    :func:`sqfit.fit` on all their frames at the solved poses; keep a refit that fits better.
+    Returns whether a landmark changed."""
+    if options.refit_misfit <= 0:
+        return False
+    poses = _poses(values, problem.n_frames)
+    changed = False
+    for oid in oids:
+        before = _object_misfit(problem, values, oid, options)
+        if before <= options.refit_misfit:
+            continue
+        landmark, _ = _initial_fit(problem, oid, problem.frames[oid], poses, options)
+        if landmark is None:
+            continue
+        trial = gtsam.Values(values)
+        trial.update(L(oid), gtsam.Pose3(landmark[0]))
+        trial.update(S(oid), np.asarray(landmark[1], dtype=np.float64))
+        after = _object_misfit(problem, trial, oid, options)
+        if after < before:
+            values.update(L(oid), gtsam.Pose3(landmark[0]))
+            values.update(S(oid), np.asarray(landmark[1], dtype=np.float64))
+            result.warnings.append(f"object {oid}: re-initialised from all {len(problem.frames[oid])} frames "
+                                   f"(misfit {before:.2f} -> {after:.2f})")
+            changed = True
+    return changed
+
+
+def _isam2(problem, options):
+    clock, n = _Clock(), problem.n_frames
+    result = SlamResult("graph-isam2", problem.odometry_poses.copy(), skipped=dict(problem.skipped),
+                        warnings=list(problem.warnings), frame_seconds=np.zeros(n), frame_cpu_seconds=np.zeros(n))
+    params = gtsam.ISAM2Params()
+    if options.isam2_dogleg:
+        params.setOptimizationParams(gtsam.ISAM2DoglegParams())
+    params.setRelinearizeThreshold(options.isam2_relinearize_threshold)
+    params.relinearizeSkip = 1
+    isam = gtsam.ISAM2(params)
+    growth = _Growth(problem, options, result)
+    for i in range(n):
+        step = _Clock()
+        try:
+            isam.update(*growth.add([i]))
+        except _SOLVER_ERRORS as exc:
+            result.fail(f"iSAM2 update at frame {i}", exc)
+            result.seconds, result.cpu_seconds = clock.elapsed()
+            return result
+        estimate = isam.calculateEstimate()
+        growth.update(estimate, i + 1)
+        result.frame_seconds[i], result.frame_cpu_seconds[i] = step.elapsed()
+    growth.finish()
+    result.iterations = n
+    result.error_final = isam.getFactorsUnsafe().error(estimate)
+    result.poses, result.objects = _poses(estimate, n), _objects(estimate, sorted(growth.added))
+    result.seconds, result.cpu_seconds = clock.elapsed()
+    return result
+
+
+def quadric_graph(intrinsics, odometry_poses, observations, options=None):
+    """Baseline: QuadricSLAM's dual quadrics from boxes in the same graph, batch Levenberg-Marquardt."""
+    clock, options = _Clock(), GraphOptions.coerce(options)
+    problem = check_inputs(intrinsics, odometry_poses, observations)
+    result = SlamResult("quadric", problem.odometry_poses.copy(), skipped=dict(problem.skipped),
+                        warnings=list(problem.warnings))
+    noise, K = _noise(options), intrinsics.K
+    graph = _pose_factors(problem, noise, range(problem.n_frames))
+    values = gtsam.Values()
+    for i, T in enumerate(problem.odometry_poses):
+        values.insert(X(i), gtsam.Pose3(T))
+    added = []
+    for oid, frames in problem.frames.items():
+        frames = [f for f in frames if not problem.observations[f, oid].touches_border]
+        boxes = [observation_box(problem.observations[f, oid]) for f in frames]
+        Z, radii = initialise_quadric(problem.odometry_poses[frames], K, boxes)
+        if Z is None:
+            _skip(result, oid, f"no quadric from the boxes of {len(frames)} untruncated frames")
+            continue
+        values.insert(L(oid), gtsam.Pose3(Z))
+        values.insert(Q(oid), radii)
+        for f, box in zip(frames, boxes):
+            graph.add(box_factor(_robust(4, options.box_sigma_px, options.huber_k), X(f), L(oid), Q(oid), K, box))
+        added.append(oid)
+    try:
+        result.error_initial = graph.error(values)
+        out, result.iterations = _lm(graph, values, options)
+    except _SOLVER_ERRORS as exc:
+        result.fail("Levenberg-Marquardt", exc)
+    else:
+        result.error_final = graph.error(out)
+        result.poses = _poses(out, problem.n_frames)
+        result.objects = {oid: quadric_to_superquadric(out.atPose3(L(oid)).matrix(), out.atVector(Q(oid)))
+                          for oid in added}
+    result.seconds, result.cpu_seconds = clock.elapsed()
+    return result
+
+
+#: Every method by name, in table order.
+METHODS = {
+    "odometry": odometry,
+    "fixed": fixed_pose_fits,
+    "quadric": quadric_graph,
+    "graph": superquadric_graph,
+    "graph-isam2": superquadric_isam2,
+}
+
+
+def run(intrinsics, odometry_poses, observations, methods=tuple(METHODS), options=None):
+    """Run several methods on one sequence; ``{method: SlamResult}`` in the order given."""
+    unknown = [m for m in methods if m not in METHODS]
+    if unknown:
+        raise ValueError(f"unknown method(s) {unknown}; valid: {list(METHODS)}")
+    return {m: METHODS[m](intrinsics, odometry_poses, observations, options) for m in methods}

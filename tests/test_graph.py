@@ -1,0 +1,361 @@
+"""The factor graph (sqfit.graph): factors' Jacobians, conventions, a small sequence, bad input."""
+
+import json
+
+import numpy as np
+import pytest
+
+gtsam = pytest.importorskip("gtsam")
+
+import sqfit  # noqa: E402
+from sqfit import graph  # noqa: E402
+from sqfit.graph import factors, landmark, quadric  # noqa: E402
+from sqfit.graph.testing import object_ious, position_rmse, synthetic_sequence  # noqa: E402
+from sqfit.metrics import iou_3d  # noqa: E402
+from sqfit.testing import polygon_mask  # noqa: E402
+from _numeric import central_difference  # noqa: E402
+
+from gtsam.symbol_shorthand import L, Q, S, X  # noqa: E402
+
+K_INTR = sqfit.Intrinsics(640, 480, 500.0, 500.0, 320.0, 240.0)
+SQ = sqfit.Superquadric((0.5, 0.3, 0.4), (0.6, 1.3), (0.2, -0.1, 0.4), (0.3, -0.2, 0.5))
+T_CAM = sqfit.look_at([4.0, 1.5, 1.5], [0.0, 0.0, 0.4])
+
+
+def _retract(T, delta):
+    return gtsam.Pose3(T).retract(delta).matrix()
+
+
+def _rays(sq=SQ, T=T_CAM, n=24):
+    cam = sqfit.Camera(K_INTR, T)
+    obs = sqfit.Observation.from_mask(cam, polygon_mask(sq, cam), rng=0)
+    return landmark.camera_rays(obs, n)
+
+
+def _perturbed_landmark():
+    T, s = landmark.superquadric_to_landmark(SQ)
+    return _retract(T, np.array([0.05, -0.03, 0.02, 0.04, 0.02, -0.03])), s * np.array([1.1, 0.9, 1.05, 1.1, 0.95])
+
+
+# --- conventions ----------------------------------------------------------------------------------
+
+def test_camera_rays_are_pixel_bearings_whatever_the_observation_pose():
+    cam = sqfit.Camera(K_INTR, T_CAM)
+    mask = polygon_mask(SQ, cam)
+    moved = sqfit.Camera(K_INTR, sqfit.look_at([-3.0, 2.0, 1.0], [1.0, 0.0, 0.0]))
+    a = landmark.camera_rays(sqfit.Observation.from_mask(cam, mask, rng=0), 16)
+    b = landmark.camera_rays(sqfit.Observation.from_mask(moved, mask, rng=0), 16)
+    np.testing.assert_allclose(a.directions, b.directions, atol=1e-12)
+    np.testing.assert_allclose(a.directions[:, 2], 1.0)  # unit depth
+    np.testing.assert_array_equal(a.origins, 0.0)
+
+
+def test_moving_rays_keeps_every_per_ray_array():
+    # e.g. the partial-visibility work's per-ray flags: the factor must hand them to raycost unchanged
+    rays = _rays()
+    object.__setattr__(rays, "two_sided", np.arange(len(rays)) % 2 == 0)
+    moved = landmark._moved(rays, np.ones((len(rays), 3)), 2 * rays.directions)
+    np.testing.assert_array_equal(moved.two_sided, rays.two_sided)
+    np.testing.assert_array_equal(moved.modes, rays.modes)
+    np.testing.assert_array_equal(moved.origins, 1.0)
+    np.testing.assert_array_equal(rays.origins, 0.0)  # the camera-frame rays are untouched
+
+
+def test_silhouette_residual_is_small_at_the_truth_and_grows_away_from_it():
+    rays = _rays()
+    T, s = landmark.superquadric_to_landmark(SQ)
+    r_true = landmark.silhouette_residuals(T_CAM, T, s, rays)[0]
+    r_off = landmark.silhouette_residuals(T_CAM, T, s * 1.2, rays)[0]
+    assert np.sqrt(np.mean(r_true ** 2 * len(r_true))) < 0.02  # pixelisation only
+    assert np.all(r_off * np.sqrt(len(r_off)) < 0)  # too large: every ray passes through
+    assert np.linalg.norm(r_off) > 5 * np.linalg.norm(r_true)
+
+
+def test_landmark_round_trip_and_pose_is_superquadric_to_world():
+    T, s = landmark.superquadric_to_landmark(SQ)
+    np.testing.assert_allclose(T[:3, 3], SQ.position)
+    np.testing.assert_allclose(landmark.landmark_to_superquadric(T, s).to_vector(), SQ.to_vector(), atol=1e-12)
+
+
+# --- Jacobians vs central differences -------------------------------------------------------------
+
+def test_silhouette_jacobians_match_central_differences():
+    rays = _rays()
+    Tl, s = _perturbed_landmark()
+    r, Jc, Jl, Js, d = landmark.silhouette_residuals(T_CAM, Tl, s, rays)
+    assert np.abs(Jc).max() > 0.1 and np.abs(Jl).max() > 0.1
+    f_cam = lambda x: landmark.silhouette_residuals(_retract(T_CAM, x), Tl, s, rays)[0]  # noqa: E731
+    f_lm = lambda x: landmark.silhouette_residuals(T_CAM, _retract(Tl, x), s, rays)[0]  # noqa: E731
+    f_s = lambda x: landmark.silhouette_residuals(T_CAM, Tl, x, rays)[0]  # noqa: E731
+    np.testing.assert_allclose(Jc, central_difference(f_cam, np.zeros(6)), atol=1e-6)
+    np.testing.assert_allclose(Jl, central_difference(f_lm, np.zeros(6)), atol=1e-6)
+    np.testing.assert_allclose(Js, central_difference(f_s, s), atol=1e-6)
+
+
+def test_silhouette_shape_outside_the_domain_is_clipped_with_zero_columns():
+    rays = _rays()
+    T, s = landmark.superquadric_to_landmark(SQ)
+    bad = s.copy()
+    bad[3] = -0.2
+    r, _, _, Js, _ = landmark.silhouette_residuals(T_CAM, T, bad, rays)
+    assert np.all(np.isfinite(r))
+    np.testing.assert_array_equal(Js[:, 3], 0.0)
+    pen, Jp = landmark.bounds_residuals(bad, 100.0)
+    assert pen[3] == pytest.approx(100.0 * (0.1 + 0.2)) and Jp[3, 3] == -100.0
+    assert np.all(landmark.bounds_residuals(s, 100.0)[0] == 0)
+
+
+def _linearized(factor, values, keys, dims):
+    """Jacobian blocks of a unit-noise factor as GTSAM linearises it, and central differences of its
+    error under GTSAM's own retraction."""
+    A = factor.linearize(values).jacobian()[0]
+    offsets = np.cumsum([0] + dims)
+    blocks = [A[:, offsets[i]:offsets[i + 1]] for i in range(len(keys))]
+
+    def numeric(i):
+        def f(x):
+            delta = gtsam.VectorValues()
+            for j, key in enumerate(keys):
+                delta.insert(key, x if j == i else np.zeros(dims[j]))
+            return factor.unwhitenedError(values.retract(delta))
+        return central_difference(f, np.zeros(dims[i]))
+
+    return blocks, [numeric(i) for i in range(len(keys))]
+
+
+@pytest.mark.parametrize("kind", ["silhouette", "box"])
+def test_gtsam_factor_linearization_matches_central_differences(kind):
+    Tl, s = _perturbed_landmark()
+    values = gtsam.Values()
+    values.insert(X(0), gtsam.Pose3(T_CAM))
+    values.insert(L(1), gtsam.Pose3(Tl))
+    if kind == "silhouette":
+        rays = _rays()
+        values.insert(S(1), s)
+        keys = [X(0), L(1), S(1)]
+        f = factors.silhouette_factor(gtsam.noiseModel.Unit.Create(len(rays)), *keys, rays)
+    else:
+        values.insert(Q(1), s[:3])
+        keys = [X(0), L(1), Q(1)]
+        f = factors.box_factor(gtsam.noiseModel.Unit.Create(4), *keys, K_INTR.K, [200.0, 150.0, 300.0, 260.0])
+    blocks, numeric = _linearized(f, values, keys, [6, 6, 5 if kind == "silhouette" else 3])
+    for b, n in zip(blocks, numeric):
+        scale = max(1.0, np.abs(n).max())
+        np.testing.assert_allclose(b, n, atol=1e-5 * scale)
+
+
+def test_box_jacobians_match_central_differences():
+    Tq, r = landmark.superquadric_to_landmark(SQ)[0], np.array(SQ.size)
+    box = np.array([250.0, 200.0, 330.0, 290.0])
+    res, Jc, Jq, Jr = quadric.box_residuals(T_CAM, Tq, r, K_INTR.K, box)
+    f_cam = lambda x: quadric.box_residuals(_retract(T_CAM, x), Tq, r, K_INTR.K, box)[0]  # noqa: E731
+    f_q = lambda x: quadric.box_residuals(T_CAM, _retract(Tq, x), r, K_INTR.K, box)[0]  # noqa: E731
+    f_r = lambda x: quadric.box_residuals(T_CAM, Tq, x, K_INTR.K, box)[0]  # noqa: E731
+    for J, n in ((Jc, central_difference(f_cam, np.zeros(6))), (Jq, central_difference(f_q, np.zeros(6))),
+                 (Jr, central_difference(f_r, r))):
+        np.testing.assert_allclose(J, n, atol=1e-5 * np.abs(n).max())
+
+
+def test_projected_ellipsoid_box_matches_its_silhouette_mask():
+    ellipsoid = sqfit.Superquadric(SQ.size, (1.0, 1.0), SQ.position, SQ.rotation)
+    cam = sqfit.Camera(K_INTR, T_CAM)
+    obs = sqfit.Observation.from_mask(cam, polygon_mask(ellipsoid, cam), rng=0)
+    pred = quadric.conic_box(quadric.projected_conic(T_CAM, ellipsoid.pose, ellipsoid.size, K_INTR.K))
+    np.testing.assert_allclose(pred, quadric.observation_box(obs), atol=1.0)  # pixel edges
+
+
+def test_quadric_initialisation_recovers_an_ellipsoid_from_exact_boxes():
+    ellipsoid = sqfit.Superquadric(SQ.size, (1.0, 1.0), SQ.position, SQ.rotation)
+    poses = [sqfit.look_at([4 * np.cos(t), 4 * np.sin(t), 1.5], [0, 0, 0.4]) for t in np.linspace(0, 1.6, 6)]
+    boxes = [quadric.conic_box(quadric.projected_conic(T, ellipsoid.pose, ellipsoid.size, K_INTR.K)) for T in poses]
+    Z, radii = quadric.initialise_quadric(poses, K_INTR.K, boxes)
+    np.testing.assert_allclose(Z[:3, 3], ellipsoid.position, atol=1e-6)
+    Q_est = quadric.dual_quadric(Z, radii)
+    np.testing.assert_allclose(Q_est, quadric.dual_quadric(ellipsoid.pose, ellipsoid.size), atol=1e-6)
+    assert quadric.initialise_quadric(poses[:2], K_INTR.K, boxes[:2]) == (None, None)
+
+
+# --- a small sequence -----------------------------------------------------------------------------
+
+@pytest.fixture(scope="module")
+def small():
+    seq = synthetic_sequence(1, n_frames=16, n_objects=3)
+    return seq, graph.run(seq.intrinsics, seq.odometry_poses, seq.observations)
+
+
+def test_joint_optimisation_beats_odometry_and_fixed_pose_fits(small):
+    seq, res = small
+    ate = {m: position_rmse(r.poses, seq.true_poses) for m, r in res.items()}
+    iou = {m: np.median(list(object_ious(r.objects, seq.objects).values())) for m, r in res.items() if m != "odometry"}
+    assert ate["graph"] < 0.5 * ate["odometry"], ate
+    assert ate["graph-isam2"] < 0.5 * ate["odometry"], ate
+    assert iou["graph"] > iou["fixed"] + 0.05, iou
+    assert iou["graph-isam2"] > iou["fixed"], iou
+    assert res["graph"].error_final < res["graph"].error_initial
+    np.testing.assert_array_equal(res["fixed"].poses, seq.odometry_poses)
+    np.testing.assert_array_equal(res["odometry"].poses, seq.odometry_poses)
+
+
+def test_results_are_complete_and_serialisable(small):
+    seq, res = small
+    assert list(res) == list(graph.METHODS)
+    for m, r in res.items():
+        assert r.ok and r.poses.shape == (len(seq.true_poses), 4, 4) and r.method == m
+        assert set(r.objects) == (set() if m == "odometry" else set(seq.objects))
+        json.dumps(r.to_dict())
+    assert all(o.shape == (1.0, 1.0) for o in res["quadric"].objects.values())
+    isam = res["graph-isam2"]
+    assert isam.frame_seconds.shape == (len(seq.true_poses),) and np.all(isam.frame_cpu_seconds >= 0)
+
+
+def test_robust_loss_limits_a_wrong_mask(small):
+    seq, _ = small
+    obs = dict(seq.observations)
+    key = sorted(k for k in obs if k[1] == 2)[5]
+    big = sqfit.Superquadric(np.array(seq.objects[2].size) * 2.5, (1.0, 1.0), seq.objects[2].position)
+    cam = sqfit.Camera(seq.intrinsics, seq.true_poses[key[0]])
+    obs[key] = sqfit.Observation.from_mask(cam, polygon_mask(big, cam), rng=0)
+    ious = {}
+    for k in (1.345, 1e6):  # Huber vs (practically) plain least squares
+        res = graph.superquadric_graph(seq.intrinsics, seq.odometry_poses, obs, {"huber_k": k})
+        ious[k] = object_ious(res.objects, seq.objects)[2]
+    assert ious[1.345] > ious[1e6]
+
+
+# --- bad input ------------------------------------------------------------------------------------
+
+def _tiny():
+    seq = synthetic_sequence(2, n_frames=4, n_objects=2)
+    return seq.intrinsics, seq.odometry_poses.copy(), dict(seq.observations)
+
+
+def test_a_frame_without_a_pose_is_an_error():
+    intr, poses, obs = _tiny()
+    poses[2] = np.nan
+    with pytest.raises(ValueError, match="frame 2 has no pose"):
+        graph.superquadric_graph(intr, poses, obs)
+    intr, poses, obs = _tiny()
+    obs[7, 1] = obs[0, 1]
+    with pytest.raises(ValueError, match=r"frame 7 has no pose \(odometry_poses has 4 frames\)"):
+        graph.run(intr, poses, obs)
+
+
+def test_an_object_seen_once_is_skipped_with_a_warning():
+    intr, poses, obs = _tiny()
+    obs[1, 9] = obs[1, 1]
+    for method in graph.METHODS:
+        res = graph.METHODS[method](intr, poses, obs)
+        assert 9 in res.skipped and "seen in 1 frame only (frame 1)" in res.skipped[9]
+        assert any("object 9: skipped" in w for w in res.warnings)
+        assert 9 not in res.objects
+
+
+@pytest.mark.parametrize("mutate, error, match", [
+    (lambda a: a.update(poses=a["poses"][:, :3]), ValueError, r"odometry_poses must have shape \(n, 4, 4\)"),
+    (lambda a: a.update(poses=a["poses"][:0]), ValueError, "at least one frame"),
+    (lambda a: a["poses"].__setitem__((1, 0, 0), 2.0), ValueError, r"odometry_poses\[1\] is not a rigid transform"),
+    (lambda a: a.update(intr="K"), TypeError, "intrinsics must be a sqfit.Intrinsics"),
+    (lambda a: a.update(obs=list(a["obs"].values())), TypeError, "observations must be a dict"),
+    (lambda a: a["obs"].__setitem__((0, "a"), a["obs"][0, 1]), TypeError, r"key \(0, 'a'\) must be a tuple"),
+    (lambda a: a["obs"].__setitem__((0, 5), "mask"), TypeError, r"observation \(0, 5\): must be a sqfit.Observation"),
+    (lambda a: a.update(intr=sqfit.Intrinsics(640, 480, 400.0, 400.0, 320.0, 240.0)), ValueError,
+     "intrinsics differ"),
+])
+def test_bad_input_is_named(mutate, error, match):
+    intr, poses, obs = _tiny()
+    args = {"intr": intr, "poses": poses, "obs": obs}
+    mutate(args)
+    with pytest.raises(error, match=match):
+        graph.check_inputs(args["intr"], args["poses"], args["obs"])
+
+
+def test_a_mask_touching_the_border_is_used_with_a_warning():
+    intr, poses, obs = _tiny()
+    cam = sqfit.Camera(intr, poses[0])
+    mask = np.zeros((intr.height, intr.width), bool)
+    mask[0:40, 100:160] = True
+    obs[0, 1] = sqfit.Observation.from_mask(cam, mask, rng=0)
+    problem = graph.check_inputs(intr, poses, obs)
+    assert "frame 0, object 1: mask touches the image border" in problem.warnings[0]
+
+
+def test_bad_options_and_methods_are_named():
+    intr, poses, obs = _tiny()
+    with pytest.raises(ValueError, match=r"unknown graph option\(s\) \['sigma'\]"):
+        graph.superquadric_graph(intr, poses, obs, {"sigma": 1.0})
+    with pytest.raises(ValueError, match="init_frames must be an integer >= 2"):
+        graph.GraphOptions(init_frames=1)
+    with pytest.raises(ValueError, match="silhouette_sigma must be a finite number > 0"):
+        graph.GraphOptions(silhouette_sigma=0.0)
+    with pytest.raises(TypeError, match="options must be None, a dict or a GraphOptions"):
+        graph.GraphOptions.coerce(3)
+    with pytest.raises(ValueError, match=r"unknown method\(s\) \['slam'\]"):
+        graph.run(intr, poses, obs, methods=["slam"])
+    with pytest.raises(TypeError, match="must be a sqfit.Observation"):
+        landmark.camera_rays("mask", 8)
+
+
+def test_an_optimiser_error_is_flagged_in_the_result(monkeypatch):
+    from sqfit.graph import solve
+
+    def fail(graph, values, options):
+        raise RuntimeError("\nIndeterminate linear system detected while working near variable l1")
+
+    monkeypatch.setattr(solve, "_lm", fail)
+    intr, poses, obs = _tiny()
+    for method in ("graph", "quadric"):
+        res = graph.METHODS[method](intr, poses, obs)
+        assert not res.ok and res.status == "failed" and res.objects == {}
+        assert res.message == "Levenberg-Marquardt: RuntimeError: Indeterminate linear system detected while " \
+                              "working near variable l1"
+        np.testing.assert_array_equal(res.poses, poses)
+
+
+def test_a_landmark_left_in_a_poor_minimum_is_refitted(small):
+    from sqfit.graph import problem as gproblem, solve
+
+    seq, _ = small
+    options = graph.GraphOptions()
+    prob = gproblem.check_inputs(seq.intrinsics, seq.true_poses, seq.observations)
+    values = gtsam.Values()
+    for i, T in enumerate(seq.true_poses):
+        values.insert(X(i), gtsam.Pose3(T))
+    for oid, sq in seq.objects.items():
+        if oid == 2:  # a poor minimum: axes swapped, flat, shifted
+            sq = sqfit.Superquadric(np.array(sq.size)[[2, 0, 1]], (1.8, 0.2), np.array(sq.position) + 0.15, sq.rotation)
+        T, s = landmark.superquadric_to_landmark(sq)
+        values.insert(L(oid), gtsam.Pose3(T))
+        values.insert(S(oid), s)
+    misfit = {oid: solve._object_misfit(prob, values, oid, options) for oid in seq.objects}
+    assert misfit[2] > options.refit_misfit > max(misfit[1], misfit[3]), misfit
+    result = graph.SlamResult("graph", seq.true_poses)
+    assert solve._refit(prob, values, list(seq.objects), options, result)
+    assert [w.split(":")[0] for w in result.warnings] == ["object 2"]
+    refit = landmark.landmark_to_superquadric(values.atPose3(L(2)).matrix(), values.atVector(S(2)))
+    assert solve._object_misfit(prob, values, 2, options) < options.refit_misfit
+    assert iou_3d(refit, seq.objects[2]) > 0.8
+    assert not solve._refit(prob, values, list(seq.objects), graph.GraphOptions(refit_misfit=0), result)
+
+
+def test_observations_from_instance_images_match_the_masks():
+    seq = synthetic_sequence(2, n_frames=3, n_objects=2)
+    images = np.zeros((3, seq.intrinsics.height, seq.intrinsics.width), np.uint16)
+    for f, T in enumerate(seq.true_poses):
+        cam = sqfit.Camera(seq.intrinsics, T)
+        for oid, sq in seq.objects.items():  # drawn in id order: the later one is on top where they overlap
+            images[f][polygon_mask(sq, cam)] = oid
+    images[1, :3, :3] = 7  # a 9-pixel speck: below min_area_px
+    obs = graph.observations_from_instances(seq.intrinsics, seq.odometry_poses, images, min_area_px=50, rng=0)
+    assert set(obs) == {(f, oid) for f in range(3) for oid in seq.objects if (images[f] == oid).sum() >= 50}
+    o = obs[0, 1]
+    assert o.area_px == (images[0] == 1).sum() and np.allclose(o.camera.pose, seq.odometry_poses[0])
+    with pytest.raises(ValueError, match=r"instance_images\[1\] must be an integer \(height, width\)"):
+        graph.observations_from_instances(seq.intrinsics, seq.odometry_poses, [images[0], images[1][:, :10], images[2]])
+    with pytest.raises(ValueError, match="instance_images has 2 frames, poses 3"):
+        graph.observations_from_instances(seq.intrinsics, seq.odometry_poses, images[:2])
+    with pytest.raises(ValueError, match="min_area_px must be an integer >= 1"):
+        graph.observations_from_instances(seq.intrinsics, seq.odometry_poses, images, min_area_px=0)
+    with pytest.raises(ValueError, match=r"instance_images\[0\] must be an integer"):
+        graph.observations_from_instances(seq.intrinsics, seq.odometry_poses, images.astype(float))
+    with pytest.raises(TypeError, match="intrinsics must be a sqfit.Intrinsics"):
+        graph.observations_from_instances(None, seq.odometry_poses, images)
