@@ -134,9 +134,9 @@ def test_outward_normals_validation():
         outward_normals(np.zeros((2, 2)))
 
 
-def test_stage_3g_is_registered_and_is_the_default():
+def test_stage_3g_is_registered_and_ends_the_default():
     assert "3G" in sqfit.STAGES
-    assert sqfit.DEFAULT_CHAIN == "1-2-3G"
+    assert sqfit.DEFAULT_CHAIN == "1-2-3H"  # 3H: axis screen, then 3G (tests/test_axis_search.py)
 
 
 @pytest.mark.parametrize("seed", [0, 3])
