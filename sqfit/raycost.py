@@ -265,7 +265,7 @@ def ray_minima(xi, origins, directions, d0=None):
     return d[0], log_m[0]
 
 
-def batch_ray_minima(X, origins, directions, d0=None):
+def batch_ray_minima(X, origins, directions, d0=None, rtol=_D_RTOL):
     """:func:`ray_minima` for ``b`` superquadrics at once, on the same rays (one vectorised solve).
 
     Parameters
@@ -273,6 +273,9 @@ def batch_ray_minima(X, origins, directions, d0=None):
     X : (b, 11) float
     origins, directions : (n, 3) float
     d0 : (b, n) float, optional
+    rtol : float
+        Relative tolerance on ``d`` (an error ``delta`` in ``d`` changes ``m`` by ``O(delta**2)``:
+        a screen can stop much earlier than the default).
 
     Returns
     -------
@@ -291,7 +294,7 @@ def batch_ray_minima(X, origins, directions, d0=None):
     if b == 1:  # scalar exponents: the common case stays as fast as before
         e1, e2 = float(X[0, 3]), float(X[0, 4])
     q0, u = np.ascontiguousarray((rel0 / a_ray).T), np.ascontiguousarray((ul / a_ray).T)
-    d, log_m = _gauge_minima(q0, u, rel0, ul, ratio, e1, e2, None if d0 is None else np.reshape(d0, b * n))
+    d, log_m = _gauge_minima(q0, u, rel0, ul, ratio, e1, e2, None if d0 is None else np.reshape(d0, b * n), rtol)
     return d.reshape(b, n), log_m.reshape(b, n)
 
 
@@ -300,7 +303,7 @@ def _take(e, idx):
     return e if np.ndim(e) == 0 else e[idx]
 
 
-def _gauge_minima(q0, u, rel0, ul, ratio, e1, e2, d0):
+def _gauge_minima(q0, u, rel0, ul, ratio, e1, e2, d0, rtol=_D_RTOL):
     """The solver of :func:`ray_minima` on rays in unit-size superquadric coordinates.
 
     ``q0``, ``u`` are ``(3, n)``; ``rel0``, ``ul`` the same rays in superquadric coordinates
@@ -313,7 +316,7 @@ def _gauge_minima(q0, u, rel0, ul, ratio, e1, e2, d0):
     lo = np.maximum(dc - half, ZNEAR)
     hi = np.maximum(dc + half, 2.0 * ZNEAR)
     n = len(lo)
-    tol = _D_RTOL * (np.abs(dc) + 1.0)
+    tol = rtol * (np.abs(dc) + 1.0)
     cold = np.ones(n, dtype=bool)
     if d0 is not None:
         d0 = np.clip(np.asarray(d0, dtype=np.float64), lo, hi)
@@ -441,7 +444,7 @@ def ray_residuals(xi, rays, weight=C.PENALTY_ANALYTIC, d0=None):
     return r, J, d
 
 
-def batch_ray_residuals(X, rays, weight=C.PENALTY_ANALYTIC, d0=None):
+def batch_ray_residuals(X, rays, weight=C.PENALTY_ANALYTIC, d0=None, rtol=_D_RTOL):
     """:func:`ray_residuals` of ``b`` superquadrics on the same rays (one vectorised ray solve).
 
     Parameters
@@ -452,6 +455,8 @@ def batch_ray_residuals(X, rays, weight=C.PENALTY_ANALYTIC, d0=None):
         ``c_p`` of the penalty rows.
     d0 : (b, n) float, optional
         Warm start of the ray minimisers.
+    rtol : float
+        Tolerance of the ray minimisers (:func:`batch_ray_minima`).
 
     Returns
     -------
@@ -463,7 +468,7 @@ def batch_ray_residuals(X, rays, weight=C.PENALTY_ANALYTIC, d0=None):
     if not isinstance(rays, RaySet):
         raise TypeError(f"rays must be a sqfit.raycost.RaySet, got {type(rays).__name__}")
     b, n, k = len(X), len(rays), C.N_PARAMS
-    d, _ = batch_ray_minima(X, rays.origins, rays.directions, d0)
+    d, _ = batch_ray_minima(X, rays.origins, rays.directions, d0, rtol)
     r = np.empty((b, n + k))
     J = np.zeros((b, n + k, k))
     for i, xi in enumerate(X):
