@@ -76,7 +76,7 @@ CANDIDATES = ("input", "R45", "P1", "P1R45", "P2", "P2R45")
 #: Outline rays per view of the screen (3G itself uses 64).
 N_SCREEN_CONTOUR = 16
 #: Levenberg-Marquardt steps (trial points) per candidate in the screen.
-SCREEN_ITERATIONS = 10
+SCREEN_ITERATIONS = 12
 #: Relative cost-reduction tolerance of the final 3G run (3G alone: ``FitOptions.ftol_analytic``).
 REFINE_FTOL = 1e-3
 #: After this many screening steps, candidates whose cost is above ``PRUNE_RATIO`` times the

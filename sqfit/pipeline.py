@@ -86,7 +86,9 @@ class FitOptions:
         Stage 3G: > 0 estimates a small rotation correction per camera with the superquadric,
         held near zero by prior rows ``delta / pose_sigma_deg`` (degrees, relative to 3G's
         per-view-normalised residuals: a stiffness, not a calibrated noise level); 0 trusts the
-        poses (see :mod:`sqfit.stage3g`). Default 20: measured, README "Robustness".
+        poses (see :mod:`sqfit.stage3g`). Default 50: measured with the default chain 1-2-3H
+        (2 px jitter + 1 deg rotation, 100 trials: median IoU 0.744 at 20, 0.771 at 50, 0.774 at
+        80; clean masks unchanged), README "Robustness".
     """
 
     polygon: str = "hull"
@@ -106,7 +108,7 @@ class FitOptions:
     hessian_numeric: str = "secant"
     riou_jacobian: str = "analytic"
     silhouette_directions: int = 48
-    pose_sigma_deg: float = 20.0
+    pose_sigma_deg: float = 50.0
 
     def __post_init__(self):
         if self.polygon not in POLYGON_KINDS:
