@@ -68,7 +68,7 @@ from . import constants as C
 from ._checks import check_shape
 from .multistart import symmetric_candidates
 from .pipeline import to_superquadric
-from .raycost import RaySet, batch_ray_residuals, contour_rays
+from .raycost import batch_ray_residuals, contour_rays
 from .stage3g import silhouette_stage
 from .stages import register
 
