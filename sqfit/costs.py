@@ -120,7 +120,7 @@ def _hull(observation):
         return np.asarray(observation.polygon("hull"))
 
 
-def penalty(xi, weight):
+def penalty(xi, weight, lower=LOWER_BOUNDS, upper=UPPER_BOUNDS):
     """Constraint penalty residuals of eq. 7.
 
     Parameters
@@ -128,6 +128,9 @@ def penalty(xi, weight):
     xi : (11,) or (b, 11) float
     weight : float
         ``c_p``.
+    lower, upper : (11,) float
+        Soft bounds (default those of eq. 7; stage 3G allows flatter shapes, see
+        ``constants.SILHOUETTE_SHAPE_BOUNDS``).
 
     Returns
     -------
@@ -135,13 +138,13 @@ def penalty(xi, weight):
         ``c_p * (max(0, lo - x) + max(0, x - hi))`` per parameter.
     """
     xi = np.asarray(xi, dtype=np.float64)
-    return weight * (np.maximum(LOWER_BOUNDS - xi, 0.0) + np.maximum(xi - UPPER_BOUNDS, 0.0))
+    return weight * (np.maximum(lower - xi, 0.0) + np.maximum(xi - upper, 0.0))
 
 
-def penalty_jacobian(xi, weight):
+def penalty_jacobian(xi, weight, lower=LOWER_BOUNDS, upper=UPPER_BOUNDS):
     """``(11,) float``: diagonal of the Jacobian of :func:`penalty` (``-c_p``, ``0`` or ``c_p``)."""
     xi = np.asarray(xi, dtype=np.float64)
-    return weight * ((xi > UPPER_BOUNDS).astype(float) - (xi < LOWER_BOUNDS).astype(float))
+    return weight * ((xi > upper).astype(float) - (xi < lower).astype(float))
 
 
 def riou_residuals(xi, obs, polygon="hull", weight=C.PENALTY_RIOU, n_directions=DEFAULT_DIRECTIONS,
