@@ -25,6 +25,7 @@ from .observation import POLYGON_KINDS, Observation
 from .silhouette import batch_iou, batch_silhouettes
 from .stages import STAGES, StageError, default_state
 from .superquadric import Superquadric
+from .visibility import BORDER
 
 __all__ = ["fit", "FitOptions", "FitResult", "StageRecord", "PAPER_CHAINS", "DEFAULT_CHAIN",
            "parse_chain", "to_superquadric", "r_iou_m"]
@@ -82,6 +83,12 @@ class FitOptions:
         held near zero by prior rows ``delta / pose_sigma_deg`` (degrees, relative to 3G's
         per-view-normalised residuals: a stiffness, not a calibrated noise level); 0 trusts the
         poses (see :mod:`sqfit.stage3g`). Default 20: measured, README "Robustness".
+    occlusion_aware : bool
+        Use the observations' boundary labels (:mod:`sqfit.visibility`): occluded and truncated
+        outline stretches are one-sided in 3G, and stages 1 and 2 leave out views whose outline
+        is mostly not true silhouette. False treats every outline as a silhouette (as before
+        the labels existed; the "not aware" curves of README "Partial visibility"). Stages 3A-3F
+        (the paper's) do not read the labels either way.
     """
 
     polygon: str = "hull"
@@ -102,6 +109,7 @@ class FitOptions:
     riou_jacobian: str = "analytic"
     silhouette_directions: int = 48
     pose_sigma_deg: float = 20.0
+    occlusion_aware: bool = True
 
     def __post_init__(self):
         if self.polygon not in POLYGON_KINDS:
@@ -133,6 +141,8 @@ class FitOptions:
             raise ValueError(f"fd_step must be > 0, got {self.fd_step}")
         if int(self.silhouette_directions) != self.silhouette_directions or self.silhouette_directions < 8:
             raise ValueError(f"silhouette_directions must be an integer >= 8, got {self.silhouette_directions}")
+        if not isinstance(self.occlusion_aware, (bool, np.bool_)):
+            raise ValueError(f"occlusion_aware must be True or False, got {self.occlusion_aware!r}")
 
     @classmethod
     def coerce(cls, options):
@@ -287,6 +297,19 @@ def _check_observations(observations):
     return obs
 
 
+def visibility_warnings(observations):
+    """Warnings about truncated or occluded views (list of str, one per affected view)."""
+    out = []
+    for i, o in enumerate(observations):
+        if o.touches_border:
+            out.append(f"view {i}: mask touches the image border (truncated silhouette; "
+                       f"{np.mean(o.contour_labels == BORDER):.0%} of the outline labelled border)")
+        if o.partial and o.silhouette_fraction == 0.0:
+            out.append(f"view {i}: all of the outline is labelled occluded or truncated (no true silhouette "
+                       "edge): the view says where the object is, not where it ends")
+    return out
+
+
 _NUMERICAL_ERRORS = (np.linalg.LinAlgError, FloatingPointError, ArithmeticError, ValueError)
 
 
@@ -320,14 +343,17 @@ def fit(observations, chain=DEFAULT_CHAIN, *, rng=None, options=None):
     np.random.default_rng(rng)  # validates rng
     obs_list = _check_observations(observations)
     chain_str = "-".join(names)
-    warnings = [f"view {i}: mask touches the image border (truncated silhouette)"
-                for i, o in enumerate(obs_list) if o.touches_border]
+    warnings = list(getattr(observations, "warnings", ()))
+    warnings += visibility_warnings(obs_list)
     result = FitResult(None, chain=chain_str, warnings=warnings)
     if len(obs_list) < 2:
         result.status, result.message = "too_few_views", f"need >= 2 observations, got {len(obs_list)}"
         result.seconds = time.perf_counter() - t0
         return result
-    obs = observations if isinstance(observations, ObservationSet) else ObservationSet(obs_list)
+    if not options.occlusion_aware and any(o.partial for o in obs_list):
+        obs = ObservationSet([o.without_labels() for o in obs_list])
+    else:
+        obs = observations if isinstance(observations, ObservationSet) else ObservationSet(obs_list)
     state = None
     snapshots = []
     for name in names:
