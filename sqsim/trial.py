@@ -7,6 +7,12 @@ children (:data:`SEED_STREAMS`), so a trial's result depends only on the scene a
 - child 1: mask noise,
 - child 2: pose noise,
 - child 3: observation samples (:func:`observations`, child ``3`` then the object id).
+
+Visibility (:func:`visibility`): per object and view, the *visible fraction* is the object's
+pixels in the clean instance image over its pixels when rendered alone in that view (1: nothing
+in front of it; the part outside the image counts in neither), and the *cut fraction* is the part
+of its projected area outside the image (:func:`sqsim.scene.cut_fractions`); an object is cut by
+the border in a view when its clean mask touches the first or last row or column.
 """
 
 from __future__ import annotations
@@ -19,9 +25,9 @@ from sqfit.io import observations_from_images
 
 from .noise import corrupt_image, perturb_cameras
 from .render import get_renderer
-from .scene import child_seed, geometry_visible, sample_objects, trial_seed
+from .scene import child_seed, cut_fractions, geometry_visible, sample_objects, trial_seed
 
-__all__ = ["SimulatedTrial", "simulate_trial", "sample_trial", "observations", "SEED_STREAMS"]
+__all__ = ["SimulatedTrial", "simulate_trial", "sample_trial", "observations", "visibility", "SEED_STREAMS"]
 
 SEED_STREAMS = {"objects": 0, "mask_noise": 1, "pose_noise": 2, "samples": 3}
 
@@ -45,6 +51,12 @@ class SimulatedTrial:
         After mask noise.
     resampled : int
         Draws rejected as unobservable before this one.
+    visible_fraction : (count, v) float
+        Per object and view: pixels seen / pixels rendered alone (see the module docstring).
+    cut_fraction : (count, v) float
+        Per object and view: projected area outside the image.
+    border_cut : (count, v) bool
+        Per object and view: the clean mask touches the image border.
     """
 
     index: int
@@ -54,6 +66,9 @@ class SimulatedTrial:
     clean_images: np.ndarray
     images: np.ndarray
     resampled: int
+    visible_fraction: np.ndarray | None = None
+    cut_fraction: np.ndarray | None = None
+    border_cut: np.ndarray | None = None
 
 
 def sample_trial(scene, index, renderer=None):
@@ -79,7 +94,7 @@ def sample_trial(scene, index, renderer=None):
     min_area = max(scene.masks.min_area_px, 1)
     for attempt in range(scene.objects.max_attempts):
         objects = sample_objects(scene.objects, rng)
-        if not geometry_visible(objects, cameras):
+        if not geometry_visible(objects, cameras, scene.masks.max_cut_fraction):
             continue
         images = renderer.render(objects, cameras)
         ids = np.array([o.id for o in objects])
@@ -106,7 +121,10 @@ def simulate_trial(scene, index, renderer=None):
     trial : SimulatedTrial
     """
     seed = trial_seed(scene.experiment.seed, index)
+    if renderer is None:
+        renderer = get_renderer(scene.masks.renderer, scene.intrinsics)
     objects, true_cameras, clean, resampled = sample_trial(scene, index, renderer)
+    visible, cut, border = visibility(objects, true_cameras, clean, renderer)
     noise = scene.noise
     mask_rng = np.random.default_rng(child_seed(seed, SEED_STREAMS["mask_noise"]))
     if any((noise.erosion_px, noise.dilation_px, noise.boundary_jitter_px, noise.dropout, noise.false_blobs)):
@@ -117,7 +135,38 @@ def simulate_trial(scene, index, renderer=None):
     cameras = perturb_cameras(true_cameras, noise.pose_rotation_deg, noise.pose_translation_m, pose_rng)
     for a in (clean, images):
         a.flags.writeable = False
-    return SimulatedTrial(int(index), objects, true_cameras, cameras, clean, images, int(resampled))
+    return SimulatedTrial(int(index), objects, true_cameras, cameras, clean, images, int(resampled),
+                          visible, cut, border)
+
+
+def visibility(objects, cameras, clean_images, renderer):
+    """Visible fraction, cut fraction and border flag per object and view (module docstring).
+
+    Parameters
+    ----------
+    objects : list of SceneObject
+    cameras : list of sqfit.Camera
+    clean_images : (v, h, w) int
+        The noise-free instance images of all objects together.
+    renderer : sqsim.render.Renderer
+
+    Returns
+    -------
+    visible_fraction : (count, v) float
+    cut_fraction : (count, v) float
+    border_cut : (count, v) bool
+    """
+    ids = np.array([o.id for o in objects])
+    seen = (clean_images[:, None] == ids[None, :, None, None]).sum(axis=(2, 3)).T.astype(np.float64)
+    if len(objects) == 1:
+        alone = seen
+    else:
+        alone = np.stack([(renderer.render([o], cameras) == o.id).sum(axis=(1, 2)) for o in objects])
+    visible = np.where(alone > 0, seen / np.maximum(alone, 1), 0.0)
+    edges = np.stack([clean_images[:, 0], clean_images[:, -1]], axis=1)
+    sides = np.stack([clean_images[:, :, 0], clean_images[:, :, -1]], axis=1)
+    border = np.stack([((edges == i).any(axis=(1, 2)) | (sides == i).any(axis=(1, 2))) for i in ids])
+    return np.minimum(visible, 1.0), cut_fractions(objects, cameras), border
 
 
 def observations(sim_trial, object_id, scene):

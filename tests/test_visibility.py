@@ -1,0 +1,216 @@
+"""Boundary labels (sqfit.visibility) and the costs and stages that read them."""
+
+import numpy as np
+import pytest
+
+import sqfit
+from sqfit import Camera, Intrinsics, Observation, look_at
+from sqfit.io import observations_from_images
+from sqfit.metrics import iou_3d
+from sqfit.raycost import CONTOUR, OUTSIDE, RaySet, contour_rays, ray_residuals
+from sqfit.testing import paper_trial, truncated_trial
+from sqfit.visibility import (BACKGROUND, BORDER, INSTANCE, INTERIOR, OCCLUDER_REACH_PX, outline_labels,
+                              point_labels, silhouette_fraction)
+from _numeric import central_difference
+
+INTR = Intrinsics(64, 48, 40.0, 30.0, 32.0, 24.0)
+CAM = Camera(INTR, look_at([10.0, 0, 0], [0, 0, 0]))
+
+
+def rect(r0=10, r1=20, c0=5, c1=30):
+    mask = np.zeros((48, 64), bool)
+    mask[r0:r1, c0:c1] = True
+    return mask
+
+
+def side_labels(obs):
+    """Labels of the vertices on each side of a rectangle's outline (corners excluded)."""
+    u, v = obs.contour[:, 0], obs.contour[:, 1]
+    lab = obs.contour_labels
+    lo_u, hi_u, lo_v, hi_v = u.min(), u.max(), v.min(), v.max()
+    return {"left": set(lab[np.isclose(u, lo_u)]), "right": set(lab[np.isclose(u, hi_u)]),
+            "top": set(lab[np.isclose(v, lo_v)]), "bottom": set(lab[np.isclose(v, hi_v)])}
+
+
+def test_rule_1_background_border_and_instance():
+    # Object touches the left border; an occluder sits right next to its right side.
+    mask = rect(c0=0)
+    occluder = rect(c0=30, c1=40)
+    obs = Observation.from_mask(CAM, mask, rng=0, occluder=occluder)
+    sides = side_labels(obs)
+    assert sides["left"] == {BORDER}
+    assert sides["right"] == {INSTANCE}
+    # Top and bottom: background, except the vertices next to the border / the occluder.
+    inner_top = obs.contour_labels[np.isclose(obs.contour[:, 1], 10.0) & (obs.contour[:, 0] > 1)
+                                   & (obs.contour[:, 0] < 28)]
+    assert set(inner_top) == {BACKGROUND}
+    assert obs.touches_border and obs.partial
+
+
+def test_rule_2_occluder_reach():
+    near = Observation.from_mask(CAM, rect(), rng=0, occluder=rect(c0=30 + OCCLUDER_REACH_PX, c1=40))
+    far = Observation.from_mask(CAM, rect(), rng=0, occluder=rect(c0=31 + OCCLUDER_REACH_PX, c1=40))
+    assert side_labels(near)["right"] == {INSTANCE}
+    assert side_labels(far)["right"] == {BACKGROUND}
+    assert not far.partial and far.silhouette_fraction == 1.0
+
+
+def test_rule_3_points_between_vertices_take_the_larger_label():
+    np.testing.assert_array_equal(point_labels([BACKGROUND, INSTANCE, BORDER], [0, 1, 2]),
+                                  [INSTANCE, BORDER, BORDER])
+
+
+def test_silhouette_fraction_of_a_half_occluded_square():
+    contour = np.array([[0.0, 0.0], [1, 0], [2, 0], [2, 1], [2, 2], [1, 2], [0, 2], [0, 1]])
+    labels = np.array([BACKGROUND] * 8)
+    assert silhouette_fraction(contour, labels) == 1.0
+    labels[2:5] = INSTANCE  # the right side and the edges into it
+    assert silhouette_fraction(contour, labels) == pytest.approx(4 / 8)
+
+
+def test_outline_labels_directly_match_observation():
+    mask = rect(c0=0)
+    obs = Observation.from_mask(CAM, mask, rng=0)
+    np.testing.assert_array_equal(outline_labels(obs.contour, mask), obs.contour_labels)
+
+
+def test_from_mask_without_occluder_is_unchanged_and_labels_only_the_border():
+    obs = Observation.from_mask(CAM, rect(), rng=7)
+    assert set(obs.contour_labels) == {BACKGROUND} and set(obs.sample_labels) == {INTERIOR}
+    assert not obs.partial and obs.without_labels() is obs
+    cut = Observation.from_mask(CAM, rect(r0=0), rng=7)
+    assert side_labels(cut)["top"] == {BORDER} and side_labels(cut)["left"] == {BACKGROUND}
+    assert set(cut.without_labels().contour_labels) == {BACKGROUND}
+
+
+def test_contour_samples_carry_outline_labels():
+    obs = Observation.from_mask(CAM, rect(c0=0), n_samples=200, sampling="mixed", rng=1)
+    area, outline = obs.sample_labels[:100], obs.sample_labels[100:]
+    assert set(area) == {INTERIOR}
+    on_left = np.isclose(obs.samples[100:, 0], 0.0)
+    assert on_left.any() and set(outline[on_left]) == {BORDER}
+
+
+def test_occluder_validation():
+    with pytest.raises(ValueError, match=r"occluder must have shape \(height, width\) = \(48, 64\)"):
+        Observation.from_mask(CAM, rect(), occluder=np.zeros((4, 4), bool))
+    with pytest.raises(ValueError, match="occluder must be boolean or numeric"):
+        Observation.from_mask(CAM, rect(), occluder=np.full((48, 64), "x"))
+
+
+def test_label_array_validation():
+    obs = Observation.from_mask(CAM, rect(), rng=0)
+    with pytest.raises(ValueError, match=r"contour_labels must have shape"):
+        Observation(obs.camera, obs.samples, obs.contour, obs.centroid, obs.area_px, False, np.zeros(3))
+
+
+def instance_images(trial):
+    """Instance images of a paper trial (object id 1) with an occluder (id 2) over view 0's right third."""
+    images = np.stack([m.astype(np.uint16) for m in trial.masks])
+    cols = np.flatnonzero(trial.masks[0].any(axis=0))
+    cut = cols[0] + 2 * len(cols) // 3
+    images[0][:, cut:][images[0][:, cut:] == 1] = 2
+    return images
+
+
+def test_observations_from_images_labels_other_instances():
+    t = paper_trial(4)
+    images = instance_images(t)
+    obs = observations_from_images(t.cameras, images, 1, rng=0)
+    assert len(obs) == 3 and obs.warnings == []
+    assert INSTANCE in obs[0].contour_labels and 0.3 < obs[0].silhouette_fraction < 0.95
+    assert not obs[1].partial and not obs[2].partial
+
+
+def test_hidden_view_is_flagged_in_fit_warnings():
+    t = paper_trial(4)
+    images = instance_images(t)
+    images[1][images[1] == 1] = 2  # view 1: object 1 entirely hidden by object 2
+    obs = observations_from_images(t.cameras, images, 1, rng=0)
+    assert len(obs) == 2
+    assert obs.warnings == ["view 1: object 1 is not visible (entirely hidden by other objects or outside "
+                            "the image); view skipped"]
+    result = sqfit.fit(obs, "1-2-3G")
+    assert result.ok and result.warnings[0] == obs.warnings[0]
+
+
+def test_fully_occluded_outline_is_flagged_not_a_crash():
+    t = paper_trial(4)
+    ring = np.zeros_like(t.masks[0])
+    from scipy import ndimage
+    ring = ndimage.binary_dilation(t.masks[0], iterations=3) & ~t.masks[0]
+    obs = [Observation.from_mask(t.cameras[0], t.masks[0], rng=0, occluder=ring)] + t.observations[1:]
+    assert obs[0].silhouette_fraction == 0.0
+    result = sqfit.fit(obs, "1-2-3G")
+    assert result.ok
+    assert any(w.startswith("view 0: all of the outline is labelled occluded or truncated") for w in result.warnings)
+    # Every view fully occluded: the chain still ends with a result and flags each view.
+    obs = [Observation.from_mask(c, m, rng=0, occluder=ndimage.binary_dilation(m, iterations=3) & ~m)
+           for c, m in zip(t.cameras, t.masks)]
+    result = sqfit.fit(obs, "1-2-3G")
+    assert result.superquadric is not None
+    assert sum("all of the outline" in w for w in result.warnings) == 3
+
+
+def test_rayset_two_sided_validation():
+    o, d = np.zeros((2, 3)), np.ones((2, 3))
+    with pytest.raises(ValueError, match=r"two_sided must be a boolean array of shape \(2,\)"):
+        RaySet(o, d, [0, 0], [1.0, 1.0], [0, 0], np.ones(2))
+    assert RaySet(o, d, [0, 0], [1.0, 1.0], [0, 0]).two_sided.all()
+
+
+def test_one_sided_rays_keep_only_the_hit_constraint():
+    t = truncated_trial(2, 0.3)
+    rays = contour_rays(t.observations, 32)
+    one_sided = ~rays.two_sided
+    assert one_sided.any() and np.all(rays.view[one_sided] == 0)
+    unlabelled = RaySet(rays.origins, rays.directions, rays.modes, rays.weights, rays.view)
+    big = t.gt.to_vector()
+    big[0:3] *= 1.5  # too large: every contour ray passes through it
+    r = ray_residuals(big, rays)[0][:len(rays)]
+    assert np.all(r[one_sided] == 0.0)  # the object may reach past an occluded or truncated point
+    assert np.all(r[rays.two_sided] < 0.0)
+    for scale in (0.5, 0.9, 1.1):
+        xi = t.gt.to_vector()
+        xi[0:3] *= scale
+        r = ray_residuals(xi, rays)[0][:len(rays)]
+        two = ray_residuals(xi, unlabelled)[0][:len(rays)]
+        np.testing.assert_array_equal(r[one_sided], np.maximum(two[one_sided], 0.0))  # "the ray hits it" only
+        np.testing.assert_array_equal(r[rays.two_sided], two[rays.two_sided])
+
+
+@pytest.mark.parametrize("band_px", [0.0, 2.0])
+def test_labelled_ray_jacobian_matches_central_differences(band_px):
+    t = truncated_trial(2, 0.3)
+    rays = contour_rays(t.observations, 16, band_px)
+    assert (~rays.two_sided).any() and (rays.modes == (CONTOUR if band_px == 0 else OUTSIDE)).any()
+    xi = t.gt.to_vector()
+    xi[3:5] = (0.8, 1.2)
+    xi[0:3] *= 1.1
+    r, J, _ = ray_residuals(xi, rays)
+    numeric = central_difference(lambda x: ray_residuals(x, rays)[0], xi)
+    np.testing.assert_allclose(J, numeric, atol=1e-5, rtol=1e-4)
+
+
+def test_truncated_view_fit_beats_unaware_fit():
+    aware, unaware = [], []
+    for seed in range(5):
+        t = truncated_trial(seed, 0.3)
+        aware.append(iou_3d(sqfit.fit(t.observations).superquadric, t.gt))
+        unaware.append(iou_3d(sqfit.fit(t.observations, options={"occlusion_aware": False}).superquadric, t.gt))
+    assert np.median(aware) > 0.85
+    assert np.median(aware) > np.median(unaware) + 0.1
+
+
+def test_truncated_trial_cuts_the_requested_fraction():
+    t = truncated_trial(1, 0.3)
+    whole = sqfit.testing.polygon_mask(t.gt, sqfit.testing.paper_cameras()[0]).sum()
+    assert 1 - t.masks[0].sum() / whole == pytest.approx(0.3, abs=0.02)
+    assert t.observations[0].touches_border and not t.observations[1].touches_border
+    with pytest.raises(ValueError, match=r"cut_fraction must be in \[0, 1\)"):
+        truncated_trial(1, 1.0)
+
+
+def test_occlusion_aware_option_validation():
+    with pytest.raises(ValueError, match="occlusion_aware must be True or False"):
+        sqfit.FitOptions(occlusion_aware="yes")
