@@ -655,5 +655,6 @@ def cut_fractions(objects, cameras):
             # |hull & image| from the IoU: inter = iou (|A| + |B|) / (1 + iou).
             iou = polygon_iou(hull, image)
             inside = iou * (area + k.width * k.height) / (1.0 + iou)
-            out[i, j] = float(np.clip(1.0 - inside / area, 0.0, 1.0))
+            cut = 1.0 - inside / area
+            out[i, j] = float(np.clip(cut, 0.0, 1.0)) if cut > 1e-9 else 0.0  # rounding of the IoU
     return out
