@@ -10,6 +10,9 @@ Residual conventions (all float64):
 - G2 (:func:`riou_residuals`): ``(v + 11,)`` = ``1 - IoU`` per view between the projected
   superquadric (:mod:`sqfit.silhouette`) and the observation polygon, then the penalty with
   ``c_p = 1``. Minimising ``sum r**2`` is eq. 3 with the penalty of eq. 7 as extra residuals.
+  In a view whose mask is cut by the image border (outline labels ``border``) the IoU counts
+  only the part of the silhouette inside the image (:mod:`sqfit.visible_iou`); the paper's
+  masks never touch the border, so the paper's chains are unchanged.
   The paper differentiates it numerically; :func:`riou_residuals` also gives an analytic
   Jacobian for hull polygons (``jacobian=True``), which the stages use by default
   (``FitOptions.riou_jacobian``).
@@ -37,8 +40,10 @@ from .observation import Observation
 from .silhouette import (DEFAULT_DIRECTIONS, NEWTON_TOL, batch_iou, batch_silhouettes, camera_arrays,
                          convex_iou_jacobian, half_planes, silhouette_gradient)
 from .superquadric import rotation_and_derivatives
+from .visibility import BORDER
+from .visible_iou import clipped_convex_iou_jacobian, image_rectangles
 
-__all__ = ["ObservationSet", "penalty", "penalty_jacobian", "riou_residuals", "radial_terms",
+__all__ = ["ObservationSet", "penalty", "penalty_jacobian", "riou_residuals", "visible_iou", "radial_terms",
            "rotation_and_derivatives",
            "g5_residuals", "LOWER_BOUNDS", "UPPER_BOUNDS"]
 
@@ -67,6 +72,10 @@ class ObservationSet:
         World direction of each sample per unit depth: ``R_c @ [(u-cx)/fx, (v-cy)/fy, 1]``.
     origins : (n, 3) float
         Camera centre of each sample's view.
+    border_views : (v,) bool
+        Views whose outline has ``border`` labels (the R-IOU there counts only the image).
+    frames : (v, 4, 2) float
+        Image rectangle of each view (:func:`sqfit.visible_iou.image_rectangles`).
     """
 
     observations: list
@@ -76,6 +85,8 @@ class ObservationSet:
     view_of_sample: np.ndarray = field(init=False)
     rays: np.ndarray = field(init=False)
     origins: np.ndarray = field(init=False)
+    border_views: np.ndarray = field(init=False)
+    frames: np.ndarray = field(init=False)
 
     def __post_init__(self):
         obs = list(self.observations)
@@ -88,6 +99,8 @@ class ObservationSet:
         self.view_of_sample = np.repeat(np.arange(len(obs)), counts)
         self.rays = np.concatenate([bearings(o.camera, o.samples) @ o.camera.rotation.T for o in obs])
         self.origins = self.centers[self.view_of_sample]
+        self.border_views = np.array([bool(np.any(o.contour_labels == BORDER)) for o in obs], dtype=bool)
+        self.frames = image_rectangles([(o.camera.intrinsics.width, o.camera.intrinsics.height) for o in obs])
         self._targets = {}
 
     def __len__(self):
@@ -190,7 +203,7 @@ def riou_residuals(xi, obs, polygon="hull", weight=C.PENALTY_RIOU, n_directions=
     if not jacobian:
         polys, valid, start = batch_silhouettes(xi, obs.rotations, obs.centers, obs.intrinsics, n_directions,
                                                 start, tol=tol)
-        iou = batch_iou(polys, valid, *obs.targets(polygon))
+        iou = visible_iou(polys, valid, obs, polygon)
         return np.concatenate([1.0 - iou, penalty(xi, weight)], axis=1), start
     targets, convex, planes = obs.targets(polygon)
     if not convex:
@@ -198,13 +211,64 @@ def riou_residuals(xi, obs, polygon="hull", weight=C.PENALTY_RIOU, n_directions=
     polys, valid, start, unit_points, points = batch_silhouettes(xi, obs.rotations, obs.centers, obs.intrinsics,
                                                                  n_directions, start, touching=True, tol=tol)
     iou, weights = convex_iou_jacobian(polys, targets[None], planes)
+    cut = np.flatnonzero(obs.border_views)
+    if len(cut):
+        clipped, clipped_weights = clipped_convex_iou_jacobian(polys[:, cut], targets[None, cut], obs.frames[None, cut],
+                                                               tuple(p[cut] for p in planes))
+        iou = iou.copy()
+        iou[:, cut] = clipped
     iou = np.where(valid & np.isfinite(iou), iou, 0.0)
 
     def d_views():
-        gradient = silhouette_gradient(xi, weights(), unit_points, points, obs.rotations, obs.intrinsics)
+        W = weights()
+        if len(cut):
+            W[:, cut] = clipped_weights()
+        gradient = silhouette_gradient(xi, W, unit_points, points, obs.rotations, obs.intrinsics)
         return np.where(valid[..., None], -gradient, 0.0)
 
     return np.concatenate([1.0 - iou, penalty(xi, weight)], axis=1), start, d_views
+
+
+def visible_iou(polys, valid, obs, polygon="hull"):
+    """IoU of batched silhouettes with the observation polygons, over the visible image part.
+
+    As :func:`sqfit.silhouette.batch_iou`, but in ``obs.border_views`` only the part of each
+    silhouette inside the image counts (:mod:`sqfit.visible_iou`).
+
+    Parameters
+    ----------
+    polys : (b, v, K, 2) float
+    valid : (b, v) bool
+    obs : ObservationSet
+    polygon : {"hull", "contour"}
+
+    Returns
+    -------
+    iou : (b, v) float
+    """
+    targets, convex, planes = obs.targets(polygon)
+    iou = batch_iou(polys, valid, targets, convex, planes)
+    cut = np.flatnonzero(obs.border_views)
+    if not len(cut):
+        return iou
+    if convex:
+        clipped = clipped_convex_iou_jacobian(polys[:, cut], targets[None, cut], obs.frames[None, cut],
+                                              tuple(p[cut] for p in planes))[0]
+    else:
+        import shapely
+
+        b = len(polys)
+        sil = shapely.polygons(polys[:, cut].reshape(b * len(cut), -1, 2))
+        frames = np.tile(shapely.polygons(obs.frames[cut]), b)
+        sil = shapely.intersection(shapely.make_valid(sil), frames)
+        tgt = np.tile(np.array([shapely.make_valid(shapely.Polygon(targets[i])) for i in cut], dtype=object), b)
+        inter = shapely.area(shapely.intersection(sil, tgt))
+        union = shapely.area(sil) + shapely.area(tgt) - inter
+        with np.errstate(divide="ignore", invalid="ignore"):
+            clipped = np.where(union > 0, inter / union, 0.0).reshape(b, len(cut))
+    iou = iou.copy()
+    iou[:, cut] = np.where(valid[:, cut] & np.isfinite(clipped), clipped, 0.0)
+    return iou
 
 
 def sample_points(obs, depths):

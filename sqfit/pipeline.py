@@ -20,9 +20,9 @@ from dataclasses import asdict, dataclass, field, fields
 import numpy as np
 
 from . import constants as C
-from .costs import ObservationSet
+from .costs import ObservationSet, visible_iou
 from .observation import POLYGON_KINDS, Observation
-from .silhouette import batch_iou, batch_silhouettes
+from .silhouette import batch_silhouettes
 from .stages import STAGES, StageError, default_state
 from .superquadric import Superquadric
 from .visibility import BORDER
@@ -281,7 +281,7 @@ def r_iou_m(superquadrics, obs, polygon="hull"):
     """R-IOU-M of several superquadrics at once: ``(b,) float`` mean over views of the IoU."""
     xi = np.stack([sq.to_vector() for sq in superquadrics])
     polys, valid, _ = batch_silhouettes(xi, obs.rotations, obs.centers, obs.intrinsics)
-    return batch_iou(polys, valid, *obs.targets(polygon)).mean(axis=1)
+    return visible_iou(polys, valid, obs, polygon).mean(axis=1)
 
 
 def _check_observations(observations):

@@ -11,6 +11,8 @@ from sqfit.raycost import CONTOUR, OUTSIDE, RaySet, contour_rays, ray_residuals
 from sqfit.testing import paper_trial, truncated_trial
 from sqfit.visibility import (BACKGROUND, BORDER, INSTANCE, INTERIOR, OCCLUDER_REACH_PX, outline_labels,
                               point_labels, silhouette_fraction)
+from sqfit.silhouette import polygon_iou
+from sqfit.visible_iou import clipped_convex_iou, clipped_convex_iou_jacobian, image_rectangles
 from _numeric import central_difference
 
 INTR = Intrinsics(64, 48, 40.0, 30.0, 32.0, 24.0)
@@ -214,3 +216,52 @@ def test_truncated_trial_cuts_the_requested_fraction():
 def test_occlusion_aware_option_validation():
     with pytest.raises(ValueError, match="occlusion_aware must be True or False"):
         sqfit.FitOptions(occlusion_aware="yes")
+
+
+def _polygon(n, centre, radius, phase=0.3):
+    t = phase + 2 * np.pi * np.arange(n) / n
+    return np.stack([centre[0] + radius * np.cos(t), centre[1] + radius * np.sin(t)], axis=1)
+
+
+def test_clipped_iou_is_the_iou_of_the_clipped_silhouette():
+    import shapely
+
+    R = image_rectangles([(64, 48)])[0]
+    S = _polygon(9, (5.0, 20.0), 15.0)  # sticks out of the left border
+    Q = _polygon(7, (12.0, 21.0), 8.0)
+    clipped = shapely.Polygon(S).intersection(shapely.Polygon(R))
+    q = shapely.Polygon(Q)
+    expected = clipped.intersection(q).area / clipped.union(q).area
+    assert clipped_convex_iou(S, Q, R) == pytest.approx(expected, rel=1e-12)
+    inside = _polygon(9, (30.0, 20.0), 10.0)  # inside the image: the plain IoU
+    assert clipped_convex_iou(inside, Q, R) == pytest.approx(polygon_iou(inside, Q), rel=1e-12)
+
+
+def test_clipped_iou_gradient_matches_central_differences():
+    R = image_rectangles([(64, 48)])[0]
+    S = _polygon(9, (5.0, 20.0), 15.0)
+    Q = _polygon(7, (12.0, 21.0), 8.0)
+    _, weights = clipped_convex_iou_jacobian(S, Q, R)
+    numeric = central_difference(lambda x: np.atleast_1d(clipped_convex_iou(x.reshape(-1, 2), Q, R)), S.ravel())
+    np.testing.assert_allclose(weights().ravel(), numeric[0], atol=1e-8)
+
+
+def test_riou_counts_only_the_image_in_cut_views():
+    from sqfit.costs import ObservationSet, riou_residuals
+
+    t = truncated_trial(2, 0.3)
+    obs = ObservationSet(t.observations)
+    assert obs.border_views.tolist() == [True, False, False]
+    xi = t.gt.to_vector()[None]
+    r_vis = riou_residuals(xi, obs)[0][0, :3]
+    plain = ObservationSet([o.without_labels() for o in t.observations])
+    r_plain = riou_residuals(xi, plain)[0][0, :3]
+    # At the truth the hull sees only the visible part: clipping removes the unseen area from the union.
+    assert r_vis[0] < r_plain[0] - 0.1
+    np.testing.assert_array_equal(r_vis[1:], r_plain[1:])
+    # The analytic Jacobian of the cut view matches finite differences of the residual.
+    x = xi[0].copy()
+    x[0:3] *= 1.1
+    _, _, d_views = riou_residuals(x[None], obs, jacobian=True, tol=1e-9)
+    numeric = central_difference(lambda z: riou_residuals(z[None], obs, tol=1e-9)[0][0, :3], x, h=1e-5)
+    np.testing.assert_allclose(d_views()[0][0], numeric[0], rtol=0.05, atol=2e-3)
