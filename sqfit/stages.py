@@ -26,10 +26,11 @@ per-view mean.
 Partial visibility: a view whose outline is less than :data:`TRUSTED_SILHOUETTE_FRACTION` true
 silhouette (``Observation.silhouette_fraction``: the rest is labelled occluded or truncated, see
 :mod:`sqfit.visibility`) has a biased centroid, area and sample spread. When at least two views
-are trusted, stage 1 triangulates from the trusted views only (the others get the depth of the
-triangulated point along their centroid ray) and takes the size from them, and stage 2 runs its
-PCA on their samples only; with fewer than two trusted views all views are used as before.
-Measured against weighting the views by their silhouette fraction: README, "Partial visibility".
+are trusted, stage 1 weights each view's rows of the triangulation by its silhouette fraction
+(floor 0.1) and takes the size from the trusted views only, and stage 2 runs its PCA on the
+trusted views' samples only; with fewer than two trusted views all views are used as before.
+Measured against dropping the untrusted views from the triangulation and against ignoring the
+labels in stages 1-2 (:data:`CUT_VIEWS`): README, "Partial visibility".
 
 Default initial guess (our choice; the paper does not state one), used when a chain starts at
 stage 3 or 2: a unit sphere-like quadric ``a = (1, 1, 1)``, ``e = (1, 1)`` at the world origin
@@ -66,9 +67,10 @@ _SHAPE_ONLY = np.array([3, 4])
 _SILHOUETTE_TOL_ANALYTIC = 1e-3
 #: Views whose outline is at least this fraction true silhouette are trusted by stages 1 and 2.
 TRUSTED_SILHOUETTE_FRACTION = 0.9
-#: How stages 1 and 2 treat untrusted views: "drop" (default) or "weight" (stage 1 rows weighted
-#: by the silhouette fraction, floor 0.1; stage 2 as "drop"); "all" ignores the labels.
-CUT_VIEWS = "drop"
+#: How stages 1 and 2 treat untrusted views: "weight" (default: stage 1 rows weighted by the
+#: silhouette fraction, floor 0.1), "drop" (stage 1 leaves them out; their depth is that of the
+#: triangulated point); both size from and run stage 2 on trusted views only. "all" ignores the labels.
+CUT_VIEWS = "weight"
 
 
 @dataclass(frozen=True)
