@@ -11,8 +11,10 @@ Residual conventions (all float64):
   superquadric (:mod:`sqfit.silhouette`) and the observation polygon, then the penalty with
   ``c_p = 1``. Minimising ``sum r**2`` is eq. 3 with the penalty of eq. 7 as extra residuals.
   In a view whose mask is cut by the image border (outline labels ``border``) the IoU counts
-  only the part of the silhouette inside the image (:mod:`sqfit.visible_iou`); the paper's
-  masks never touch the border, so the paper's chains are unchanged.
+  only the part of the silhouette inside the image, and pixels of other instances that may hide
+  the object (``Observation.hidden``) count in neither intersection nor union
+  (:mod:`sqfit.visible_iou`); the paper's masks are single objects that never touch the
+  border, so the paper's chains are unchanged there.
   The paper differentiates it numerically; :func:`riou_residuals` also gives an analytic
   Jacobian for hull polygons (``jacobian=True``), which the stages use by default
   (``FitOptions.riou_jacobian``).
@@ -41,7 +43,7 @@ from .silhouette import (DEFAULT_DIRECTIONS, NEWTON_TOL, batch_iou, batch_silhou
                          convex_iou_jacobian, half_planes, silhouette_gradient)
 from .superquadric import rotation_and_derivatives
 from .visibility import BORDER
-from .visible_iou import clipped_convex_iou_jacobian, image_rectangles
+from .visible_iou import clipped_convex_iou_jacobian, hidden_counts, image_rectangles, points_in_convex
 
 __all__ = ["ObservationSet", "penalty", "penalty_jacobian", "riou_residuals", "visible_iou", "radial_terms",
            "rotation_and_derivatives",
@@ -76,6 +78,8 @@ class ObservationSet:
         Views whose outline has ``border`` labels (the R-IOU there counts only the image).
     frames : (v, 4, 2) float
         Image rectangle of each view (:func:`sqfit.visible_iou.image_rectangles`).
+    occluded_views : (v,) bool
+        Views with pixels that may hide the object (``Observation.hidden`` not empty).
     """
 
     observations: list
@@ -87,6 +91,7 @@ class ObservationSet:
     origins: np.ndarray = field(init=False)
     border_views: np.ndarray = field(init=False)
     frames: np.ndarray = field(init=False)
+    occluded_views: np.ndarray = field(init=False)
 
     def __post_init__(self):
         obs = list(self.observations)
@@ -101,7 +106,9 @@ class ObservationSet:
         self.origins = self.centers[self.view_of_sample]
         self.border_views = np.array([bool(np.any(o.contour_labels == BORDER)) for o in obs], dtype=bool)
         self.frames = image_rectangles([(o.camera.intrinsics.width, o.camera.intrinsics.height) for o in obs])
+        self.occluded_views = np.array([len(o.hidden) > 0 for o in obs], dtype=bool)
         self._targets = {}
+        self._hidden_in_target = {}
 
     def __len__(self):
         return len(self.observations)
@@ -120,6 +127,43 @@ class ObservationSet:
             else:
                 self._targets[kind] = ([np.asarray(o.contour) for o in self.observations], False, None)
         return self._targets[kind]
+
+
+    def hidden_in_target(self, kind):
+        """Per view, ``(k,) bool``: which of ``Observation.hidden`` lie in the observation polygon."""
+        if kind not in self._hidden_in_target:
+            targets, convex, _ = self.targets(kind)
+            out = []
+            for o, target in zip(self.observations, targets):
+                if not len(o.hidden):
+                    out.append(np.zeros(0, dtype=bool))
+                elif convex:
+                    out.append(points_in_convex(target, o.hidden))
+                else:
+                    import shapely
+
+                    out.append(shapely.contains_xy(shapely.make_valid(shapely.Polygon(target)), o.hidden[:, 0],
+                                                   o.hidden[:, 1]))
+            self._hidden_in_target[kind] = out
+        return self._hidden_in_target[kind]
+
+    def partial_views(self, polys, polygon):
+        """Views whose IoU counts only the visible part, for silhouettes ``polys`` ``(b, v, K, 2)``.
+
+        Returns
+        -------
+        views : (p,) int
+        clip : (p,) bool
+            Clip the silhouette to the image (border views).
+        hidden_inter, hidden_union : (b, p) float
+            :func:`sqfit.visible_iou.hidden_counts` per view.
+        """
+        views = np.flatnonzero(self.border_views | self.occluded_views)
+        counts = [hidden_counts(polys[:, j], self.observations[j].hidden, self.hidden_in_target(polygon)[j])
+                  for j in views]
+        hi = np.stack([c[0] for c in counts], axis=1) if counts else np.zeros((len(polys), 0))
+        hu = np.stack([c[1] for c in counts], axis=1) if counts else np.zeros((len(polys), 0))
+        return views, self.border_views[views], hi, hu
 
 
 def _hull(observation):
@@ -211,10 +255,11 @@ def riou_residuals(xi, obs, polygon="hull", weight=C.PENALTY_RIOU, n_directions=
     polys, valid, start, unit_points, points = batch_silhouettes(xi, obs.rotations, obs.centers, obs.intrinsics,
                                                                  n_directions, start, touching=True, tol=tol)
     iou, weights = convex_iou_jacobian(polys, targets[None], planes)
-    cut = np.flatnonzero(obs.border_views)
+    cut, clip, hi, hu = obs.partial_views(polys, polygon)
     if len(cut):
         clipped, clipped_weights = clipped_convex_iou_jacobian(polys[:, cut], targets[None, cut], obs.frames[None, cut],
-                                                               tuple(p[cut] for p in planes))
+                                                               tuple(p[cut] for p in planes), clip=clip,
+                                                               hidden_inter=hi, hidden_union=hu)
         iou = iou.copy()
         iou[:, cut] = clipped
     iou = np.where(valid & np.isfinite(iou), iou, 0.0)
@@ -233,7 +278,8 @@ def visible_iou(polys, valid, obs, polygon="hull"):
     """IoU of batched silhouettes with the observation polygons, over the visible image part.
 
     As :func:`sqfit.silhouette.batch_iou`, but in ``obs.border_views`` only the part of each
-    silhouette inside the image counts (:mod:`sqfit.visible_iou`).
+    silhouette inside the image counts, and in ``obs.occluded_views`` the pixels that may hide the
+    object count in neither intersection nor union (:mod:`sqfit.visible_iou`).
 
     Parameters
     ----------
@@ -248,24 +294,25 @@ def visible_iou(polys, valid, obs, polygon="hull"):
     """
     targets, convex, planes = obs.targets(polygon)
     iou = batch_iou(polys, valid, targets, convex, planes)
-    cut = np.flatnonzero(obs.border_views)
-    if not len(cut):
+    if not (obs.border_views.any() or obs.occluded_views.any()):
         return iou
+    cut, clip, hi, hu = obs.partial_views(polys, polygon)
     if convex:
         clipped = clipped_convex_iou_jacobian(polys[:, cut], targets[None, cut], obs.frames[None, cut],
-                                              tuple(p[cut] for p in planes))[0]
+                                              tuple(p[cut] for p in planes), clip=clip,
+                                              hidden_inter=hi, hidden_union=hu)[0]
     else:
         import shapely
 
         b = len(polys)
-        sil = shapely.polygons(polys[:, cut].reshape(b * len(cut), -1, 2))
+        sil = shapely.make_valid(shapely.polygons(polys[:, cut].reshape(b * len(cut), -1, 2)))
         frames = np.tile(shapely.polygons(obs.frames[cut]), b)
-        sil = shapely.intersection(shapely.make_valid(sil), frames)
+        sil = np.where(np.tile(clip, b), shapely.intersection(sil, frames), sil)
         tgt = np.tile(np.array([shapely.make_valid(shapely.Polygon(targets[i])) for i in cut], dtype=object), b)
         inter = shapely.area(shapely.intersection(sil, tgt))
-        union = shapely.area(sil) + shapely.area(tgt) - inter
+        union = shapely.area(sil) + shapely.area(tgt) - inter - hu.ravel()
         with np.errstate(divide="ignore", invalid="ignore"):
-            clipped = np.where(union > 0, inter / union, 0.0).reshape(b, len(cut))
+            clipped = np.where(union > 0, np.maximum(inter - hi.ravel(), 0.0) / union, 0.0).reshape(b, len(cut))
     iou = iou.copy()
     iou[:, cut] = np.where(valid[:, cut] & np.isfinite(clipped), clipped, 0.0)
     return iou

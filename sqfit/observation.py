@@ -42,7 +42,7 @@ from . import constants as C
 from ._checks import check_choice
 from .camera import Camera, pixel_centers
 from .silhouette import polygon_area
-from .visibility import BACKGROUND, INTERIOR, outline_labels, point_labels, silhouette_fraction
+from .visibility import BACKGROUND, INTERIOR, hiding_pixels, outline_labels, point_labels, silhouette_fraction
 
 __all__ = ["Observation", "ObservationList", "SAMPLING_METHODS", "POLYGON_KINDS"]
 
@@ -75,6 +75,9 @@ class Observation:
     sample_labels : (n,) int8
         Per sample: ``INTERIOR`` for area samples, the outline label for contour samples.
         Default (None when constructing): ``INTERIOR`` for all.
+    hidden : (k, 2) float
+        Centres of the pixels that may hide the object (:func:`sqfit.visibility.hiding_pixels`);
+        the R-IOU costs leave them out of the union. Default (None when constructing): none.
     """
 
     camera: Camera
@@ -85,6 +88,7 @@ class Observation:
     touches_border: bool
     contour_labels: np.ndarray | None = None
     sample_labels: np.ndarray | None = None
+    hidden: np.ndarray | None = None
 
     def __post_init__(self):
         for name, n, fill in (("contour_labels", len(self.contour), BACKGROUND),
@@ -96,6 +100,10 @@ class Observation:
             value = value.copy() if value.flags.writeable else value
             value.flags.writeable = False
             object.__setattr__(self, name, value)
+        hidden = np.zeros((0, 2)) if self.hidden is None else np.asarray(self.hidden, dtype=np.float64)
+        if hidden.ndim != 2 or hidden.shape[1] != 2:
+            raise ValueError(f"hidden must have shape (k, 2), got {hidden.shape}")
+        object.__setattr__(self, "hidden", _readonly(hidden))
 
     @classmethod
     def from_mask(cls, camera, mask, n_samples=C.DEFAULT_SAMPLES, sampling="uniform", rng=None, cleanup=True,
@@ -174,6 +182,7 @@ class Observation:
             touches_border=touches,
             contour_labels=labels,
             sample_labels=sample_labels,
+            hidden=hiding_pixels(mask, occluder),
         )
 
     @property
@@ -189,9 +198,9 @@ class Observation:
 
     def without_labels(self):
         """This observation with every outline label ``background`` (occlusion-unaware fitting)."""
-        if not self.partial:
+        if not self.partial and not len(self.hidden):
             return self
-        return replace(self, contour_labels=None, sample_labels=None)
+        return replace(self, contour_labels=None, sample_labels=None, hidden=None)
 
     @cached_property
     def hull(self):

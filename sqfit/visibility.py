@@ -27,6 +27,10 @@ Rules (pinned by tests/test_visibility.py):
 4. Labels are conservative: an object in *front* of its neighbour is labelled ``INSTANCE`` along
    the shared edge too (an instance image holds no depth order). That only drops a constraint.
 
+5. The pixels that may hide the object (``Observation.hidden``) are those of the "may hide"
+   connected components (8-connectivity) that come within :data:`OCCLUDER_REACH_PX` of the mask:
+   where the object could be, unseen. The R-IOU costs leave them out of the union.
+
 A cost uses a point as a two-sided constraint ("the object reaches here and not further") only
 where the label is ``BACKGROUND``; elsewhere only "this pixel is the object" holds. Costs read
 the labels; none re-derives them.
@@ -37,7 +41,7 @@ from __future__ import annotations
 import numpy as np
 
 __all__ = ["BACKGROUND", "INSTANCE", "BORDER", "INTERIOR", "LABEL_NAMES", "OCCLUDER_REACH_PX",
-           "outline_labels", "point_labels", "silhouette_fraction"]
+           "outline_labels", "point_labels", "silhouette_fraction", "hiding_pixels"]
 
 BACKGROUND, INSTANCE, BORDER, INTERIOR = 0, 1, 2, 3
 LABEL_NAMES = {BACKGROUND: "background", INSTANCE: "instance", BORDER: "border", INTERIOR: "interior"}
@@ -135,3 +139,30 @@ def silhouette_fraction(contour, labels):
         return 1.0
     edge = point_labels(labels, np.arange(len(contour)))
     return float(seg[edge == BACKGROUND].sum() / total)
+
+
+def hiding_pixels(mask, occluder, reach_px=OCCLUDER_REACH_PX):
+    """Centres of the pixels that may hide the object (rule 5 of the module docstring).
+
+    Parameters
+    ----------
+    mask : (h, w) bool
+    occluder : (h, w) bool or None
+    reach_px : int
+
+    Returns
+    -------
+    centres : (k, 2) float
+        Image coordinates ``(u, v)`` of the pixel centres; ``(0, 2)`` when nothing hides it.
+    """
+    if occluder is None or not np.any(occluder):
+        return np.zeros((0, 2))
+    from scipy import ndimage
+
+    occluder = np.asarray(occluder, dtype=bool) & ~mask
+    near = ndimage.binary_dilation(mask, np.ones((2 * reach_px + 3,) * 2, dtype=bool))
+    comps, n = ndimage.label(occluder, structure=np.ones((3, 3), dtype=bool))
+    touching = np.unique(comps[near & occluder])
+    touching = touching[touching > 0]
+    rows, cols = np.nonzero(np.isin(comps, touching))
+    return np.stack([cols + 0.5, rows + 0.5], axis=1).astype(np.float64)

@@ -1,4 +1,4 @@
-"""IoU over the part of the image where the object could have been seen (truncated views).
+"""IoU over the part of the image where the object could have been seen (truncated, occluded views).
 
 When a mask is cut by the image border (outline labels ``border``, :mod:`sqfit.visibility`), the
 part of the projected superquadric ``S`` outside the image can be neither confirmed nor denied by
@@ -11,6 +11,13 @@ which is the IoU of ``S n R`` and ``Q`` because ``Q`` lies inside the image. For
 and ``Q`` both areas come from the clipping of :func:`sqfit.silhouette.convex_iou`, and the
 derivative in the vertices of ``S`` is analytic (the flux of the vertex velocities across the
 pieces of ``S``'s edges inside ``Q``, resp. ``R``, as :func:`sqfit.silhouette.convex_iou_jacobian`).
+
+Occlusion: the pixels that may hide the object (``Observation.hidden``, :mod:`sqfit.visibility`)
+are left out of both the intersection and the union, counted as unit squares at their centres
+(:func:`hidden_counts`): ``IoU_V = (|S n Q| - h_n) / (|S n R| + |Q| - |S n Q| - h_u)`` with ``h_n``
+the hidden pixels in ``S n Q`` and ``h_u`` those in ``S u Q``. The counts are piecewise constant
+in the parameters; the Jacobian takes them as constants (their derivative is 0 almost everywhere),
+so it stays analytic.
 """
 
 from __future__ import annotations
@@ -19,7 +26,8 @@ import numpy as np
 
 from .silhouette import _convex_overlap, half_planes
 
-__all__ = ["image_rectangles", "clipped_convex_iou", "clipped_convex_iou_jacobian"]
+__all__ = ["image_rectangles", "clipped_convex_iou", "clipped_convex_iou_jacobian", "hidden_counts",
+           "points_in_convex"]
 
 
 def image_rectangles(sizes):
@@ -59,8 +67,18 @@ def clipped_convex_iou(S, Q, R, q_planes=None, r_planes=None):
     return clipped_convex_iou_jacobian(S, Q, R, q_planes, r_planes)[0]
 
 
-def clipped_convex_iou_jacobian(S, Q, R, q_planes=None, r_planes=None):
-    """``IoU_R(S, Q)`` and its derivative in the vertices of ``S``.
+def clipped_convex_iou_jacobian(S, Q, R, q_planes=None, r_planes=None, clip=True, hidden_inter=0.0,
+                                hidden_union=0.0):
+    """``IoU_V(S, Q)`` (module docstring) and its derivative in the vertices of ``S``.
+
+    Parameters
+    ----------
+    S, Q, R, q_planes, r_planes
+        As :func:`clipped_convex_iou`.
+    clip : bool or (...,) bool
+        Clip ``S`` to ``R`` (views cut by the border); False counts all of ``S``.
+    hidden_inter, hidden_union : float or (...,) float
+        ``h_n`` and ``h_u`` (:func:`hidden_counts`), pixels; 0 without occluders.
 
     Returns
     -------
@@ -68,21 +86,26 @@ def clipped_convex_iou_jacobian(S, Q, R, q_planes=None, r_planes=None):
     weights : callable
         ``weights()`` gives ``(..., k, 2)``: ``d IoU_R / d S``; 0 where ``S n Q`` is empty.
     """
-    _, (d, q_lo, q_hi, inter, _, _, area_q) = _convex_overlap(S, Q, q_planes)
+    _, (d, q_lo, q_hi, inter, _, area_s, area_q) = _convex_overlap(S, Q, q_planes)
     _, (_, r_lo, r_hi, seen, _, _, _) = _convex_overlap(S, R, half_planes(R) if r_planes is None else r_planes)
+    clip = np.asarray(clip, dtype=bool)
+    seen = np.where(clip, seen, area_s)
     with np.errstate(all="ignore"):
-        union = seen + area_q - inter
-        iou = np.clip(np.where(union > 0, inter / union, 0.0), 0.0, 1.0)
-    ok = (union > 0) & (inter > 0)
+        num = np.maximum(inter - hidden_inter, 0.0)
+        union = seen + area_q - inter - hidden_union
+        iou = np.clip(np.where(union > 0, num / union, 0.0), 0.0, 1.0)
+    ok = (union > 0) & (num > 0)
 
     def weights():
         with np.errstate(all="ignore"):
             normal = np.stack([d[..., 1], -d[..., 0]], axis=-1)  # outward for CCW, |N| = edge length
             w_inter = _piece_flux(normal, q_lo, q_hi)
-            w_seen = _piece_flux(normal, r_lo, r_hi)
-            # d iou = ((seen + area_q) d inter - inter d seen) / union^2
-            W = (((seen + area_q) / union ** 2)[..., None, None] * w_inter
-                 - (inter / union ** 2)[..., None, None] * w_seen)
+            c = clip[..., None] if clip.ndim else clip
+            w_seen = _piece_flux(normal, np.where(c, r_lo, 0.0), np.where(c, r_hi, 1.0))
+            # iou = num / union, d num = d inter, d union = d seen - d inter:
+            # d iou = ((union + num) d inter - num d seen) / union^2
+            W = (((union + num) / union ** 2)[..., None, None] * w_inter
+                 - (num / union ** 2)[..., None, None] * w_seen)
         return np.where(ok[..., None, None] & np.isfinite(W), W, 0.0)
 
     return iou, weights
@@ -100,3 +123,47 @@ def _piece_flux(normal, t_lo, t_hi):
     w0 = (t1 - t0 - h)[..., None] * normal
     w1 = h[..., None] * normal
     return w0 + np.roll(w1, 1, axis=-2)
+
+
+def points_in_convex(S, points):
+    """Which points lie inside convex CCW polygons.
+
+    Parameters
+    ----------
+    S : (..., k, 2) float
+    points : (n, 2) float
+
+    Returns
+    -------
+    inside : (..., n) bool
+    """
+    d = np.roll(S, -1, axis=-2) - S
+    px, py = points[:, 0], points[:, 1]
+    inside = np.ones(S.shape[:-2] + (len(points),), dtype=bool)
+    for i in range(S.shape[-2]):  # one edge at a time: (..., n) arrays, not (..., k, n)
+        sx, sy = S[..., i, 0, None], S[..., i, 1, None]
+        inside &= d[..., i, 0, None] * (py - sy) - d[..., i, 1, None] * (px - sx) >= 0.0
+    return inside
+
+
+def hidden_counts(S, points, in_q):
+    """``h_n`` and ``h_u`` of the module docstring: hidden pixels in ``S n Q`` and in ``S u Q``.
+
+    Parameters
+    ----------
+    S : (b, k, 2) float
+        Silhouettes of one view.
+    points : (n, 2) float
+        Centres of the pixels that may hide the object (``Observation.hidden``).
+    in_q : (n,) bool
+        Which of them lie in the observation polygon ``Q``.
+
+    Returns
+    -------
+    hidden_inter, hidden_union : (b,) float
+    """
+    if not len(points):
+        return np.zeros(len(S)), np.zeros(len(S))
+    in_s = points_in_convex(S, points)
+    both = np.sum(in_s & in_q, axis=-1)
+    return both.astype(np.float64), (np.sum(in_s, axis=-1) + np.sum(in_q) - both).astype(np.float64)

@@ -9,10 +9,10 @@ from sqfit.io import observations_from_images
 from sqfit.metrics import iou_3d
 from sqfit.raycost import CONTOUR, OUTSIDE, RaySet, contour_rays, ray_residuals
 from sqfit.testing import paper_trial, truncated_trial
-from sqfit.visibility import (BACKGROUND, BORDER, INSTANCE, INTERIOR, OCCLUDER_REACH_PX, outline_labels,
-                              point_labels, silhouette_fraction)
+from sqfit.visibility import (BACKGROUND, BORDER, INSTANCE, INTERIOR, OCCLUDER_REACH_PX, hiding_pixels,
+                              outline_labels, point_labels, silhouette_fraction)
 from sqfit.silhouette import polygon_iou
-from sqfit.visible_iou import clipped_convex_iou, clipped_convex_iou_jacobian, image_rectangles
+from sqfit.visible_iou import clipped_convex_iou, clipped_convex_iou_jacobian, image_rectangles, points_in_convex
 from _numeric import central_difference
 
 INTR = Intrinsics(64, 48, 40.0, 30.0, 32.0, 24.0)
@@ -265,3 +265,50 @@ def test_riou_counts_only_the_image_in_cut_views():
     _, _, d_views = riou_residuals(x[None], obs, jacobian=True, tol=1e-9)
     numeric = central_difference(lambda z: riou_residuals(z[None], obs, tol=1e-9)[0][0, :3], x, h=1e-5)
     np.testing.assert_allclose(d_views()[0][0], numeric[0], rtol=0.05, atol=2e-3)
+
+
+def test_rule_5_hiding_pixels_are_the_touching_occluder_components():
+    occluder = rect(c0=30, c1=40) | rect(r0=30, r1=40, c0=50, c1=60)  # one touches, one is far away
+    obs = Observation.from_mask(CAM, rect(), rng=0, occluder=occluder)
+    assert obs.hidden.shape == (100, 2)
+    assert np.all((obs.hidden[:, 0] > 30) & (obs.hidden[:, 0] < 40))
+    assert Observation.from_mask(CAM, rect(), rng=0).hidden.shape == (0, 2)
+    assert len(obs.without_labels().hidden) == 0
+    assert hiding_pixels(rect(), None).shape == (0, 2)
+
+
+def test_points_in_convex():
+    square = np.array([[0.0, 0.0], [2.0, 0.0], [2.0, 2.0], [0.0, 2.0]])
+    pts = np.array([[1.0, 1.0], [3.0, 1.0], [0.0, 0.0], [-0.1, 1.0]])
+    np.testing.assert_array_equal(points_in_convex(square, pts), [True, False, True, False])
+    np.testing.assert_array_equal(points_in_convex(np.stack([square, square + 2.5]), pts),
+                                  [[True, False, True, False], [False, False, False, False]])
+
+
+def test_occluded_iou_leaves_hidden_pixels_out_and_its_gradient_is_analytic():
+    R = image_rectangles([(64, 48)])[0]
+    S = _polygon(9, (25.0, 20.0), 12.0)
+    Q = _polygon(7, (22.0, 21.0), 8.0)
+    plain = clipped_convex_iou(S, Q, R)
+    hidden = clipped_convex_iou_jacobian(S, Q, R, clip=False, hidden_inter=0.0, hidden_union=60.0)
+    assert hidden[0] > plain  # hidden pixels in S outside Q no longer count against the fit
+    # counts held constant: the vertex gradient matches central differences
+    numeric = central_difference(lambda x: np.atleast_1d(clipped_convex_iou_jacobian(
+        x.reshape(-1, 2), Q, R, clip=False, hidden_inter=5.0, hidden_union=60.0)[0]), S.ravel())
+    W = clipped_convex_iou_jacobian(S, Q, R, clip=False, hidden_inter=5.0, hidden_union=60.0)[1]()
+    np.testing.assert_allclose(W.ravel(), numeric[0], atol=1e-8)
+
+
+def test_riou_m_of_the_truth_is_higher_with_occlusion_labels():
+    from sqfit.pipeline import r_iou_m
+    from sqfit.costs import ObservationSet
+
+    t = paper_trial(4)
+    images = instance_images(t)
+    obs = observations_from_images(t.cameras, images, 1, rng=0)
+    assert len(obs[0].hidden) > 0
+    aware = r_iou_m([t.gt], ObservationSet(obs))[0]
+    unaware = r_iou_m([t.gt], ObservationSet([o.without_labels() for o in obs]))[0]
+    assert aware > unaware + 0.05
+    assert r_iou_m([t.gt], ObservationSet(obs), "contour")[0] > r_iou_m(
+        [t.gt], ObservationSet([o.without_labels() for o in obs]), "contour")[0] + 0.05
