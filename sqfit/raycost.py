@@ -116,6 +116,10 @@ class RaySet:
             raise ValueError(f"two_sided must be a boolean array of shape ({n},), got {two_sided.dtype} "
                              f"{two_sided.shape}")
         object.__setattr__(self, "two_sided", two_sided)
+        # Rays with a hinge residual (see the module docstring), as indices: computed once, not
+        # per evaluation. One-sided CONTOUR rays act as INSIDE rays; one-sided OUTSIDE rays are dropped.
+        object.__setattr__(self, "_hinge_in", np.flatnonzero((modes == INSIDE) | ((modes == CONTOUR) & ~two_sided)))
+        object.__setattr__(self, "_hinge_out", np.flatnonzero(modes == OUTSIDE))
 
     def __len__(self):
         return len(self.origins)
@@ -378,14 +382,13 @@ def _ray_terms(xi, rays, directions, d0):
     d, _ = ray_minima(xi, rays.origins, directions, d0)
     log_m, d_log_m = log_gauge_jacobian(xi, rays.origins + d[:, None] * directions)
     phi, dphi = _phi(log_m)
-    modes = rays.modes
-    active = np.ones(len(phi), dtype=bool)
-    # One-sided CONTOUR rays act as INSIDE rays; one-sided OUTSIDE rays are dropped.
-    inside = (modes == INSIDE) | ((modes == CONTOUR) & ~rays.two_sided)
-    outside = modes == OUTSIDE
-    active[inside] = phi[inside] > 0
-    active[outside] = (phi[outside] < 0) & rays.two_sided[outside]
-    scale = rays.weights * active
+    scale = rays.weights
+    hinge_in, hinge_out = rays._hinge_in, rays._hinge_out
+    if len(hinge_in) or len(hinge_out):
+        active = np.ones(len(phi), dtype=bool)
+        active[hinge_in] = phi[hinge_in] > 0
+        active[hinge_out] = (phi[hinge_out] < 0) & rays.two_sided[hinge_out]
+        scale = scale * active
     return scale * phi, scale * dphi, d_log_m, d
 
 
