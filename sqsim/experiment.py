@@ -11,7 +11,10 @@ Output directory:
   into the same directory must use the same scene and seed; it then fits only the
   (trial, chain) pairs missing from ``trials.jsonl`` (resume after Ctrl-C or a kill).
 - ``trials.jsonl``: one record per (trial, object, chain): ground truth, fitted parameters and
-  metrics after every stage, seconds, status. A line cut short by a kill is dropped on resume.
+  metrics after every stage, seconds, status, and per view the object's ``visible_fraction``
+  (pixels seen / pixels rendered alone), ``cut_fraction`` (projected area outside the image) and
+  ``border_cut`` (its mask touches the border; :mod:`sqsim.trial`). A line cut short by a kill is
+  dropped on resume.
 - ``summary.json``, ``table.md``, ``table.tex``, ``comparison.md`` (medians beside the paper's
   Table II), ``violin.png``, ``example.png``: rebuilt from
   all records at the end of every run. ``summary.json`` is the stable interface::

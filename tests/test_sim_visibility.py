@@ -89,14 +89,17 @@ def test_experiment_records_visibility(tmp_path):
         assert len(r["visible_fraction"]) == 3 and len(r["cut_fraction"]) == 3 and len(r["border_cut"]) == 3
 
 
-@pytest.mark.parametrize("name", ["occlusion", "occlusion-single", "truncation", "sweep-occlusion",
-                                  "sweep-truncation"])
+@pytest.mark.parametrize("name", ["occlusion", "occlusion-single", "truncation", "occlusion-sweep",
+                                  "truncation-sweep"])
 def test_issue_scenes_load(name):
     from sqsim.sweep import load_sweep
 
-    if name.startswith("sweep"):
+    if name.endswith("sweep"):
         scene, axes = load_sweep(ROOT / "scenes" / f"{name}.toml")
         assert len(axes) == 2
+        for key, values in axes:
+            for v in values:
+                scene.with_overrides({key: v})
     else:
         scene = load_scene(ROOT / "scenes" / f"{name}.toml")
         assert scene.objects.count == {"occlusion": 4, "occlusion-single": 1, "truncation": 1}[name]
