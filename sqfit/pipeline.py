@@ -85,10 +85,11 @@ class FitOptions:
         poses (see :mod:`sqfit.stage3g`). Default 20: measured, README "Robustness".
     occlusion_aware : bool
         Use the observations' boundary labels (:mod:`sqfit.visibility`): occluded and truncated
-        outline stretches are one-sided in 3G, and stages 1 and 2 leave out views whose outline
-        is mostly not true silhouette. False treats every outline as a silhouette (as before
-        the labels existed; the "not aware" curves of README "Partial visibility"). Stages 3A-3F
-        (the paper's) do not read the labels either way.
+        outline stretches are one-sided in 3G (and 3S), stages 1 and 2 down-weight or leave out
+        views whose outline is mostly not true silhouette, and the R-IOU costs (3A, 3B, 3F) and
+        R-IOU-M count only the visible part of each view. The G5 stages (3C-3E) ignore the labels.
+        False treats every outline as a silhouette (as before the labels existed; the "not
+        aware" rows of README "Partial visibility").
     """
 
     polygon: str = "hull"

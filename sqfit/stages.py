@@ -18,6 +18,10 @@ Every stage is ``stage(state, observations, options) -> state``: it reads a :cla
 ``3F`` LM on G2 with only ``e`` free (2 parameters), Jacobian as 3A.
 =====  =====================================================================================
 
+Boundary labels (:mod:`sqfit.visibility`): stages 1 and 2 read them (below), 3A, 3B and 3F
+through the R-IOU costs (only the visible part of a view counts, :func:`sqfit.costs.riou_residuals`);
+3C-3E ignore them (their samples lie inside the mask, which is the object either way).
+
 Stages 3B-3D set ``e = (1, 1)`` before optimising ("quadric parameters"). Depths are camera-frame
 z (as eq. 10). Depth bookkeeping between stages: a stage that needs one depth per sample and only
 has one per view repeats it; a stage that needs one per view and only has one per sample takes the
