@@ -312,3 +312,12 @@ def test_riou_m_of_the_truth_is_higher_with_occlusion_labels():
     assert aware > unaware + 0.05
     assert r_iou_m([t.gt], ObservationSet(obs), "contour")[0] > r_iou_m(
         [t.gt], ObservationSet([o.without_labels() for o in obs]), "contour")[0] + 0.05
+
+
+def test_observations_from_images_validation():
+    t = paper_trial(4)
+    with pytest.raises(ValueError, match="images must hold integer instance ids"):
+        observations_from_images(t.cameras, np.stack(t.masks).astype(float), 1)
+    obs = t.observations[0]
+    with pytest.raises(ValueError, match=r"hidden must have shape \(k, 2\)"):
+        Observation(obs.camera, obs.samples, obs.contour, obs.centroid, obs.area_px, False, hidden=np.zeros(3))
