@@ -321,3 +321,16 @@ def test_observations_from_images_validation():
     obs = t.observations[0]
     with pytest.raises(ValueError, match=r"hidden must have shape \(k, 2\)"):
         Observation(obs.camera, obs.samples, obs.contour, obs.centroid, obs.area_px, False, hidden=np.zeros(3))
+
+
+def test_every_paper_chain_runs_on_cut_and_occluded_views():
+    t = truncated_trial(3, 0.3)
+    images = np.stack([m.astype(np.uint16) for m in t.masks])
+    cols = np.flatnonzero(t.masks[1].any(axis=0))
+    right = images[1][:, cols[0] + len(cols) // 2:]
+    right[right == 1] = 2  # view 1 half hidden by object 2; view 0 cut by the border
+    obs = observations_from_images(t.cameras, images, 1, rng=0)
+    assert obs[0].touches_border and len(obs[1].hidden) > 0
+    for chain in sqfit.PAPER_CHAINS + ("1-2-3G-3S",):
+        result = sqfit.fit(obs, chain)
+        assert result.ok and 0.0 <= result.r_iou_m <= 1.0, chain
