@@ -48,7 +48,7 @@ from sqfit.superquadric import euler_to_matrix, to_mesh
 __all__ = ["Scene", "ExperimentConfig", "CameraConfig", "TrajectoryConfig", "ObjectsConfig",
            "MasksConfig", "NoiseConfig", "FitConfig", "SceneObject", "OBJECT_KINDS",
            "load_scene", "parse_scene", "trial_seed", "child_seed", "camera_poses", "make_object",
-           "sample_objects", "geometry_visible", "cut_fractions", "ZNEAR"]
+           "sample_objects", "geometry_visible", "ZNEAR"]
 
 OBJECT_KINDS = ("superquadric", "box", "cylinder", "capsule", "cone", "mesh")
 RENDERERS = ("osmesa", "egl", "polygon")
@@ -596,7 +596,7 @@ def geometry_visible(objects, cameras, max_cut_fraction=0.0):
     With ``max_cut_fraction == 0`` "inside" means strictly: no pixel of the first or last row or
     column can be covered, every projected vertex has ``1 <= u <= width - 1`` and
     ``1 <= v <= height - 1``. Above 0, at most that fraction of each object's projected area (see
-    :func:`cut_fractions`) may lie outside the image.
+    :func:`sqsim.visibility.cut_fractions`) may lie outside the image.
 
     Parameters
     ----------
@@ -610,7 +610,9 @@ def geometry_visible(objects, cameras, max_cut_fraction=0.0):
     ok : bool
     """
     if max_cut_fraction > 0:
-        cut = cut_fractions(objects, cameras)
+        from .visibility import cut_fractions
+
+        cut = cut_fractions(objects, cameras, ZNEAR)
         return bool(np.all(np.isfinite(cut)) and cut.max() <= max_cut_fraction)
     for cam in cameras:
         k = cam.intrinsics
@@ -623,38 +625,3 @@ def geometry_visible(objects, cameras, max_cut_fraction=0.0):
                 return False
     return True
 
-
-def cut_fractions(objects, cameras):
-    """Fraction of each object's projected area outside each image.
-
-    The projected area is that of the convex hull of the projected mesh vertices (exact for the
-    convex kinds, an over-estimate of the silhouette for a non-convex mesh); its part outside
-    ``[0, width] x [0, height]`` is the cut fraction.
-
-    Returns
-    -------
-    cut : (count, v) float
-        In [0, 1]; ``inf`` where a vertex is not in front of the camera (depth <= ``ZNEAR``).
-    """
-    from sqfit.observation import convex_hull
-    from sqfit.silhouette import polygon_area, polygon_iou
-
-    out = np.zeros((len(objects), len(cameras)))
-    for j, cam in enumerate(cameras):
-        k = cam.intrinsics
-        image = np.array([[0.0, 0.0], [k.width, 0.0], [k.width, k.height], [0.0, k.height]])
-        for i, obj in enumerate(objects):
-            pixels, depth = sqfit.project(cam, np.asarray(obj.mesh.vertices))
-            if depth.min() <= ZNEAR:
-                out[i, j] = np.inf
-                continue
-            hull = convex_hull(pixels)
-            area = polygon_area(hull)
-            if area <= 0:
-                continue
-            # |hull & image| from the IoU: inter = iou (|A| + |B|) / (1 + iou).
-            iou = polygon_iou(hull, image)
-            inside = iou * (area + k.width * k.height) / (1.0 + iou)
-            cut = 1.0 - inside / area
-            out[i, j] = float(np.clip(cut, 0.0, 1.0)) if cut > 1e-9 else 0.0  # rounding of the IoU
-    return out

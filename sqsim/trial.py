@@ -8,11 +8,7 @@ children (:data:`SEED_STREAMS`), so a trial's result depends only on the scene a
 - child 2: pose noise,
 - child 3: observation samples (:func:`observations`, child ``3`` then the object id).
 
-Visibility (:func:`visibility`): per object and view, the *visible fraction* is the object's
-pixels in the clean instance image over its pixels when rendered alone in that view (1: nothing
-in front of it; the part outside the image counts in neither), and the *cut fraction* is the part
-of its projected area outside the image (:func:`sqsim.scene.cut_fractions`); an object is cut by
-the border in a view when its clean mask touches the first or last row or column.
+Each trial also records how much of each object is seen (:func:`sqsim.visibility.visibility`).
 """
 
 from __future__ import annotations
@@ -25,9 +21,10 @@ from sqfit.io import observations_from_images
 
 from .noise import corrupt_image, perturb_cameras
 from .render import get_renderer
-from .scene import child_seed, cut_fractions, geometry_visible, sample_objects, trial_seed
+from .scene import child_seed, geometry_visible, sample_objects, trial_seed
+from .visibility import visibility
 
-__all__ = ["SimulatedTrial", "simulate_trial", "sample_trial", "observations", "visibility", "SEED_STREAMS"]
+__all__ = ["SimulatedTrial", "simulate_trial", "sample_trial", "observations", "SEED_STREAMS"]
 
 SEED_STREAMS = {"objects": 0, "mask_noise": 1, "pose_noise": 2, "samples": 3}
 
@@ -52,7 +49,7 @@ class SimulatedTrial:
     resampled : int
         Draws rejected as unobservable before this one.
     visible_fraction : (count, v) float
-        Per object and view: pixels seen / pixels rendered alone (see the module docstring).
+        Per object and view: pixels seen / pixels rendered alone (:mod:`sqsim.visibility`).
     cut_fraction : (count, v) float
         Per object and view: projected area outside the image.
     border_cut : (count, v) bool
@@ -137,36 +134,6 @@ def simulate_trial(scene, index, renderer=None):
         a.flags.writeable = False
     return SimulatedTrial(int(index), objects, true_cameras, cameras, clean, images, int(resampled),
                           visible, cut, border)
-
-
-def visibility(objects, cameras, clean_images, renderer):
-    """Visible fraction, cut fraction and border flag per object and view (module docstring).
-
-    Parameters
-    ----------
-    objects : list of SceneObject
-    cameras : list of sqfit.Camera
-    clean_images : (v, h, w) int
-        The noise-free instance images of all objects together.
-    renderer : sqsim.render.Renderer
-
-    Returns
-    -------
-    visible_fraction : (count, v) float
-    cut_fraction : (count, v) float
-    border_cut : (count, v) bool
-    """
-    ids = np.array([o.id for o in objects])
-    seen = (clean_images[:, None] == ids[None, :, None, None]).sum(axis=(2, 3)).T.astype(np.float64)
-    if len(objects) == 1:
-        alone = seen
-    else:
-        alone = np.stack([(renderer.render([o], cameras) == o.id).sum(axis=(1, 2)) for o in objects])
-    visible = np.where(alone > 0, seen / np.maximum(alone, 1), 0.0)
-    edges = np.stack([clean_images[:, 0], clean_images[:, -1]], axis=1)
-    sides = np.stack([clean_images[:, :, 0], clean_images[:, :, -1]], axis=1)
-    border = np.stack([((edges == i).any(axis=(1, 2)) | (sides == i).any(axis=(1, 2))) for i in ids])
-    return np.minimum(visible, 1.0), cut_fractions(objects, cameras), border
 
 
 def observations(sim_trial, object_id, scene):

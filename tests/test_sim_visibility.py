@@ -5,8 +5,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from sqsim.scene import cut_fractions, geometry_visible, load_scene, make_object, parse_scene
+from sqsim.scene import ZNEAR, geometry_visible, load_scene, make_object, parse_scene
 from sqsim.trial import observations, sample_trial, simulate_trial
+from sqsim.visibility import cut_fractions
 
 ROOT = Path(__file__).resolve().parents[1]
 SMALL = {"camera": {"width": 160, "height": 120, "fx": 100.0, "fy": 75.0, "cx": 80.0, "cy": 60.0},
@@ -39,14 +40,14 @@ def test_cut_fractions_and_geometry_with_truncation():
     # 10 m away with fx = 400, the image's half width is 8 m: a 1 m sphere at y = 8 m is cut in half
     # in the camera on +x.
     edge = make_object(1, "superquadric", (1.0, 1.0, 1.0), (1, 1), (0, 8.0, 0), (0, 0, 0))
-    cut = cut_fractions([centre, edge], cams)
+    cut = cut_fractions([centre, edge], cams, ZNEAR)
     assert cut.shape == (2, 3) and np.all(cut[0] == 0.0)
     assert cut[1, 0] == pytest.approx(0.5, abs=0.05)
     assert not geometry_visible([edge], cams[:1])
     assert geometry_visible([edge], cams[:1], max_cut_fraction=0.6)
     assert not geometry_visible([edge], cams[:1], max_cut_fraction=0.3)
     around_camera = make_object(1, "superquadric", (0.5, 0.5, 0.5), (1, 1), (10, 0, 0), (0, 0, 0))
-    assert np.isinf(cut_fractions([around_camera], cams)).any()
+    assert np.isinf(cut_fractions([around_camera], cams, ZNEAR)).any()
     assert not geometry_visible([around_camera], cams, max_cut_fraction=0.9)
 
 
