@@ -624,4 +624,3 @@ def geometry_visible(objects, cameras, max_cut_fraction=0.0):
                     or pixels[:, 1].max() > k.height - 1.0):
                 return False
     return True
-
