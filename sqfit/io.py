@@ -239,6 +239,7 @@ def observations_from_images(cameras, images, object_id, n_samples=C.DEFAULT_SAM
         if mask.any():
             out.append(Observation.from_mask(cam, mask, n_samples=n_samples, sampling=sampling, rng=rng,
                                              cleanup=cleanup, occluder=(image != 0) & ~mask))
+            out.views.append(view)
         else:
             out.warnings.append(f"view {view}: object {object_id} is not visible (entirely hidden by other "
                                 "objects or outside the image); view skipped")

@@ -227,12 +227,15 @@ class Observation:
 
 
 class ObservationList(list):
-    """A list of :class:`Observation` with ``warnings`` (list of str) about views left out, e.g. by
-    :func:`sqfit.io.observations_from_images`; :func:`sqfit.fit` copies them into its result."""
+    """A list of :class:`Observation` with ``warnings`` (list of str) about views left out and
+    ``views`` (list of int, the image view of each observation), e.g. from
+    :func:`sqfit.io.observations_from_images`; :func:`sqfit.fit` copies the warnings into its
+    result and names views by ``views`` in its own."""
 
-    def __init__(self, observations=(), warnings=()):
+    def __init__(self, observations=(), warnings=(), views=None):
         super().__init__(observations)
         self.warnings = list(warnings)
+        self.views = list(range(len(self))) if views is None else list(views)
 
 
 def clean_mask(mask):

@@ -298,10 +298,13 @@ def _check_observations(observations):
     return obs
 
 
-def visibility_warnings(observations):
-    """Warnings about truncated or occluded views (list of str, one per affected view)."""
+def visibility_warnings(observations, views=None):
+    """Warnings about truncated or occluded views (list of str, one per affected view).
+
+    ``views`` names the view of each observation (default: its position in the list)."""
     out = []
-    for i, o in enumerate(observations):
+    views = range(len(observations)) if views is None else views
+    for i, o in zip(views, observations):
         if o.touches_border:
             out.append(f"view {i}: mask touches the image border (truncated silhouette; "
                        f"{np.mean(o.contour_labels == BORDER):.0%} of the outline labelled border)")
@@ -345,7 +348,8 @@ def fit(observations, chain=DEFAULT_CHAIN, *, rng=None, options=None):
     obs_list = _check_observations(observations)
     chain_str = "-".join(names)
     warnings = list(getattr(observations, "warnings", ()))
-    warnings += visibility_warnings(obs_list)
+    views = getattr(observations, "views", None)
+    warnings += visibility_warnings(obs_list, views if views is not None and len(views) == len(obs_list) else None)
     result = FitResult(None, chain=chain_str, warnings=warnings)
     if len(obs_list) < 2:
         result.status, result.message = "too_few_views", f"need >= 2 observations, got {len(obs_list)}"

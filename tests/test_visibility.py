@@ -334,3 +334,15 @@ def test_every_paper_chain_runs_on_cut_and_occluded_views():
     for chain in sqfit.PAPER_CHAINS + ("1-2-3G-3S",):
         result = sqfit.fit(obs, chain)
         assert result.ok and 0.0 <= result.r_iou_m <= 1.0, chain
+
+
+def test_warnings_name_image_views_when_one_is_skipped():
+    t = truncated_trial(2, 0.3, cut_views=3)
+    images = np.stack([m.astype(np.uint16) for m in t.masks])
+    images[0][images[0] == 1] = 2  # view 0 hidden: the observations are views 1 and 2
+    obs = observations_from_images(t.cameras, images, 1, rng=0)
+    assert obs.views == [1, 2]
+    warnings = sqfit.fit(obs, "1-2").warnings
+    assert warnings[0].startswith("view 0: object 1 is not visible")
+    assert warnings[1].startswith("view 1: mask touches the image border")
+    assert warnings[2].startswith("view 2: mask touches the image border")
