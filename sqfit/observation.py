@@ -185,7 +185,7 @@ class Observation:
             hidden=hiding_pixels(mask, occluder),
         )
 
-    @property
+    @cached_property
     def silhouette_fraction(self):
         """``float``: fraction of the outline's length that is true silhouette (``background``
         at both ends); 1 for an object seen whole, 0 when all of it is occluded or truncated."""
