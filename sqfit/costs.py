@@ -45,7 +45,8 @@ from .superquadric import rotation_and_derivatives
 from .visibility import BORDER
 from .visible_iou import clipped_convex_iou_jacobian, hidden_counts, image_rectangles, points_in_convex
 
-__all__ = ["ObservationSet", "penalty", "penalty_jacobian", "riou_residuals", "visible_iou", "radial_terms",
+__all__ = ["ObservationSet", "penalty", "penalty_jacobian", "riou_residuals", "visible_iou", "hidden_at",
+           "radial_terms",
            "rotation_and_derivatives",
            "g5_residuals", "LOWER_BOUNDS", "UPPER_BOUNDS"]
 
@@ -202,7 +203,7 @@ def penalty_jacobian(xi, weight):
 
 
 def riou_residuals(xi, obs, polygon="hull", weight=C.PENALTY_RIOU, n_directions=DEFAULT_DIRECTIONS,
-                   start=None, jacobian=False, tol=NEWTON_TOL):
+                   start=None, jacobian=False, tol=NEWTON_TOL, hidden=None):
     """G2 residuals for one or several parameter vectors.
 
     Parameters
@@ -230,6 +231,10 @@ def riou_residuals(xi, obs, polygon="hull", weight=C.PENALTY_RIOU, n_directions=
         which can differ by a third there and agree as ``n_directions`` grows.
     tol : float
         Precision of the silhouette solve, pixels (see :func:`sqfit.silhouette.batch_silhouettes`).
+    hidden : tuple, optional
+        Hidden-pixel counts to use instead of counting (:func:`hidden_at` of a nearby point;
+        not with ``jacobian``): finite-difference columns then see the counts constant, as the
+        analytic Jacobian does, instead of a jump of a whole pixel over a tiny step.
 
     Returns
     -------
@@ -247,7 +252,7 @@ def riou_residuals(xi, obs, polygon="hull", weight=C.PENALTY_RIOU, n_directions=
     if not jacobian:
         polys, valid, start = batch_silhouettes(xi, obs.rotations, obs.centers, obs.intrinsics, n_directions,
                                                 start, tol=tol)
-        iou = visible_iou(polys, valid, obs, polygon)
+        iou = visible_iou(polys, valid, obs, polygon, hidden)
         return np.concatenate([1.0 - iou, penalty(xi, weight)], axis=1), start
     targets, convex, planes = obs.targets(polygon)
     if not convex:
@@ -274,7 +279,15 @@ def riou_residuals(xi, obs, polygon="hull", weight=C.PENALTY_RIOU, n_directions=
     return np.concatenate([1.0 - iou, penalty(xi, weight)], axis=1), start, d_views
 
 
-def visible_iou(polys, valid, obs, polygon="hull"):
+def hidden_at(xi, obs, polygon="hull", n_directions=DEFAULT_DIRECTIONS, tol=NEWTON_TOL):
+    """Hidden-pixel counts ``(h_n, h_u)``, each ``(1, p)``, of the silhouette of one parameter vector
+    ``xi`` ``(1, 11)`` in the views :meth:`ObservationSet.partial_views` lists."""
+    polys = batch_silhouettes(np.atleast_2d(xi), obs.rotations, obs.centers, obs.intrinsics, n_directions,
+                              tol=tol)[0]
+    return obs.partial_views(polys, polygon)[2:]
+
+
+def visible_iou(polys, valid, obs, polygon="hull", hidden=None):
     """IoU of batched silhouettes with the observation polygons, over the visible image part.
 
     As :func:`sqfit.silhouette.batch_iou`, but in ``obs.border_views`` only the part of each
@@ -287,6 +300,8 @@ def visible_iou(polys, valid, obs, polygon="hull"):
     valid : (b, v) bool
     obs : ObservationSet
     polygon : {"hull", "contour"}
+    hidden : tuple, optional
+        ``(h_n, h_u)`` broadcastable to ``(b, p)`` (:func:`hidden_at`) instead of counting.
 
     Returns
     -------
@@ -296,7 +311,12 @@ def visible_iou(polys, valid, obs, polygon="hull"):
     iou = batch_iou(polys, valid, targets, convex, planes)
     if not (obs.border_views.any() or obs.occluded_views.any()):
         return iou
-    cut, clip, hi, hu = obs.partial_views(polys, polygon)
+    if hidden is None:
+        cut, clip, hi, hu = obs.partial_views(polys, polygon)
+    else:
+        cut = np.flatnonzero(obs.border_views | obs.occluded_views)
+        clip = obs.border_views[cut]
+        hi, hu = (np.broadcast_to(h, (len(polys), len(cut))) for h in hidden)
     if convex:
         clipped = clipped_convex_iou_jacobian(polys[:, cut], targets[None, cut], obs.frames[None, cut],
                                               tuple(p[cut] for p in planes), clip=clip,

@@ -50,7 +50,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from . import constants as C
-from .costs import g5_residuals, penalty_jacobian, riou_residuals, rotation_and_derivatives
+from .costs import g5_residuals, hidden_at, penalty_jacobian, riou_residuals, rotation_and_derivatives
 from .lm import DenseJacobian, SchurJacobian, levenberg_marquardt
 from .silhouette import NEWTON_TOL, ZNEAR
 
@@ -318,9 +318,10 @@ def _riou_stage(state, obs, options, free, quadric, name):
     analytic = options.riou_jacobian == "analytic" and options.polygon == "hull"
     accepted = {}  # the silhouette start of the last point whose Jacobian was built
 
-    def g2(batch, start, jacobian=False):
+    def g2(batch, start, jacobian=False, hidden=None):
         return riou_residuals(batch, obs, options.polygon, options.penalty_riou, options.silhouette_directions,
-                              start, jacobian=jacobian, tol=_SILHOUETTE_TOL_ANALYTIC if analytic else NEWTON_TOL)
+                              start, jacobian=jacobian, tol=_SILHOUETTE_TOL_ANALYTIC if analytic else NEWTON_TOL,
+                              hidden=hidden)
 
     def model(x):
         full = xi0.copy()
@@ -338,7 +339,10 @@ def _riou_stage(state, obs, options, free, quadric, name):
             else:
                 batch = np.tile(full, (k, 1))
                 batch[:, free] += eye
-                J = (g2(batch, start)[0] - r).T / steps
+                # Hidden-pixel counts held at this point's (as the analytic Jacobian does).
+                hidden = (hidden_at(full[None], obs, options.polygon, options.silhouette_directions)
+                          if obs.occluded_views.any() else None)
+                J = (g2(batch, start, hidden=hidden)[0] - r).T / steps
                 J[len(obs):] = 0.0
             # The penalty is piecewise linear: its exact slope, not a difference across a kink.
             J[penalty_rows, np.arange(k)] = penalty_jacobian(full, options.penalty_riou)[free]

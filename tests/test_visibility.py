@@ -346,3 +346,18 @@ def test_warnings_name_image_views_when_one_is_skipped():
     assert warnings[0].startswith("view 0: object 1 is not visible")
     assert warnings[1].startswith("view 1: mask touches the image border")
     assert warnings[2].startswith("view 2: mask touches the image border")
+
+
+def test_frozen_hidden_counts_reproduce_the_residuals_at_their_point():
+    from sqfit.costs import ObservationSet, hidden_at, riou_residuals
+
+    t = paper_trial(4)
+    obs = ObservationSet(observations_from_images(t.cameras, instance_images(t), 1, rng=0))
+    xi = t.gt.to_vector()[None]
+    xi[0, 0:3] *= 1.2
+    hidden = hidden_at(xi, obs)
+    assert hidden[1][0, 0] > 0  # the enlarged silhouette covers hidden pixels in view 0
+    for polygon in ("hull", "contour"):
+        hidden = hidden_at(xi, obs, polygon)
+        np.testing.assert_allclose(riou_residuals(xi, obs, polygon, hidden=hidden)[0],
+                                   riou_residuals(xi, obs, polygon)[0], atol=1e-6)
