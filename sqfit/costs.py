@@ -252,7 +252,7 @@ def riou_residuals(xi, obs, polygon="hull", weight=C.PENALTY_RIOU, n_directions=
     if not jacobian:
         polys, valid, start = batch_silhouettes(xi, obs.rotations, obs.centers, obs.intrinsics, n_directions,
                                                 start, tol=tol)
-        if polygon != "hull" and hidden is None:
+        if polygon != "hull":
             # Measured (README "Partial visibility"): with the contour polygon (finite differences,
             # non-convex) leaving hidden pixels out made 1-2-3D-3A worse; only the border clip stays.
             hidden = (0.0, 0.0)

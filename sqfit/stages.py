@@ -341,7 +341,7 @@ def _riou_stage(state, obs, options, free, quadric, name):
                 batch[:, free] += eye
                 # Hidden-pixel counts held at this point's (as the analytic Jacobian does).
                 hidden = (hidden_at(full[None], obs, options.polygon, options.silhouette_directions)
-                          if obs.occluded_views.any() else None)
+                          if obs.occluded_views.any() and options.polygon == "hull" else None)
                 J = (g2(batch, start, hidden=hidden)[0] - r).T / steps
                 J[len(obs):] = 0.0
             # The penalty is piecewise linear: its exact slope, not a difference across a kink.
