@@ -20,11 +20,12 @@ from dataclasses import asdict, dataclass, field, fields
 import numpy as np
 
 from . import constants as C
-from .costs import ObservationSet
+from .costs import ObservationSet, visible_iou
 from .observation import POLYGON_KINDS, Observation
 from .silhouette import batch_iou, batch_silhouettes
 from .stages import STAGES, FitState, StageError, default_state, ellipsoid_depths
 from .superquadric import Superquadric
+from .visibility import BORDER
 
 __all__ = ["fit", "FitOptions", "FitResult", "StageRecord", "PAPER_CHAINS", "DEFAULT_CHAIN",
            "INITIAL_CHAIN", "parse_chain", "to_superquadric", "r_iou_m"]
@@ -89,6 +90,13 @@ class FitOptions:
         poses (see :mod:`sqfit.stage3g`). Default 50: measured with the default chain 1-2-3H
         (2 px jitter + 1 deg rotation, 100 trials: median IoU 0.744 at 20, 0.771 at 50, 0.774 at
         80; clean masks unchanged), README "Robustness".
+    occlusion_aware : bool
+        Use the observations' boundary labels (:mod:`sqfit.visibility`): occluded and truncated
+        outline stretches are one-sided in 3G (and 3S), stages 1 and 2 down-weight or leave out
+        views whose outline is mostly not true silhouette, and the R-IOU costs (3A, 3B, 3F) and
+        R-IOU-M count only the visible part of each view. The G5 stages (3C-3E) ignore the labels.
+        False treats every outline as a silhouette (as before the labels existed; the "not
+        aware" rows of README "Partial visibility").
     """
 
     polygon: str = "hull"
@@ -109,6 +117,7 @@ class FitOptions:
     riou_jacobian: str = "analytic"
     silhouette_directions: int = 48
     pose_sigma_deg: float = 50.0
+    occlusion_aware: bool = True
 
     def __post_init__(self):
         if self.polygon not in POLYGON_KINDS:
@@ -140,6 +149,8 @@ class FitOptions:
             raise ValueError(f"fd_step must be > 0, got {self.fd_step}")
         if int(self.silhouette_directions) != self.silhouette_directions or self.silhouette_directions < 8:
             raise ValueError(f"silhouette_directions must be an integer >= 8, got {self.silhouette_directions}")
+        if not isinstance(self.occlusion_aware, (bool, np.bool_)):
+            raise ValueError(f"occlusion_aware must be True or False, got {self.occlusion_aware!r}")
 
     @classmethod
     def coerce(cls, options):
@@ -278,7 +289,7 @@ def r_iou_m(superquadrics, obs, polygon="hull"):
     """R-IOU-M of several superquadrics at once: ``(b,) float`` mean over views of the IoU."""
     xi = np.stack([sq.to_vector() for sq in superquadrics])
     polys, valid, _ = batch_silhouettes(xi, obs.rotations, obs.centers, obs.intrinsics)
-    return batch_iou(polys, valid, *obs.targets(polygon)).mean(axis=1)
+    return visible_iou(polys, valid, obs, polygon).mean(axis=1)
 
 
 def _check_observations(observations):
@@ -319,6 +330,22 @@ def _start(obs, initial):
     if initial is None:
         return default_state(obs)
     return FitState(initial.copy(), sample_depths=ellipsoid_depths(initial, obs))
+
+
+def visibility_warnings(observations, views=None):
+    """Warnings about truncated or occluded views (list of str, one per affected view).
+
+    ``views`` names the view of each observation (default: its position in the list)."""
+    out = []
+    views = range(len(observations)) if views is None else views
+    for i, o in zip(views, observations):
+        if o.touches_border:
+            out.append(f"view {i}: mask touches the image border (truncated silhouette; "
+                       f"{np.mean(o.contour_labels == BORDER):.0%} of the outline labelled border)")
+        if o.partial and o.silhouette_fraction == 0.0:
+            out.append(f"view {i}: all of the outline is labelled occluded or truncated (no true silhouette "
+                       "edge): the view says where the object is, not where it ends")
+    return out
 
 
 _NUMERICAL_ERRORS = (np.linalg.LinAlgError, FloatingPointError, ArithmeticError, ValueError)
@@ -367,14 +394,18 @@ def fit(observations, chain=None, *, initial=None, rng=None, options=None):
     np.random.default_rng(rng)  # validates rng
     obs_list = _check_observations(observations)
     chain_str = "-".join(names)
-    warnings = [f"view {i}: mask touches the image border (truncated silhouette)"
-                for i, o in enumerate(obs_list) if o.touches_border]
+    warnings = list(getattr(observations, "warnings", ()))
+    views = getattr(observations, "views", None)
+    warnings += visibility_warnings(obs_list, views if views is not None and len(views) == len(obs_list) else None)
     result = FitResult(None, chain=chain_str, warnings=warnings)
     if len(obs_list) < 2:
         result.status, result.message = "too_few_views", f"need >= 2 observations, got {len(obs_list)}"
         result.seconds = time.perf_counter() - t0
         return result
-    obs = observations if isinstance(observations, ObservationSet) else ObservationSet(obs_list)
+    if not options.occlusion_aware and any(o.partial for o in obs_list):
+        obs = ObservationSet([o.without_labels() for o in obs_list])
+    else:
+        obs = observations if isinstance(observations, ObservationSet) else ObservationSet(obs_list)
     state = None
     snapshots = []
     for name in names:

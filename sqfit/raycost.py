@@ -25,6 +25,12 @@ Residual of a ray (``mode``; a weight per ray, e.g. ``1 / sqrt(rays in its view)
 - ``INSIDE`` (points inside the mask): ``max(0, phi(m))`` -- the ray must meet the superquadric.
 - ``OUTSIDE`` (points in a band outside the mask): ``max(0, -phi(m))`` -- the ray must miss it.
 
+Partial visibility: a ray through an outline point whose label (:mod:`sqfit.visibility`) is not
+``background`` -- the object may continue behind another instance or past the image border -- is
+one-sided (``RaySet.two_sided`` False): a ``CONTOUR`` ray keeps only "the ray meets the object"
+(``max(0, phi(m))``, the pixel is the object) and an ``OUTSIDE`` ray is dropped (weight 0 in
+effect: the object may reach past there, unseen). ``INSIDE`` rays are the same either way.
+
 The minimiser ``d*`` is found for all rays at once by a safeguarded Newton iteration on ``g`` (convex
 along a line) inside a bracket from the bounding geometry (:func:`ray_minima`).
 """
@@ -41,6 +47,7 @@ from .camera import bearings
 from .costs import LOWER_BOUNDS, UPPER_BOUNDS, penalty, penalty_jacobian, radial_terms, rotation_and_derivatives
 from .observation import Observation, sample_polyline
 from .silhouette import ZNEAR
+from .visibility import BACKGROUND, point_labels
 
 __all__ = ["RaySet", "CONTOUR", "INSIDE", "OUTSIDE", "contour_rays", "ray_minima", "batch_ray_minima",
            "ray_residuals", "batch_ray_residuals", "posed_ray_residuals", "outward_normals"]
@@ -81,6 +88,9 @@ class RaySet:
         Residual weights, >= 0.
     view : (n,) int
         View index of each ray.
+    two_sided : (n,) bool
+        False for rays through occluded or truncated outline points (see the module docstring);
+        default (None when constructing): all True.
     """
 
     origins: np.ndarray
@@ -88,6 +98,7 @@ class RaySet:
     modes: np.ndarray
     weights: np.ndarray
     view: np.ndarray
+    two_sided: np.ndarray | None = None
 
     def __post_init__(self):
         origins = check_shape(self.origins, (None, 3), "origins")
@@ -103,6 +114,15 @@ class RaySet:
             raise ValueError("weights must be >= 0")
         object.__setattr__(self, "weights", weights)
         object.__setattr__(self, "view", check_shape(self.view, (n,), "view", dtype=np.int64))
+        two_sided = np.ones(n, dtype=bool) if self.two_sided is None else np.asarray(self.two_sided)
+        if two_sided.shape != (n,) or two_sided.dtype != bool:
+            raise ValueError(f"two_sided must be a boolean array of shape ({n},), got {two_sided.dtype} "
+                             f"{two_sided.shape}")
+        object.__setattr__(self, "two_sided", two_sided)
+        # Rays with a hinge residual (see the module docstring), as indices: computed once, not
+        # per evaluation. One-sided CONTOUR rays act as INSIDE rays; one-sided OUTSIDE rays are dropped.
+        object.__setattr__(self, "_hinge_in", np.flatnonzero((modes == INSIDE) | ((modes == CONTOUR) & ~two_sided)))
+        object.__setattr__(self, "_hinge_out", np.flatnonzero(modes == OUTSIDE))
 
     def __len__(self):
         return len(self.origins)
@@ -154,7 +174,9 @@ def contour_rays(observations, n_contour=64, band_px=0.0, n_inside=0):
     Returns
     -------
     rays : RaySet
-        Each view's rays weighted ``1 / sqrt(rays in that view)``, so every view counts equally.
+        Each view's rays weighted ``1 / sqrt(rays in that view)``, so every view counts equally;
+        ``two_sided`` False where the outline point is labelled ``instance`` or ``border``
+        (``Observation.contour_labels``).
     """
     if int(n_contour) != n_contour or n_contour < 3:
         raise ValueError(f"n_contour must be an integer >= 3, got {n_contour}")
@@ -166,12 +188,12 @@ def contour_rays(observations, n_contour=64, band_px=0.0, n_inside=0):
     for i, o in enumerate(observations):
         if not isinstance(o, Observation):
             raise TypeError(f"observations[{i}] must be a sqfit.Observation, got {type(o).__name__}")
-        points, modes = _view_points(o, int(n_contour), float(band_px), int(n_inside))
+        points, modes, two_sided = _view_points(o, int(n_contour), float(band_px), int(n_inside))
         cam = o.camera
         directions = bearings(cam, points) @ cam.rotation.T
         weights = np.full(len(points), 1.0 / np.sqrt(len(points)))
         parts.append((np.broadcast_to(cam.center, directions.shape), directions, modes, weights,
-                      np.full(len(points), i)))
+                      np.full(len(points), i), two_sided))
     if not parts:
         raise ValueError("observations must not be empty")
     return RaySet(*(np.concatenate(col) for col in zip(*parts)))
@@ -179,7 +201,8 @@ def contour_rays(observations, n_contour=64, band_px=0.0, n_inside=0):
 
 def _view_points(observation, n_contour, band_px, n_inside):
     rng = np.random.default_rng(0)  # fixed phase: the rays are a deterministic function of the mask
-    on = sample_polyline(observation.contour, n_contour, rng)
+    on, edges = sample_polyline(observation.contour, n_contour, rng, return_index=True)
+    sided = point_labels(observation.contour_labels, edges) == BACKGROUND
     if band_px > 0:
         # Normals at the sample points: those of the nearest contour vertices.
         normals = outward_normals(observation.contour)
@@ -187,13 +210,15 @@ def _view_points(observation, n_contour, band_px, n_inside):
         nrm = normals[nearest]
         points = [on - band_px * nrm, on + band_px * nrm]
         modes = [np.full(n_contour, INSIDE), np.full(n_contour, OUTSIDE)]
+        two_sided = [sided, sided]
     else:
-        points, modes = [on], [np.full(n_contour, CONTOUR)]
+        points, modes, two_sided = [on], [np.full(n_contour, CONTOUR)], [sided]
     if n_inside:
         inner = observation.samples[:n_inside]
         points.append(inner)
         modes.append(np.full(len(inner), INSIDE))
-    return np.concatenate(points), np.concatenate(modes)
+        two_sided.append(np.ones(len(inner), dtype=bool))
+    return np.concatenate(points), np.concatenate(modes), np.concatenate(two_sided)
 
 
 def _line_log_gauge(q0, u, d, e1, e2):
@@ -408,11 +433,13 @@ def _ray_terms(xi, rays, directions, d0, d=None):
         d, _ = ray_minima(xi, rays.origins, directions, d0)
     log_m, d_log_m = log_gauge_jacobian(xi, rays.origins + d[:, None] * directions)
     phi, dphi = _phi(log_m)
-    modes = rays.modes
-    active = np.ones(len(phi), dtype=bool)
-    active[modes == INSIDE] = phi[modes == INSIDE] > 0
-    active[modes == OUTSIDE] = phi[modes == OUTSIDE] < 0
-    scale = rays.weights * active
+    scale = rays.weights
+    hinge_in, hinge_out = rays._hinge_in, rays._hinge_out
+    if len(hinge_in) or len(hinge_out):
+        active = np.ones(len(phi), dtype=bool)
+        active[hinge_in] = phi[hinge_in] > 0
+        active[hinge_out] = (phi[hinge_out] < 0) & rays.two_sided[hinge_out]
+        scale = scale * active
     return scale * phi, scale * dphi, d_log_m, d
 
 
