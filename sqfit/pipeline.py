@@ -15,14 +15,15 @@ programming errors and raise ``TypeError`` / ``ValueError`` immediately.
 from __future__ import annotations
 
 import time
-from dataclasses import asdict, dataclass, field, fields
+from dataclasses import asdict, dataclass, field
 
 import numpy as np
 
 from . import constants as C
+from ._checks import coerce_options
 from .costs import ObservationSet, visible_iou
 from .observation import POLYGON_KINDS, Observation
-from .silhouette import batch_iou, batch_silhouettes
+from .silhouette import batch_silhouettes
 from .stages import STAGES, FitState, StageError, default_state, ellipsoid_depths
 from .superquadric import Superquadric
 from .visibility import BORDER
@@ -155,17 +156,7 @@ class FitOptions:
     @classmethod
     def coerce(cls, options):
         """``None`` -> defaults, a dict -> FitOptions (unknown keys raise ValueError naming them)."""
-        if options is None:
-            return cls()
-        if isinstance(options, cls):
-            return options
-        if isinstance(options, dict):
-            known = {f.name for f in fields(cls)}
-            unknown = sorted(set(options) - known)
-            if unknown:
-                raise ValueError(f"unknown fit option(s) {unknown}; valid options: {sorted(known)}")
-            return cls(**options)
-        raise TypeError(f"options must be None, a dict or a FitOptions, got {type(options).__name__}")
+        return coerce_options(cls, options, "fit")
 
 
 @dataclass
