@@ -5,7 +5,8 @@ import sqfit
 from sqfit import constants as C
 from sqfit.axis_search import CANDIDATES, axis_candidates, batch_levenberg_marquardt
 from sqfit.metrics import iou_3d
-from sqfit.raycost import batch_ray_residuals, contour_rays, ray_residuals
+from sqfit.raycost import (INSIDE, RaySet, batch_log_gauge_jacobian, batch_ray_residuals, contour_rays,
+                           log_gauge_jacobian, ray_residuals)
 from sqfit.testing import paper_trial
 
 
@@ -102,3 +103,33 @@ def test_default_chain_resolves_axes_on_a_block_of_paper_trials():
     assert new.min() > 0.85 and np.median(new) > 0.97
     last = sqfit.fit(paper_trial(0).observations).stages[-1]
     assert last.name == "3H" and last.message.startswith("3H: start ")
+
+
+def test_batch_log_gauge_jacobian_equals_one_at_a_time():
+    rng = np.random.default_rng(3)
+    X = np.c_[rng.uniform(0.2, 2.0, (6, 3)), rng.uniform(0.05, 1.95, (6, 2)), rng.normal(size=(6, 3)),
+              rng.normal(size=(6, 3))]
+    points = 2.0 * rng.normal(size=(6, 40, 3))
+    log_g, d_xi = batch_log_gauge_jacobian(X, points)
+    assert log_g.shape == (6, 40) and d_xi.shape == (6, 40, 11)
+    for i, xi in enumerate(X):
+        lg, J = log_gauge_jacobian(xi, points[i])
+        np.testing.assert_allclose(log_g[i], lg, rtol=1e-12, atol=1e-14)
+        np.testing.assert_allclose(d_xi[i], J, rtol=1e-9, atol=1e-12)
+
+
+def test_batch_residuals_keep_hinges_and_one_sided_rays(trial, start):
+    """Band rays (INSIDE/OUTSIDE hinges) and one-sided rays are masked as in ray_residuals."""
+    X = axis_candidates(start)
+    band = contour_rays(trial.observations, 16, band_px=2.0, n_inside=10)
+    one_sided = np.zeros(len(band), dtype=bool)
+    one_sided[::3] = True
+    rays = RaySet(band.origins, band.directions, band.modes, band.weights, band.view, two_sided=~one_sided)
+    r, J, _ = batch_ray_residuals(X, rays)
+    for i, xi in enumerate(X):
+        ri, Ji, _ = ray_residuals(xi, rays)
+        np.testing.assert_allclose(r[i], ri, rtol=1e-9, atol=1e-12)
+        np.testing.assert_allclose(J[i], Ji, rtol=1e-9, atol=1e-12)
+    # The one-sided contour/outside rays never carry an "outside" (negative) residual.
+    hinged = one_sided & (rays.modes != INSIDE)
+    assert hinged.any() and np.all(r[:, :len(rays)][:, hinged] >= 0.0)
