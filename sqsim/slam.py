@@ -405,7 +405,8 @@ def trajectory_errors(true_poses, poses, timestamps):
     -------
     errors : dict
         ``ate_m`` (RMS camera-centre error, no alignment: both trajectories start at the true first
-        pose), ``ate_se3_m`` (after SE(3) Umeyama alignment), ``rpe_m`` and ``rpe_deg`` (RMS of the
+        pose), ``ate_se3_m`` (after SE(3) Umeyama alignment; None when the camera centres are
+        collinear and the alignment is not unique), ``rpe_m`` and ``rpe_deg`` (RMS of the
         frame-to-frame translation error and rotation angle).
     """
     import copy
@@ -421,10 +422,16 @@ def trajectory_errors(true_poses, poses, timestamps):
         metric.process_data((a, b))
         return float(metric.get_statistic(metrics.StatisticsType.rmse))
 
+    from evo.core.geometry import GeometryException
+
+    out = {"ate_m": stat(metrics.APE(metrics.PoseRelation.translation_part), ref, est), "ate_se3_m": None}
     aligned = copy.deepcopy(est)
-    aligned.align(ref)
-    out = {"ate_m": stat(metrics.APE(metrics.PoseRelation.translation_part), ref, est),
-           "ate_se3_m": stat(metrics.APE(metrics.PoseRelation.translation_part), ref, aligned)}
+    try:
+        aligned.align(ref)
+    except GeometryException:  # collinear or too few camera centres: no unique alignment
+        pass
+    else:
+        out["ate_se3_m"] = stat(metrics.APE(metrics.PoseRelation.translation_part), ref, aligned)
     if len(t) > 1:
         out["rpe_m"] = stat(metrics.RPE(metrics.PoseRelation.translation_part, 1, metrics.Unit.frames), ref, est)
         out["rpe_deg"] = stat(metrics.RPE(metrics.PoseRelation.rotation_angle_deg, 1, metrics.Unit.frames), ref, est)
