@@ -139,6 +139,13 @@ def plot_topdown(record, path):
             xy = _hull(np.asarray(to_mesh(Superquadric.from_vector(params), 10).vertices)[:, :2])
             ax.fill(xy[:, 0], xy[:, 1], fill=False, edgecolor=colour, ls=style, lw=1.0)
     ax.plot(*np.asarray(record["true_poses"])[0, :2, 3], "o", color="black", ms=5)
+    # the view: the true scene and the odometry, with a margin (a diverged fit may be 100 m long)
+    known = [np.asarray(record["true_poses"])[:, :2, 3], np.asarray(record["odometry_poses"])[:, :2, 3]]
+    known += [np.asarray(t["footprint"]) for t in record["true_objects"].values() if t["footprint"] is not None]
+    lo, hi = np.min([k.min(axis=0) for k in known], axis=0), np.max([k.max(axis=0) for k in known], axis=0)
+    margin = 0.15 * float(np.max(hi - lo)) + 0.5
+    ax.set_xlim(lo[0] - margin, hi[0] + margin)
+    ax.set_ylim(lo[1] - margin, hi[1] + margin)
     ious = {m: r["iou_median"] for m, r in record["methods"].items() if r["iou_median"] is not None}
     ax.set_title(f"{record['name']}: {record['frames']} frames, {len(record['true_objects'])} objects "
                  "(grey: true; outlines: fitted)\nmedian object IoU: "
