@@ -16,6 +16,7 @@ from .pipeline import DEFAULT_CHAIN, PAPER_CHAINS, FitOptions, FitResult, StageR
 from .stages import STAGES
 from . import stage3g  # noqa: F401  (registers stage 3G)
 from . import multistart  # noqa: F401  (registers stage 3S)
+from . import axis_search  # noqa: F401  (registers stage 3H)
 from .superquadric import Superquadric
 
 __version__ = "0.1.0"

@@ -58,3 +58,22 @@ def check_choice(value, choices, name):
 
 def _fmt(shape):
     return "(" + ", ".join("n" if s is None else str(s) for s in shape) + ("," if len(shape) == 1 else "") + ")"
+
+
+def coerce_options(cls, options, what):
+    """``None`` -> ``cls()``, a dict -> ``cls(**options)``, an instance passes through.
+
+    ``cls`` is an options dataclass; an unknown dict key raises ``ValueError`` naming it and the
+    valid ones, anything else ``TypeError``. ``what`` names the options in messages ("fit").
+    """
+    if options is None:
+        return cls()
+    if isinstance(options, cls):
+        return options
+    if isinstance(options, dict):
+        known = set(cls.__dataclass_fields__)
+        unknown = sorted(set(options) - known)
+        if unknown:
+            raise ValueError(f"unknown {what} option(s) {unknown}; valid options: {sorted(known)}")
+        return cls(**options)
+    raise TypeError(f"options must be None, a dict or a {cls.__name__}, got {type(options).__name__}")

@@ -15,6 +15,10 @@ SHAPE_DOMAIN = (0.01, 2.0)
 #: Bounds of the paper's soft constraint (eq. 4 and 7) used by the optimiser's penalty.
 SHAPE_BOUNDS = (0.1, 1.9)
 SIZE_MIN = 0.1  #: metres
+#: Shape bounds of the penalty of the silhouette stages (3G, 3H; beyond the paper): boxes and
+#: cylinders need flatter ends than ``e = 0.1``, whose rounded edges inflate the fit by ~3 %
+#: (README, "Beyond the paper").
+SILHOUETTE_SHAPE_BOUNDS = (0.03, 1.9)
 
 #: Penalty weights c_p of eq. 7 (paper, Table I).
 PENALTY_RIOU = 1.0

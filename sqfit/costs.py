@@ -10,6 +10,11 @@ Residual conventions (all float64):
 - G2 (:func:`riou_residuals`): ``(v + 11,)`` = ``1 - IoU`` per view between the projected
   superquadric (:mod:`sqfit.silhouette`) and the observation polygon, then the penalty with
   ``c_p = 1``. Minimising ``sum r**2`` is eq. 3 with the penalty of eq. 7 as extra residuals.
+  In a view whose mask is cut by the image border (outline labels ``border``) the IoU counts
+  only the part of the silhouette inside the image, and (hull polygons) pixels of other
+  instances that may hide the object (``Observation.hidden``) count in neither intersection nor
+  union (:mod:`sqfit.visible_iou`); the paper's masks are single objects that never touch the
+  border, so the paper's chains are unchanged there.
   The paper differentiates it numerically; :func:`riou_residuals` also gives an analytic
   Jacobian for hull polygons (``jacobian=True``), which the stages use by default
   (``FitOptions.riou_jacobian``).
@@ -37,8 +42,11 @@ from .observation import Observation
 from .silhouette import (DEFAULT_DIRECTIONS, NEWTON_TOL, batch_iou, batch_silhouettes, camera_arrays,
                          convex_iou_jacobian, half_planes, silhouette_gradient)
 from .superquadric import rotation_and_derivatives
+from .visibility import BORDER
+from .visible_iou import clipped_convex_iou_jacobian, hidden_counts, image_rectangles, points_in_convex
 
-__all__ = ["ObservationSet", "penalty", "penalty_jacobian", "riou_residuals", "radial_terms",
+__all__ = ["ObservationSet", "penalty", "penalty_jacobian", "riou_residuals", "visible_iou", "hidden_at",
+           "radial_terms",
            "rotation_and_derivatives",
            "g5_residuals", "LOWER_BOUNDS", "UPPER_BOUNDS"]
 
@@ -67,6 +75,12 @@ class ObservationSet:
         World direction of each sample per unit depth: ``R_c @ [(u-cx)/fx, (v-cy)/fy, 1]``.
     origins : (n, 3) float
         Camera centre of each sample's view.
+    border_views : (v,) bool
+        Views whose outline has ``border`` labels (the R-IOU there counts only the image).
+    frames : (v, 4, 2) float
+        Image rectangle of each view (:func:`sqfit.visible_iou.image_rectangles`).
+    occluded_views : (v,) bool
+        Views with pixels that may hide the object (``Observation.hidden`` not empty).
     """
 
     observations: list
@@ -76,6 +90,9 @@ class ObservationSet:
     view_of_sample: np.ndarray = field(init=False)
     rays: np.ndarray = field(init=False)
     origins: np.ndarray = field(init=False)
+    border_views: np.ndarray = field(init=False)
+    frames: np.ndarray = field(init=False)
+    occluded_views: np.ndarray = field(init=False)
 
     def __post_init__(self):
         obs = list(self.observations)
@@ -88,7 +105,11 @@ class ObservationSet:
         self.view_of_sample = np.repeat(np.arange(len(obs)), counts)
         self.rays = np.concatenate([bearings(o.camera, o.samples) @ o.camera.rotation.T for o in obs])
         self.origins = self.centers[self.view_of_sample]
+        self.border_views = np.array([bool(np.any(o.contour_labels == BORDER)) for o in obs], dtype=bool)
+        self.frames = image_rectangles([(o.camera.intrinsics.width, o.camera.intrinsics.height) for o in obs])
+        self.occluded_views = np.array([len(o.hidden) > 0 for o in obs], dtype=bool)
         self._targets = {}
+        self._hidden_in_target = {}
 
     def __len__(self):
         return len(self.observations)
@@ -109,6 +130,43 @@ class ObservationSet:
         return self._targets[kind]
 
 
+    def hidden_in_target(self, kind):
+        """Per view, ``(k,) bool``: which of ``Observation.hidden`` lie in the observation polygon."""
+        if kind not in self._hidden_in_target:
+            targets, convex, _ = self.targets(kind)
+            out = []
+            for o, target in zip(self.observations, targets):
+                if not len(o.hidden):
+                    out.append(np.zeros(0, dtype=bool))
+                elif convex:
+                    out.append(points_in_convex(target, o.hidden))
+                else:
+                    import shapely
+
+                    out.append(shapely.contains_xy(shapely.make_valid(shapely.Polygon(target)), o.hidden[:, 0],
+                                                   o.hidden[:, 1]))
+            self._hidden_in_target[kind] = out
+        return self._hidden_in_target[kind]
+
+    def partial_views(self, polys, polygon):
+        """Views whose IoU counts only the visible part, for silhouettes ``polys`` ``(b, v, K, 2)``.
+
+        Returns
+        -------
+        views : (p,) int
+        clip : (p,) bool
+            Clip the silhouette to the image (border views).
+        hidden_inter, hidden_union : (b, p) float
+            :func:`sqfit.visible_iou.hidden_counts` per view.
+        """
+        views = np.flatnonzero(self.border_views | self.occluded_views)
+        counts = [hidden_counts(polys[:, j], self.observations[j].hidden, self.hidden_in_target(polygon)[j])
+                  for j in views]
+        hi = np.stack([c[0] for c in counts], axis=1) if counts else np.zeros((len(polys), 0))
+        hu = np.stack([c[1] for c in counts], axis=1) if counts else np.zeros((len(polys), 0))
+        return views, self.border_views[views], hi, hu
+
+
 def _hull(observation):
     """Convex hull of the samples, CCW: the same polygon as ``Observation.polygon("hull")`` (up to
     collinear points), by qhull, which is ~50x faster than the pure-Python hull there."""
@@ -120,7 +178,7 @@ def _hull(observation):
         return np.asarray(observation.polygon("hull"))
 
 
-def penalty(xi, weight):
+def penalty(xi, weight, lower=LOWER_BOUNDS, upper=UPPER_BOUNDS):
     """Constraint penalty residuals of eq. 7.
 
     Parameters
@@ -128,6 +186,9 @@ def penalty(xi, weight):
     xi : (11,) or (b, 11) float
     weight : float
         ``c_p``.
+    lower, upper : (11,) float
+        Soft bounds (default those of eq. 7; stage 3G allows flatter shapes, see
+        ``constants.SILHOUETTE_SHAPE_BOUNDS``).
 
     Returns
     -------
@@ -135,17 +196,17 @@ def penalty(xi, weight):
         ``c_p * (max(0, lo - x) + max(0, x - hi))`` per parameter.
     """
     xi = np.asarray(xi, dtype=np.float64)
-    return weight * (np.maximum(LOWER_BOUNDS - xi, 0.0) + np.maximum(xi - UPPER_BOUNDS, 0.0))
+    return weight * (np.maximum(lower - xi, 0.0) + np.maximum(xi - upper, 0.0))
 
 
-def penalty_jacobian(xi, weight):
+def penalty_jacobian(xi, weight, lower=LOWER_BOUNDS, upper=UPPER_BOUNDS):
     """``(11,) float``: diagonal of the Jacobian of :func:`penalty` (``-c_p``, ``0`` or ``c_p``)."""
     xi = np.asarray(xi, dtype=np.float64)
-    return weight * ((xi > UPPER_BOUNDS).astype(float) - (xi < LOWER_BOUNDS).astype(float))
+    return weight * ((xi > upper).astype(float) - (xi < lower).astype(float))
 
 
 def riou_residuals(xi, obs, polygon="hull", weight=C.PENALTY_RIOU, n_directions=DEFAULT_DIRECTIONS,
-                   start=None, jacobian=False, tol=NEWTON_TOL):
+                   start=None, jacobian=False, tol=NEWTON_TOL, hidden=None):
     """G2 residuals for one or several parameter vectors.
 
     Parameters
@@ -173,6 +234,10 @@ def riou_residuals(xi, obs, polygon="hull", weight=C.PENALTY_RIOU, n_directions=
         which can differ by a third there and agree as ``n_directions`` grows.
     tol : float
         Precision of the silhouette solve, pixels (see :func:`sqfit.silhouette.batch_silhouettes`).
+    hidden : tuple, optional
+        Hidden-pixel counts to use instead of counting (:func:`hidden_at` of a nearby point;
+        not with ``jacobian``): finite-difference columns then see the counts constant, as the
+        analytic Jacobian does, instead of a jump of a whole pixel over a tiny step.
 
     Returns
     -------
@@ -190,7 +255,11 @@ def riou_residuals(xi, obs, polygon="hull", weight=C.PENALTY_RIOU, n_directions=
     if not jacobian:
         polys, valid, start = batch_silhouettes(xi, obs.rotations, obs.centers, obs.intrinsics, n_directions,
                                                 start, tol=tol)
-        iou = batch_iou(polys, valid, *obs.targets(polygon))
+        if polygon != "hull":
+            # Measured (README "Partial visibility"): with the contour polygon (finite differences,
+            # non-convex) leaving hidden pixels out made 1-2-3D-3A worse; only the border clip stays.
+            hidden = (0.0, 0.0)
+        iou = visible_iou(polys, valid, obs, polygon, hidden)
         return np.concatenate([1.0 - iou, penalty(xi, weight)], axis=1), start
     targets, convex, planes = obs.targets(polygon)
     if not convex:
@@ -198,13 +267,82 @@ def riou_residuals(xi, obs, polygon="hull", weight=C.PENALTY_RIOU, n_directions=
     polys, valid, start, unit_points, points = batch_silhouettes(xi, obs.rotations, obs.centers, obs.intrinsics,
                                                                  n_directions, start, touching=True, tol=tol)
     iou, weights = convex_iou_jacobian(polys, targets[None], planes)
+    cut, clip, hi, hu = obs.partial_views(polys, polygon)
+    if len(cut):
+        clipped, clipped_weights = clipped_convex_iou_jacobian(polys[:, cut], targets[None, cut], obs.frames[None, cut],
+                                                               tuple(p[cut] for p in planes), clip=clip,
+                                                               hidden_inter=hi, hidden_union=hu)
+        iou = iou.copy()
+        iou[:, cut] = clipped
     iou = np.where(valid & np.isfinite(iou), iou, 0.0)
 
     def d_views():
-        gradient = silhouette_gradient(xi, weights(), unit_points, points, obs.rotations, obs.intrinsics)
+        W = weights()
+        if len(cut):
+            W[:, cut] = clipped_weights()
+        gradient = silhouette_gradient(xi, W, unit_points, points, obs.rotations, obs.intrinsics)
         return np.where(valid[..., None], -gradient, 0.0)
 
     return np.concatenate([1.0 - iou, penalty(xi, weight)], axis=1), start, d_views
+
+
+def hidden_at(xi, obs, polygon="hull", n_directions=DEFAULT_DIRECTIONS, tol=NEWTON_TOL):
+    """Hidden-pixel counts ``(h_n, h_u)``, each ``(1, p)``, of the silhouette of one parameter vector
+    ``xi`` ``(1, 11)`` in the views :meth:`ObservationSet.partial_views` lists."""
+    polys = batch_silhouettes(np.atleast_2d(xi), obs.rotations, obs.centers, obs.intrinsics, n_directions,
+                              tol=tol)[0]
+    return obs.partial_views(polys, polygon)[2:]
+
+
+def visible_iou(polys, valid, obs, polygon="hull", hidden=None):
+    """IoU of batched silhouettes with the observation polygons, over the visible image part.
+
+    As :func:`sqfit.silhouette.batch_iou`, but in ``obs.border_views`` only the part of each
+    silhouette inside the image counts, and in ``obs.occluded_views`` the pixels that may hide the
+    object count in neither intersection nor union (:mod:`sqfit.visible_iou`).
+
+    Parameters
+    ----------
+    polys : (b, v, K, 2) float
+    valid : (b, v) bool
+    obs : ObservationSet
+    polygon : {"hull", "contour"}
+    hidden : tuple, optional
+        ``(h_n, h_u)`` broadcastable to ``(b, p)`` (:func:`hidden_at`) instead of counting.
+
+    Returns
+    -------
+    iou : (b, v) float
+    """
+    targets, convex, planes = obs.targets(polygon)
+    iou = batch_iou(polys, valid, targets, convex, planes)
+    if not (obs.border_views.any() or obs.occluded_views.any()):
+        return iou
+    if hidden is None:
+        cut, clip, hi, hu = obs.partial_views(polys, polygon)
+    else:
+        cut = np.flatnonzero(obs.border_views | obs.occluded_views)
+        clip = obs.border_views[cut]
+        hi, hu = (np.broadcast_to(h, (len(polys), len(cut))) for h in hidden)
+    if convex:
+        clipped = clipped_convex_iou_jacobian(polys[:, cut], targets[None, cut], obs.frames[None, cut],
+                                              tuple(p[cut] for p in planes), clip=clip,
+                                              hidden_inter=hi, hidden_union=hu)[0]
+    else:
+        import shapely
+
+        b = len(polys)
+        sil = shapely.make_valid(shapely.polygons(polys[:, cut].reshape(b * len(cut), -1, 2)))
+        frames = np.tile(shapely.polygons(obs.frames[cut]), b)
+        sil = np.where(np.tile(clip, b), shapely.intersection(sil, frames), sil)
+        tgt = np.tile(np.array([shapely.make_valid(shapely.Polygon(targets[i])) for i in cut], dtype=object), b)
+        inter = shapely.area(shapely.intersection(sil, tgt))
+        union = shapely.area(sil) + shapely.area(tgt) - inter - hu.ravel()
+        with np.errstate(divide="ignore", invalid="ignore"):
+            clipped = np.where(union > 0, np.maximum(inter - hi.ravel(), 0.0) / union, 0.0).reshape(b, len(cut))
+    iou = iou.copy()
+    iou[:, cut] = np.where(valid[:, cut] & np.isfinite(clipped), clipped, 0.0)
+    return iou
 
 
 def sample_points(obs, depths):

@@ -44,7 +44,7 @@ import numpy as np
 
 from . import constants as C
 from .camera import Camera
-from .observation import Observation
+from .observation import Observation, ObservationList
 
 __all__ = ["Trial", "load_trial", "iter_trials", "trial_dirs", "observations", "observations_from_images",
            "ViewObservations", "observe_views", "read_mask_png", "write_mask_png", "FORMAT", "FORMAT_VERSION"]
@@ -250,7 +250,12 @@ def iter_trials(dataset_dir):
 
 def observations_from_images(cameras, images, object_id, n_samples=C.DEFAULT_SAMPLES, sampling="uniform",
                              rng=None, cleanup=True):
-    """Observations of one object in every view where its mask is not empty.
+    """Labelled observations of one object in every view where its mask is not empty.
+
+    This is the one public way to get observations with boundary labels from instance images
+    (:mod:`sqfit.visibility`): in each view every other instance (id not 0 and not ``object_id``)
+    is passed to :meth:`Observation.from_mask` as the "may hide the object" mask, and the image
+    border labels the outline where the mask touches it.
 
     Parameters
     ----------
@@ -267,19 +272,27 @@ def observations_from_images(cameras, images, object_id, n_samples=C.DEFAULT_SAM
 
     Returns
     -------
-    observations : list of Observation
-        Possibly fewer than two (the fitter reports that); views without the object are skipped.
+    observations : ObservationList
+        A list of Observation, possibly fewer than two (the fitter reports that). Views without
+        the object (entirely hidden or out of the image) are skipped; each gets a message in
+        ``observations.warnings``, which :func:`sqfit.fit` copies into ``FitResult.warnings``.
     """
     images = np.asarray(images)
     if images.ndim != 3 or len(images) != len(cameras):
         raise ValueError(f"images must have shape (v, h, w) with v = {len(cameras)} cameras, got {images.shape}")
+    if images.dtype.kind not in "biu":
+        raise ValueError(f"images must hold integer instance ids, got dtype {images.dtype}")
     rng = np.random.default_rng(rng)
-    out = []
-    for cam, image in zip(cameras, images):
+    out = ObservationList()
+    for view, (cam, image) in enumerate(zip(cameras, images)):
         mask = image == object_id
         if mask.any():
             out.append(Observation.from_mask(cam, mask, n_samples=n_samples, sampling=sampling, rng=rng,
-                                             cleanup=cleanup))
+                                             cleanup=cleanup, occluder=(image != 0) & ~mask))
+            out.views.append(view)
+        else:
+            out.warnings.append(f"view {view}: object {object_id} is not visible (entirely hidden by other "
+                                "objects or outside the image); view skipped")
     return out
 
 

@@ -16,16 +16,24 @@ holes from missed parts then no longer reach the contour or the samples. It is t
 a clean single-region mask; on the paper scene one false blob per mask drops the default chain's
 median 3D IoU from 0.88 to 0.32 without it and leaves it at 0.88 with it (README, "Robustness").
 
+Boundary labels (partial visibility, :mod:`sqfit.visibility` states the rules): every contour
+vertex and every sample carries what lies across the outline there -- ``background`` (a true
+silhouette edge), ``instance`` (a pixel of the optional ``occluder`` mask, "may hide the object")
+or ``border`` (outside the image); area samples are ``interior``. ``from_mask(camera, mask)``
+without ``occluder`` labels only the border; :func:`sqfit.io.observations_from_images` takes the
+other instances of an instance-id image as occluders, and is the one public way to get fully
+labelled observations from an instance image.
+
 Bad masks are reported clearly:
 
 - an empty mask or a mask covering the whole image raises ``ValueError`` (nothing to fit);
-- a mask touching the image border is accepted but flagged with ``touches_border = True``:
-  its silhouette is truncated, and ``sqfit.fit`` records a warning for it.
+- a mask touching the image border is accepted, flagged with ``touches_border = True`` and its
+  touching part labelled ``border``; ``sqfit.fit`` records a warning for it.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from functools import cached_property
 
 import numpy as np
@@ -34,8 +42,9 @@ from . import constants as C
 from ._checks import check_choice
 from .camera import Camera, pixel_centers
 from .silhouette import polygon_area
+from .visibility import BACKGROUND, INTERIOR, hiding_pixels, outline_labels, point_labels, silhouette_fraction
 
-__all__ = ["Observation", "SAMPLING_METHODS", "POLYGON_KINDS"]
+__all__ = ["Observation", "ObservationList", "SAMPLING_METHODS", "POLYGON_KINDS"]
 
 SAMPLING_METHODS = ("uniform", "contour", "mixed")
 POLYGON_KINDS = ("hull", "contour")
@@ -59,6 +68,16 @@ class Observation:
         Number of mask pixels.
     touches_border : bool
         True if the mask reaches the first or last row or column (truncated silhouette).
+    contour_labels : (m,) int8
+        Per contour vertex, what lies across the outline (:mod:`sqfit.visibility`:
+        ``BACKGROUND``, ``INSTANCE`` or ``BORDER``). Default (None when constructing): all
+        ``BACKGROUND``.
+    sample_labels : (n,) int8
+        Per sample: ``INTERIOR`` for area samples, the outline label for contour samples.
+        Default (None when constructing): ``INTERIOR`` for all.
+    hidden : (k, 2) float
+        Centres of the pixels that may hide the object (:func:`sqfit.visibility.hiding_pixels`);
+        the R-IOU costs leave them out of the union. Default (None when constructing): none.
     """
 
     camera: Camera
@@ -67,9 +86,28 @@ class Observation:
     centroid: np.ndarray
     area_px: int
     touches_border: bool
+    contour_labels: np.ndarray | None = None
+    sample_labels: np.ndarray | None = None
+    hidden: np.ndarray | None = None
+
+    def __post_init__(self):
+        for name, n, fill in (("contour_labels", len(self.contour), BACKGROUND),
+                              ("sample_labels", len(self.samples), INTERIOR)):
+            value = getattr(self, name)
+            value = np.full(n, fill, dtype=np.int8) if value is None else np.asarray(value, dtype=np.int8)
+            if value.shape != (n,):
+                raise ValueError(f"{name} must have shape ({n},), got {value.shape}")
+            value = value.copy() if value.flags.writeable else value
+            value.flags.writeable = False
+            object.__setattr__(self, name, value)
+        hidden = np.zeros((0, 2)) if self.hidden is None else np.asarray(self.hidden, dtype=np.float64)
+        if hidden.ndim != 2 or hidden.shape[1] != 2:
+            raise ValueError(f"hidden must have shape (k, 2), got {hidden.shape}")
+        object.__setattr__(self, "hidden", _readonly(hidden))
 
     @classmethod
-    def from_mask(cls, camera, mask, n_samples=C.DEFAULT_SAMPLES, sampling="uniform", rng=None, cleanup=True):
+    def from_mask(cls, camera, mask, n_samples=C.DEFAULT_SAMPLES, sampling="uniform", rng=None, cleanup=True,
+                  occluder=None):
         """Build an observation from a binary mask.
 
         Parameters
@@ -84,6 +122,10 @@ class Observation:
         cleanup : bool
             Keep the largest connected component and fill its holes first (:func:`clean_mask`);
             False uses the mask as given.
+        occluder : (height, width) bool or int, optional
+            Pixels that may hide the object (other instances; non-zero = may hide). Outline
+            points next to them are labelled ``instance`` (:mod:`sqfit.visibility`). None: only
+            the image border is labelled.
 
         Returns
         -------
@@ -92,7 +134,7 @@ class Observation:
         Raises
         ------
         ValueError
-            If the mask has the wrong shape, is empty or covers the whole image.
+            If the mask or occluder has the wrong shape, the mask is empty or covers the whole image.
         """
         if not isinstance(camera, Camera):
             raise ValueError(f"camera must be a sqfit.Camera, got {type(camera).__name__}")
@@ -106,6 +148,13 @@ class Observation:
         if mask.dtype.kind not in "biuf":
             raise ValueError(f"mask must be boolean or numeric, got dtype {mask.dtype}")
         mask = mask != 0
+        if occluder is not None:
+            occluder = np.asarray(occluder)
+            if occluder.shape != expected:
+                raise ValueError(f"occluder must have shape (height, width) = {expected}, got {occluder.shape}")
+            if occluder.dtype.kind not in "biuf":
+                raise ValueError(f"occluder must be boolean or numeric, got dtype {occluder.dtype}")
+            occluder = occluder != 0
         if cleanup:
             mask = clean_mask(mask)
         rows, cols = np.nonzero(mask)
@@ -117,7 +166,13 @@ class Observation:
         contour = outer_contour(mask, rows, cols)
         touches = bool(rows.min() == 0 or cols.min() == 0 or rows.max() == expected[0] - 1
                        or cols.max() == expected[1] - 1)
-        samples = _sample(rows, cols, contour, int(n_samples), sampling, rng)
+        samples, sample_edges = _sample(rows, cols, contour, int(n_samples), sampling, rng)
+        if occluder is not None:
+            occluder = occluder & ~mask
+        labels = outline_labels(contour, mask, occluder)
+        sample_labels = np.full(len(samples), INTERIOR, dtype=np.int8)
+        on_outline = sample_edges >= 0
+        sample_labels[on_outline] = point_labels(labels, sample_edges[on_outline])
         return cls(
             camera=camera,
             samples=_readonly(samples),
@@ -125,7 +180,27 @@ class Observation:
             centroid=_readonly(pixel_centers(rows, cols).mean(axis=0)),
             area_px=int(len(rows)),
             touches_border=touches,
+            contour_labels=labels,
+            sample_labels=sample_labels,
+            hidden=hiding_pixels(mask, occluder),
         )
+
+    @cached_property
+    def silhouette_fraction(self):
+        """``float``: fraction of the outline's length that is true silhouette (``background``
+        at both ends); 1 for an object seen whole, 0 when all of it is occluded or truncated."""
+        return silhouette_fraction(self.contour, self.contour_labels)
+
+    @property
+    def partial(self):
+        """``bool``: some of the outline is labelled ``instance`` or ``border``."""
+        return bool(np.any(self.contour_labels != BACKGROUND))
+
+    def without_labels(self):
+        """This observation with every outline label ``background`` (occlusion-unaware fitting)."""
+        if not self.partial and not len(self.hidden):
+            return self
+        return replace(self, contour_labels=None, sample_labels=None, hidden=None)
 
     @cached_property
     def hull(self):
@@ -149,6 +224,18 @@ class Observation:
         """
         check_choice(kind, POLYGON_KINDS, "polygon kind")
         return self.hull if kind == "hull" else self.contour
+
+
+class ObservationList(list):
+    """A list of :class:`Observation` with ``warnings`` (list of str) about views left out and
+    ``views`` (list of int, the image view of each observation), e.g. from
+    :func:`sqfit.io.observations_from_images`; :func:`sqfit.fit` copies the warnings into its
+    result and names views by ``views`` in its own."""
+
+    def __init__(self, observations=(), warnings=(), views=None):
+        super().__init__(observations)
+        self.warnings = list(warnings)
+        self.views = list(range(len(self))) if views is None else list(views)
 
 
 def clean_mask(mask):
@@ -240,12 +327,15 @@ def _has_area(points):
 
 
 def _sample(rows, cols, contour, n, sampling, rng):
+    """Samples and, per sample, the contour edge it lies on (-1 for area samples)."""
     if sampling == "uniform":
-        return _sample_area(rows, cols, n, rng)
+        return _sample_area(rows, cols, n, rng), np.full(n, -1)
     if sampling == "contour":
-        return sample_polyline(contour, n, rng)
+        return sample_polyline(contour, n, rng, return_index=True)
     n_contour = n // 2
-    return np.concatenate([_sample_area(rows, cols, n - n_contour, rng), sample_polyline(contour, n_contour, rng)])
+    area = _sample_area(rows, cols, n - n_contour, rng)
+    on, edges = sample_polyline(contour, n_contour, rng, return_index=True)
+    return np.concatenate([area, on]), np.concatenate([np.full(len(area), -1), edges])
 
 
 def _sample_area(rows, cols, n, rng):
@@ -254,7 +344,7 @@ def _sample_area(rows, cols, n, rng):
     return np.stack([cols[pick], rows[pick]], axis=1) + rng.random((n, 2))
 
 
-def sample_polyline(polygon, n, rng):
+def sample_polyline(polygon, n, rng, return_index=False):
     """``n`` points evenly spaced by arc length around a closed polygon, with a random phase.
 
     Parameters
@@ -262,10 +352,14 @@ def sample_polyline(polygon, n, rng):
     polygon : (m, 2) float
     n : int
     rng : numpy.random.Generator
+    return_index : bool
+        Also return the edge of each point (edge ``k`` runs from vertex ``k`` to ``k + 1``).
 
     Returns
     -------
     points : (n, 2) float
+    index : (n,) int
+        Only with ``return_index``.
     """
     closed = np.vstack([polygon, polygon[:1]])
     seg = np.linalg.norm(np.diff(closed, axis=0), axis=1)
@@ -273,7 +367,8 @@ def sample_polyline(polygon, n, rng):
     s = (rng.random() + np.arange(n)) / n * cum[-1]
     idx = np.clip(np.searchsorted(cum, s, side="right") - 1, 0, len(seg) - 1)
     frac = (s - cum[idx]) / np.where(seg[idx] > 0, seg[idx], 1.0)
-    return closed[idx] + frac[:, None] * (closed[idx + 1] - closed[idx])
+    points = closed[idx] + frac[:, None] * (closed[idx + 1] - closed[idx])
+    return (points, idx) if return_index else points
 
 
 def _readonly(a):

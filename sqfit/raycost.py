@@ -25,6 +25,12 @@ Residual of a ray (``mode``; a weight per ray, e.g. ``1 / sqrt(rays in its view)
 - ``INSIDE`` (points inside the mask): ``max(0, phi(m))`` -- the ray must meet the superquadric.
 - ``OUTSIDE`` (points in a band outside the mask): ``max(0, -phi(m))`` -- the ray must miss it.
 
+Partial visibility: a ray through an outline point whose label (:mod:`sqfit.visibility`) is not
+``background`` -- the object may continue behind another instance or past the image border -- is
+one-sided (``RaySet.two_sided`` False): a ``CONTOUR`` ray keeps only "the ray meets the object"
+(``max(0, phi(m))``, the pixel is the object) and an ``OUTSIDE`` ray is dropped (weight 0 in
+effect: the object may reach past there, unseen). ``INSIDE`` rays are the same either way.
+
 The minimiser ``d*`` is found for all rays at once by a safeguarded Newton iteration on ``g`` (convex
 along a line) inside a bracket from the bounding geometry (:func:`ray_minima`).
 """
@@ -38,12 +44,13 @@ import numpy as np
 from . import constants as C
 from ._checks import check_shape
 from .camera import bearings
-from .costs import penalty, penalty_jacobian, radial_terms, rotation_and_derivatives
+from .costs import LOWER_BOUNDS, UPPER_BOUNDS, penalty, penalty_jacobian, radial_terms, rotation_and_derivatives
 from .observation import Observation, sample_polyline
 from .silhouette import ZNEAR
+from .visibility import BACKGROUND, point_labels
 
-__all__ = ["RaySet", "CONTOUR", "INSIDE", "OUTSIDE", "contour_rays", "ray_minima", "ray_residuals",
-           "posed_ray_residuals", "outward_normals"]
+__all__ = ["RaySet", "CONTOUR", "INSIDE", "OUTSIDE", "contour_rays", "ray_minima", "batch_ray_minima",
+           "ray_residuals", "batch_ray_residuals", "posed_ray_residuals", "outward_normals"]
 
 #: Ray modes (see the module docstring).
 CONTOUR, INSIDE, OUTSIDE = 0, 1, 2
@@ -60,6 +67,9 @@ _GRID = 24
 _NEWTON_POWER = 2.0
 _WARM_BRACKET = 0.05
 _TINY = 1e-300
+#: Soft bounds of the 3G penalty rows: those of eq. 7 but with ``C.SILHOUETTE_SHAPE_BOUNDS``.
+_BOUNDS = (np.r_[LOWER_BOUNDS[:3], [C.SILHOUETTE_SHAPE_BOUNDS[0]] * 2, LOWER_BOUNDS[5:]],
+           np.r_[UPPER_BOUNDS[:3], [C.SILHOUETTE_SHAPE_BOUNDS[1]] * 2, UPPER_BOUNDS[5:]])
 
 
 @dataclass(frozen=True)
@@ -78,6 +88,9 @@ class RaySet:
         Residual weights, >= 0.
     view : (n,) int
         View index of each ray.
+    two_sided : (n,) bool
+        False for rays through occluded or truncated outline points (see the module docstring);
+        default (None when constructing): all True.
     """
 
     origins: np.ndarray
@@ -85,6 +98,7 @@ class RaySet:
     modes: np.ndarray
     weights: np.ndarray
     view: np.ndarray
+    two_sided: np.ndarray | None = None
 
     def __post_init__(self):
         origins = check_shape(self.origins, (None, 3), "origins")
@@ -100,6 +114,15 @@ class RaySet:
             raise ValueError("weights must be >= 0")
         object.__setattr__(self, "weights", weights)
         object.__setattr__(self, "view", check_shape(self.view, (n,), "view", dtype=np.int64))
+        two_sided = np.ones(n, dtype=bool) if self.two_sided is None else np.asarray(self.two_sided)
+        if two_sided.shape != (n,) or two_sided.dtype != bool:
+            raise ValueError(f"two_sided must be a boolean array of shape ({n},), got {two_sided.dtype} "
+                             f"{two_sided.shape}")
+        object.__setattr__(self, "two_sided", two_sided)
+        # Rays with a hinge residual (see the module docstring), as indices: computed once, not
+        # per evaluation. One-sided CONTOUR rays act as INSIDE rays; one-sided OUTSIDE rays are dropped.
+        object.__setattr__(self, "_hinge_in", np.flatnonzero((modes == INSIDE) | ((modes == CONTOUR) & ~two_sided)))
+        object.__setattr__(self, "_hinge_out", np.flatnonzero(modes == OUTSIDE))
 
     def __len__(self):
         return len(self.origins)
@@ -151,7 +174,9 @@ def contour_rays(observations, n_contour=64, band_px=0.0, n_inside=0):
     Returns
     -------
     rays : RaySet
-        Each view's rays weighted ``1 / sqrt(rays in that view)``, so every view counts equally.
+        Each view's rays weighted ``1 / sqrt(rays in that view)``, so every view counts equally;
+        ``two_sided`` False where the outline point is labelled ``instance`` or ``border``
+        (``Observation.contour_labels``).
     """
     if int(n_contour) != n_contour or n_contour < 3:
         raise ValueError(f"n_contour must be an integer >= 3, got {n_contour}")
@@ -163,12 +188,12 @@ def contour_rays(observations, n_contour=64, band_px=0.0, n_inside=0):
     for i, o in enumerate(observations):
         if not isinstance(o, Observation):
             raise TypeError(f"observations[{i}] must be a sqfit.Observation, got {type(o).__name__}")
-        points, modes = _view_points(o, int(n_contour), float(band_px), int(n_inside))
+        points, modes, two_sided = _view_points(o, int(n_contour), float(band_px), int(n_inside))
         cam = o.camera
         directions = bearings(cam, points) @ cam.rotation.T
         weights = np.full(len(points), 1.0 / np.sqrt(len(points)))
         parts.append((np.broadcast_to(cam.center, directions.shape), directions, modes, weights,
-                      np.full(len(points), i)))
+                      np.full(len(points), i), two_sided))
     if not parts:
         raise ValueError("observations must not be empty")
     return RaySet(*(np.concatenate(col) for col in zip(*parts)))
@@ -176,7 +201,8 @@ def contour_rays(observations, n_contour=64, band_px=0.0, n_inside=0):
 
 def _view_points(observation, n_contour, band_px, n_inside):
     rng = np.random.default_rng(0)  # fixed phase: the rays are a deterministic function of the mask
-    on = sample_polyline(observation.contour, n_contour, rng)
+    on, edges = sample_polyline(observation.contour, n_contour, rng, return_index=True)
+    sided = point_labels(observation.contour_labels, edges) == BACKGROUND
     if band_px > 0:
         # Normals at the sample points: those of the nearest contour vertices.
         normals = outward_normals(observation.contour)
@@ -184,13 +210,15 @@ def _view_points(observation, n_contour, band_px, n_inside):
         nrm = normals[nearest]
         points = [on - band_px * nrm, on + band_px * nrm]
         modes = [np.full(n_contour, INSIDE), np.full(n_contour, OUTSIDE)]
+        two_sided = [sided, sided]
     else:
-        points, modes = [on], [np.full(n_contour, CONTOUR)]
+        points, modes, two_sided = [on], [np.full(n_contour, CONTOUR)], [sided]
     if n_inside:
         inner = observation.samples[:n_inside]
         points.append(inner)
         modes.append(np.full(len(inner), INSIDE))
-    return np.concatenate(points), np.concatenate(modes)
+        two_sided.append(np.ones(len(inner), dtype=bool))
+    return np.concatenate(points), np.concatenate(modes), np.concatenate(two_sided)
 
 
 def _line_log_gauge(q0, u, d, e1, e2):
@@ -257,26 +285,70 @@ def ray_minima(xi, origins, directions, d0=None):
     Newton steps on ``g ** 2`` (exact in one step for ellipsoids) that leave the bracket, which
     shrinks at every evaluation, are replaced by bisection.
     """
-    a = np.maximum(np.abs(xi[0:3]), _TINY)
-    e1, e2 = float(xi[3]), float(xi[4])
-    R = rotation_and_derivatives(xi[8:11])[0]
-    rel0 = (origins - xi[5:8]) @ R
-    ul = directions @ R
-    q0, u = np.ascontiguousarray((rel0 / a).T), np.ascontiguousarray((ul / a).T)
+    xi = np.asarray(xi, dtype=np.float64)
+    d, log_m = batch_ray_minima(xi[None], origins, directions, None if d0 is None else np.asarray(d0)[None])
+    return d[0], log_m[0]
+
+
+def batch_ray_minima(X, origins, directions, d0=None, rtol=_D_RTOL):
+    """:func:`ray_minima` for ``b`` superquadrics at once, on the same rays (one vectorised solve).
+
+    Parameters
+    ----------
+    X : (b, 11) float
+    origins, directions : (n, 3) float
+    d0 : (b, n) float, optional
+    rtol : float
+        Relative tolerance on ``d`` (an error ``delta`` in ``d`` changes ``m`` by ``O(delta**2)``:
+        a screen can stop much earlier than the default).
+
+    Returns
+    -------
+    d, log_m : (b, n) float
+    """
+    X = np.asarray(X, dtype=np.float64)
+    b, n = len(X), len(origins)
+    a = np.maximum(np.abs(X[:, 0:3]), _TINY)
+    R = np.stack([rotation_and_derivatives(x[8:11])[0] for x in X]) if b > 1 else \
+        rotation_and_derivatives(X[0, 8:11])[0][None]
+    rel0 = np.einsum("bnj,bjk->bnk", origins[None] - X[:, None, 5:8], R).reshape(b * n, 3)
+    ul = np.einsum("nj,bjk->bnk", directions, R).reshape(b * n, 3)
+    a_ray = np.repeat(a, n, axis=0)
+    ratio = np.repeat(a.max(axis=1) / a.min(axis=1), n)
+    e1, e2 = np.repeat(X[:, 3], n), np.repeat(X[:, 4], n)
+    if b == 1:  # scalar exponents: the common case stays as fast as before
+        e1, e2 = float(X[0, 3]), float(X[0, 4])
+    q0, u = np.ascontiguousarray((rel0 / a_ray).T), np.ascontiguousarray((ul / a_ray).T)
+    d, log_m = _gauge_minima(q0, u, rel0, ul, ratio, e1, e2, None if d0 is None else np.reshape(d0, b * n), rtol)
+    return d.reshape(b, n), log_m.reshape(b, n)
+
+
+def _take(e, idx):
+    """Per-ray exponents at ``idx`` (scalars pass through)."""
+    return e if np.ndim(e) == 0 else e[idx]
+
+
+def _gauge_minima(q0, u, rel0, ul, ratio, e1, e2, d0, rtol=_D_RTOL):
+    """The solver of :func:`ray_minima` on rays in unit-size superquadric coordinates.
+
+    ``q0``, ``u`` are ``(3, n)``; ``rel0``, ``ul`` the same rays in superquadric coordinates
+    (metres), ``(n, 3)``; ``ratio`` is ``a_max / a_min`` per ray; ``e1``, ``e2`` scalars or ``(n,)``.
+    """
     bb = np.einsum("ij,ij->i", ul, ul)
     dc = -np.einsum("ij,ij->i", rel0, ul) / bb
     rho = np.linalg.norm(rel0 + dc[:, None] * ul, axis=1)
-    half = 1.01 * 3.0 * rho * (a.max() / a.min()) / np.sqrt(bb) + 1e-9 * (np.abs(dc) + 1.0)
+    half = 1.01 * 3.0 * rho * ratio / np.sqrt(bb) + 1e-9 * (np.abs(dc) + 1.0)
     lo = np.maximum(dc - half, ZNEAR)
     hi = np.maximum(dc + half, 2.0 * ZNEAR)
     n = len(lo)
-    tol = _D_RTOL * (np.abs(dc) + 1.0)
+    tol = rtol * (np.abs(dc) + 1.0)
     cold = np.ones(n, dtype=bool)
     if d0 is not None:
         d0 = np.clip(np.asarray(d0, dtype=np.float64), lo, hi)
         delta = _WARM_BRACKET * (np.abs(d0) + 1.0)
         probe = np.concatenate([np.maximum(d0 - delta, lo), np.minimum(d0 + delta, hi)])
-        slope = _line_log_gauge(np.tile(q0, 2), np.tile(u, 2), probe, e1, e2)[1]
+        e12 = [e if np.ndim(e) == 0 else np.tile(e, 2) for e in (e1, e2)]
+        slope = _line_log_gauge(np.tile(q0, 2), np.tile(u, 2), probe, *e12)[1]
         ok = (slope[:n] <= 0) & (slope[n:] >= 0)
         lo = np.where(ok, probe[:n], lo)
         hi = np.where(ok, probe[n:], hi)
@@ -286,8 +358,9 @@ def ray_minima(xi, origins, directions, d0=None):
     if len(idx):
         t = np.linspace(0.0, 1.0, _GRID)
         grid = lo[idx, None] + (hi[idx] - lo[idx])[:, None] * t  # (k, G)
+        e12 = [e if np.ndim(e) == 0 else np.repeat(e[idx], _GRID) for e in (e1, e2)]
         lg = _line_log_gauge(np.repeat(q0[:, idx], _GRID, 1), np.repeat(u[:, idx], _GRID, 1), grid.ravel(),
-                             e1, e2)[0]
+                             *e12)[0]
         best = np.argmin(lg.reshape(len(idx), _GRID), axis=1)
         rows = np.arange(len(idx))
         d[idx] = grid[rows, best]
@@ -298,10 +371,10 @@ def ray_minima(xi, origins, directions, d0=None):
     idx = np.arange(n)
     dd, lo_a, hi_a, tola = d.copy(), lo, hi, tol
     dx = dx_old = hi - lo
-    qa, ua = q0, u
+    qa, ua, e1a, e2a = q0, u, e1, e2
     budget = np.where(cold, _MAX_NEWTON, _MAX_NEWTON_WARM)
     for it in range(1, _MAX_NEWTON + 1):
-        _, lg1, lg2 = _line_log_gauge(qa, ua, dd, e1, e2)
+        _, lg1, lg2 = _line_log_gauge(qa, ua, dd, e1a, e2a)
         neg = lg1 < 0
         lo_a = np.where(neg, dd, lo_a)
         hi_a = np.where(neg, hi_a, dd)
@@ -318,6 +391,7 @@ def ray_minima(xi, origins, directions, d0=None):
         if not keep.all():
             idx, new, lo_a, hi_a, tola, budget = idx[keep], new[keep], lo_a[keep], hi_a[keep], tola[keep], budget[keep]
             dx, dx_old, qa, ua = dx[keep], dx_old[keep], qa[:, keep], ua[:, keep]
+            e1a, e2a = _take(e1a, keep), _take(e2a, keep)
         dd = new
     log_m = _line_log_gauge(q0, u, d, e1, e2)[0]
     return d, log_m
@@ -352,16 +426,20 @@ def log_gauge_jacobian(xi, points):
     return np.log(norm) - np.log(S), d_xi
 
 
-def _ray_terms(xi, rays, directions, d0):
-    """Weighted ray residuals, ``d r / d log m``, ``d log m / d xi`` at the minimisers, and ``d``."""
-    d, _ = ray_minima(xi, rays.origins, directions, d0)
+def _ray_terms(xi, rays, directions, d0, d=None):
+    """Weighted ray residuals, ``d r / d log m``, ``d log m / d xi`` at the minimisers, and ``d``
+    (``d`` given: the minimisers are known, e.g. from :func:`batch_ray_minima`)."""
+    if d is None:
+        d, _ = ray_minima(xi, rays.origins, directions, d0)
     log_m, d_log_m = log_gauge_jacobian(xi, rays.origins + d[:, None] * directions)
     phi, dphi = _phi(log_m)
-    modes = rays.modes
-    active = np.ones(len(phi), dtype=bool)
-    active[modes == INSIDE] = phi[modes == INSIDE] > 0
-    active[modes == OUTSIDE] = phi[modes == OUTSIDE] < 0
-    scale = rays.weights * active
+    scale = rays.weights
+    hinge_in, hinge_out = rays._hinge_in, rays._hinge_out
+    if len(hinge_in) or len(hinge_out):
+        active = np.ones(len(phi), dtype=bool)
+        active[hinge_in] = phi[hinge_in] > 0
+        active[hinge_out] = (phi[hinge_out] < 0) & rays.two_sided[hinge_out]
+        scale = scale * active
     return scale * phi, scale * dphi, d_log_m, d
 
 
@@ -388,8 +466,43 @@ def ray_residuals(xi, rays, weight=C.PENALTY_ANALYTIC, d0=None):
     """
     xi = np.asarray(xi, dtype=np.float64)
     r_rays, coef, d_log_m, d = _ray_terms(xi, rays, rays.directions, d0)
-    r = np.concatenate([r_rays, penalty(xi, weight)])
-    J = np.vstack([coef[:, None] * d_log_m, np.diag(penalty_jacobian(xi, weight))])
+    r = np.concatenate([r_rays, penalty(xi, weight, *_BOUNDS)])
+    J = np.vstack([coef[:, None] * d_log_m, np.diag(penalty_jacobian(xi, weight, *_BOUNDS))])
+    return r, J, d
+
+
+def batch_ray_residuals(X, rays, weight=C.PENALTY_ANALYTIC, d0=None, rtol=_D_RTOL):
+    """:func:`ray_residuals` of ``b`` superquadrics on the same rays (one vectorised ray solve).
+
+    Parameters
+    ----------
+    X : (b, 11) float
+    rays : RaySet
+    weight : float
+        ``c_p`` of the penalty rows.
+    d0 : (b, n) float, optional
+        Warm start of the ray minimisers.
+    rtol : float
+        Tolerance of the ray minimisers (:func:`batch_ray_minima`).
+
+    Returns
+    -------
+    r : (b, n + 11) float
+    J : (b, n + 11, 11) float
+    d : (b, n) float
+    """
+    X = check_shape(X, (None, C.N_PARAMS), "X", finite=False)
+    if not isinstance(rays, RaySet):
+        raise TypeError(f"rays must be a sqfit.raycost.RaySet, got {type(rays).__name__}")
+    b, n, k = len(X), len(rays), C.N_PARAMS
+    d, _ = batch_ray_minima(X, rays.origins, rays.directions, d0, rtol)
+    r = np.empty((b, n + k))
+    J = np.zeros((b, n + k, k))
+    for i, xi in enumerate(X):
+        r_rays, coef, d_log_m, _ = _ray_terms(xi, rays, rays.directions, None, d[i])
+        r[i, :n], J[i, :n] = r_rays, coef[:, None] * d_log_m
+        r[i, n:] = penalty(xi, weight, *_BOUNDS)
+        J[i, n + np.arange(k), np.arange(k)] = penalty_jacobian(xi, weight, *_BOUNDS)
     return r, J, d
 
 
@@ -442,7 +555,7 @@ def posed_ray_residuals(x, rays, sigma_rad, weight=C.PENALTY_ANALYTIC, d0=None):
     d_w = (coef * d)[:, None] * np.cross(d_log_m[:, 5:8], b)
     cols = k + 3 * rays.view[:, None] + np.arange(3)
     J[np.arange(n)[:, None], cols] = d_w
-    J[n:n + k, :k] = np.diag(penalty_jacobian(xi, weight))
+    J[n:n + k, :k] = np.diag(penalty_jacobian(xi, weight, *_BOUNDS))
     J[n + k:, k:] = np.eye(3 * v) / sigma_rad
-    r = np.concatenate([r_rays, penalty(xi, weight), w.ravel() / sigma_rad])
+    r = np.concatenate([r_rays, penalty(xi, weight, *_BOUNDS), w.ravel() / sigma_rad])
     return r, J, d

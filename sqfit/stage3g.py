@@ -50,17 +50,25 @@ def _rays(obs):
     return cached[1]
 
 
-def silhouette_stage(state, obs, options, name="3G"):
-    """Levenberg-Marquardt on the 3G residuals from ``state.xi``; returns the new state."""
+def silhouette_stage(state, obs, options, name="3G", plain_first=True):
+    """Levenberg-Marquardt on the 3G residuals from ``state.xi``; returns the new state.
+
+    ``plain_first=False`` skips the run without pose corrections when they are estimated (for a
+    start that is already in the right basin, such as the end of 3H's screen).
+    """
     rays = _rays(obs)
     xi0 = np.array(state.xi, dtype=np.float64)
     sigma = np.radians(options.pose_sigma_deg)
-    res = minimise(rays, xi0, options, 0.0)
-    nfev = res.nfev
+    res = None
+    nfev = 0
+    if sigma == 0 or plain_first:
+        res = minimise(rays, xi0, options, 0.0)
+        nfev = res.nfev
     if sigma > 0:
         # A second run, from the plain optimum: started from stage 2 the extra unknowns change
         # Levenberg-Marquardt's path and sometimes its basin, which cost clean fits accuracy.
-        res = minimise(rays, np.concatenate([res.x, np.zeros(3 * len(obs))]), options, sigma)
+        start = xi0 if res is None else res.x
+        res = minimise(rays, np.concatenate([start, np.zeros(3 * len(obs))]), options, sigma)
         nfev += res.nfev
     xi = res.x[:len(xi0)]
     if not np.all(np.isfinite(res.x)) or np.max(np.abs(xi[0:3])) > 1e4:

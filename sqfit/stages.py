@@ -18,10 +18,23 @@ Every stage is ``stage(state, observations, options) -> state``: it reads a :cla
 ``3F`` LM on G2 with only ``e`` free (2 parameters), Jacobian as 3A.
 =====  =====================================================================================
 
+Boundary labels (:mod:`sqfit.visibility`): stages 1 and 2 read them (below), 3A, 3B and 3F
+through the R-IOU costs (only the visible part of a view counts, :func:`sqfit.costs.riou_residuals`);
+3C-3E ignore them (their samples lie inside the mask, which is the object either way).
+
 Stages 3B-3D set ``e = (1, 1)`` before optimising ("quadric parameters"). Depths are camera-frame
 z (as eq. 10). Depth bookkeeping between stages: a stage that needs one depth per sample and only
 has one per view repeats it; a stage that needs one per view and only has one per sample takes the
 per-view mean.
+
+Partial visibility: a view whose outline is less than :data:`TRUSTED_SILHOUETTE_FRACTION` true
+silhouette (``Observation.silhouette_fraction``: the rest is labelled occluded or truncated, see
+:mod:`sqfit.visibility`) has a biased centroid, area and sample spread. When at least two views
+are trusted, stage 1 weights each view's rows of the triangulation by its silhouette fraction
+(floor 0.1) and takes the size from the trusted views only, and stage 2 runs its PCA on the
+trusted views' samples only; with fewer than two trusted views all views are used as before.
+Measured against dropping the untrusted views from the triangulation and against ignoring the
+labels in stages 1-2 (:data:`CUT_VIEWS`): README, "Partial visibility".
 
 Default initial guess (our choice; the paper does not state one), used when a chain starts at
 stage 3 or 2: a unit sphere-like quadric ``a = (1, 1, 1)``, ``e = (1, 1)`` at the world origin
@@ -37,11 +50,12 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from . import constants as C
-from .costs import g5_residuals, penalty_jacobian, riou_residuals, rotation_and_derivatives
+from .costs import g5_residuals, hidden_at, penalty_jacobian, riou_residuals, rotation_and_derivatives
 from .lm import DenseJacobian, SchurJacobian, levenberg_marquardt
 from .silhouette import NEWTON_TOL, ZNEAR
 
-__all__ = ["FitState", "StageError", "STAGES", "register", "default_state"]
+__all__ = ["FitState", "StageError", "STAGES", "register", "default_state", "trusted_views",
+           "TRUSTED_SILHOUETTE_FRACTION"]
 
 #: Triangulation fails when the condition number of the QR factor R exceeds this.
 _MAX_TRIANGULATION_CONDITION = 1e8
@@ -55,6 +69,12 @@ _SHAPE_ONLY = np.array([3, 4])
 #: are then off by ~1e-3 px (area ~1e-5 relative), which saves one Newton step per evaluation.
 #: Finite differences (steps of ~1e-2 px) need the default 1e-7 px.
 _SILHOUETTE_TOL_ANALYTIC = 1e-3
+#: Views whose outline is at least this fraction true silhouette are trusted by stages 1 and 2.
+TRUSTED_SILHOUETTE_FRACTION = 0.9
+#: How stages 1 and 2 treat untrusted views: "weight" (default: stage 1 rows weighted by the
+#: silhouette fraction, floor 0.1), "drop" (stage 1 leaves them out; their depth is that of the
+#: triangulated point); both size from and run stage 2 on trusted views only. "all" ignores the labels.
+CUT_VIEWS = "weight"
 
 
 @dataclass(frozen=True)
@@ -132,6 +152,22 @@ def _sample_depths(state, obs):
     return default_state(obs).sample_depths
 
 
+def trusted_views(obs):
+    """``(v,) bool``: views whose outline is mostly true silhouette (see the module docstring);
+    all True when fewer than two views qualify."""
+    fractions = np.array([o.silhouette_fraction for o in obs.observations])
+    trusted = fractions >= TRUSTED_SILHOUETTE_FRACTION
+    if CUT_VIEWS == "all" or trusted.sum() < 2:
+        return np.ones(len(fractions), dtype=bool)
+    return trusted
+
+
+def _view_weights(obs):
+    if CUT_VIEWS == "weight":
+        return np.maximum([o.silhouette_fraction for o in obs.observations], 0.1)
+    return trusted_views(obs).astype(np.float64)
+
+
 @register("1")
 def triangulate(state, obs, options):
     """Stage 1: triangulate the mask centroids (eq. 12) and give one depth per view.
@@ -151,23 +187,31 @@ def triangulate(state, obs, options):
     rays = np.stack([(centroids[:, 0] - k[:, 2]) / k[:, 0], (centroids[:, 1] - k[:, 3]) / k[:, 1],
                      np.ones(v)], axis=1)
     bearing = np.einsum("vij,vj->vi", obs.rotations, rays)
-    A = np.zeros((3 * v, 3 + v))
-    A[:, :3] = np.tile(np.eye(3), (v, 1))
-    for i in range(v):
-        A[3 * i:3 * i + 3, 3 + i] = -bearing[i]
-    Q, R = np.linalg.qr(A)
+    weight = _view_weights(obs)
+    used = np.flatnonzero(weight > 0)
+    u = len(used)
+    A = np.zeros((3 * u, 3 + u))
+    A[:, :3] = np.tile(np.eye(3), (u, 1))
+    for j, i in enumerate(used):
+        A[3 * j:3 * j + 3, 3 + j] = -bearing[i]
+    row_weight = np.repeat(weight[used], 3)
+    Q, R = np.linalg.qr(A * row_weight[:, None])
     diag = np.abs(np.diag(R))
     if diag.min() <= diag.max() / _MAX_TRIANGULATION_CONDITION or not np.all(np.isfinite(R)):
         raise StageError("singular_triangulation", "triangulation is ill-conditioned: the centroid rays "
                          "are (nearly) parallel")
-    sol = np.linalg.solve(R, Q.T @ obs.centers.reshape(-1))
-    p, depths = sol[:3], sol[3:]
+    sol = np.linalg.solve(R, Q.T @ (obs.centers[used].reshape(-1) * row_weight))
+    p = sol[:3]
+    # Views left out: the depth of the triangulated point along their centroid ray.
+    depths = np.einsum("vj,vj->v", p - obs.centers, bearing) / np.einsum("vj,vj->v", bearing, bearing)
+    depths[used] = sol[3:]
     if np.any(depths <= ZNEAR):
         raise StageError("triangulation_behind_camera",
                          f"triangulated point is behind camera(s) {np.flatnonzero(depths <= ZNEAR).tolist()}")
     area = np.array([o.area_px for o in obs.observations], dtype=float)
     radius = np.sqrt(area / np.pi) / np.sqrt(k[:, 0] * k[:, 1]) * depths
-    r = max(float(radius.mean()), C.SIZE_MIN)
+    sized = trusted_views(obs)
+    r = max(float(radius[sized].mean()), C.SIZE_MIN)
     xi = np.array([r, r, r, 1.0, 1.0, *p, 0.0, 0.0, 0.0])
     return FitState(xi, view_depths=depths, sample_depths=None)
 
@@ -182,7 +226,8 @@ def pca_init(state, obs, options):
     paper). Per-sample depth: the closed-form minimiser along each ray (:func:`ellipsoid_depths`).
     """
     depths = _view_depths(state, obs)
-    points = obs.origins + obs.rays * depths[obs.view_of_sample][:, None]
+    use = trusted_views(obs)[obs.view_of_sample]
+    points = (obs.origins + obs.rays * depths[obs.view_of_sample][:, None])[use]
     centred = points - points.mean(axis=0)
     _, _, Vt = np.linalg.svd(centred / np.sqrt(max(len(points) - 1, 1)), full_matrices=False)
     R = Vt.T.copy()
@@ -273,9 +318,10 @@ def _riou_stage(state, obs, options, free, quadric, name):
     analytic = options.riou_jacobian == "analytic" and options.polygon == "hull"
     accepted = {}  # the silhouette start of the last point whose Jacobian was built
 
-    def g2(batch, start, jacobian=False):
+    def g2(batch, start, jacobian=False, hidden=None):
         return riou_residuals(batch, obs, options.polygon, options.penalty_riou, options.silhouette_directions,
-                              start, jacobian=jacobian, tol=_SILHOUETTE_TOL_ANALYTIC if analytic else NEWTON_TOL)
+                              start, jacobian=jacobian, tol=_SILHOUETTE_TOL_ANALYTIC if analytic else NEWTON_TOL,
+                              hidden=hidden)
 
     def model(x):
         full = xi0.copy()
@@ -293,7 +339,10 @@ def _riou_stage(state, obs, options, free, quadric, name):
             else:
                 batch = np.tile(full, (k, 1))
                 batch[:, free] += eye
-                J = (g2(batch, start)[0] - r).T / steps
+                # Hidden-pixel counts held at this point's (as the analytic Jacobian does).
+                hidden = (hidden_at(full[None], obs, options.polygon, options.silhouette_directions)
+                          if obs.occluded_views.any() and options.polygon == "hull" else None)
+                J = (g2(batch, start, hidden=hidden)[0] - r).T / steps
                 J[len(obs):] = 0.0
             # The penalty is piecewise linear: its exact slope, not a difference across a kink.
             J[penalty_rows, np.arange(k)] = penalty_jacobian(full, options.penalty_riou)[free]

@@ -16,6 +16,7 @@ from __future__ import annotations
 import json
 import os
 import shutil
+from contextlib import contextmanager
 from pathlib import Path
 
 import numpy as np
@@ -70,16 +71,10 @@ def write_trial(scene, index, root, renderer=None):
         scene = parse_scene(scene, source="<dataset>")
     if is_sequence(scene):
         return write_sequence_trial(scene, index, root, renderer)
-    trials = Path(root) / "trials"
-    final = trials / trial_name(index)
-    if final.exists():
+    if (Path(root) / "trials" / trial_name(index)).exists():
         return None
     sim = simulate_trial(scene, index, renderer)
-    tmp = trials / f".tmp-{trial_name(index)}-{os.getpid()}"
-    if tmp.exists():
-        shutil.rmtree(tmp)
-    (tmp / "masks").mkdir(parents=True)
-    try:
+    with staged_trial_dir(root, index) as tmp:
         views = []
         for k, (cam, true, image) in enumerate(zip(sim.cameras, sim.true_cameras, sim.images)):
             name = f"masks/view_{k:02d}.png"
@@ -90,11 +85,27 @@ def write_trial(scene, index, root, renderer=None):
         gt = {"trial": int(index), "seed": scene.experiment.seed, "resampled": sim.resampled,
               "objects": [o.to_dict() for o in sim.objects]}
         (tmp / "gt.json").write_text(_dumps(gt), encoding="utf-8")
-        os.replace(tmp, final)
+    return sim.resampled
+
+
+@contextmanager
+def staged_trial_dir(root, index):
+    """Write trial ``index`` into a temporary directory that becomes ``trials/NNNNNN`` at once.
+
+    Yields the temporary directory (with ``masks/`` made); on success it is renamed into place,
+    on any exception (Ctrl-C included) removed, so a dataset never holds a half-written trial.
+    """
+    trials = Path(root) / "trials"
+    tmp = trials / f".tmp-{trial_name(index)}-{os.getpid()}"
+    if tmp.exists():
+        shutil.rmtree(tmp)
+    (tmp / "masks").mkdir(parents=True)
+    try:
+        yield tmp
+        os.replace(tmp, trials / trial_name(index))
     except BaseException:
         shutil.rmtree(tmp, ignore_errors=True)
         raise
-    return sim.resampled
 
 
 def _ignore_sigint():

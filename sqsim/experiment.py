@@ -11,7 +11,10 @@ Output directory:
   into the same directory must use the same scene and seed; it then fits only the
   (trial, chain) pairs missing from ``trials.jsonl`` (resume after Ctrl-C or a kill).
 - ``trials.jsonl``: one record per (trial, object, chain): ground truth, fitted parameters and
-  metrics after every stage, seconds, status. A line cut short by a kill is dropped on resume.
+  metrics after every stage, seconds, status, and per view the object's ``visible_fraction``
+  (pixels seen / pixels rendered alone), ``cut_fraction`` (projected area outside the image) and
+  ``border_cut`` (its mask touches the border; :mod:`sqsim.trial`). A line cut short by a kill is
+  dropped on resume.
 - ``summary.json``, ``table.md``, ``table.tex``, ``comparison.md`` (medians beside the paper's
   Table II), ``violin.png``, ``example.png``: rebuilt from
   all records at the end of every run. ``summary.json`` is the stable interface::
@@ -316,9 +319,10 @@ def fit_trial(scene_dict, index, chains):
     sim = simulate_trial(scene, index, get_renderer(scene.masks.renderer, scene.intrinsics))
     seed = trial_seed(scene.experiment.seed, index)
     options = {"polygon": scene.fit.polygon, "penalty_riou": scene.fit.penalty_riou,
-               "penalty_analytic": scene.fit.penalty_analytic, "pose_sigma_deg": scene.fit.pose_sigma_deg}
+               "penalty_analytic": scene.fit.penalty_analytic, "pose_sigma_deg": scene.fit.pose_sigma_deg,
+               "occlusion_aware": scene.fit.occlusion_aware}
     records = []
-    for obj in sim.objects:
+    for oi, obj in enumerate(sim.objects):
         gt_polygons = _ground_truth_polygons(obj, sim)
         try:
             obs = observations(sim, obj.id, scene)
@@ -341,7 +345,10 @@ def fit_trial(scene_dict, index, chains):
         for chain in chains:
             base = {"trial": index, "object": obj.id, "chain": chain, "gt": obj.to_dict(),
                     "resampled": sim.resampled, "cameras": [c.pose.tolist() for c in sim.true_cameras],
-                    "views_used": len(obs)}
+                    "views_used": len(obs),
+                    "visible_fraction": sim.visible_fraction[oi].round(4).tolist(),
+                    "cut_fraction": sim.cut_fraction[oi].round(4).tolist(),
+                    "border_cut": sim.border_cut[oi].tolist()}
             if obs_error is not None:
                 records.append({**base, "status": "bad_observation", "message": obs_error, "warnings": [],
                                 "params": None, "stages": [], "time_s": 0.0,

@@ -24,7 +24,9 @@ trial never depends on other trials, worker count or order. The mesh kinds use t
 The shape exponents are drawn for every kind (so kinds share the random stream) and ignored by
 the mesh kinds. Cameras sit on a circle (``trajectory``) and look at ``look_at`` with +z up.
 A trial is observable when every object's mesh is in front of every camera (depth > ``ZNEAR``),
-its projection lies inside every image without touching the border pixels, and its visible
+its projection lies inside every image without touching the border pixels (or, with
+``masks.max_cut_fraction > 0``, at most that fraction of its projected area -- the convex hull of
+its projected mesh vertices -- lies outside the image: truncated objects), and its visible
 (rendered, possibly occluded) mask has at least ``masks.min_area_px`` pixels in every view;
 otherwise the objects are drawn again (up to ``objects.max_attempts`` times) and the number of
 re-draws is reported as ``resampled``.
@@ -123,6 +125,7 @@ class MasksConfig:
     sampling: str = "uniform"
     min_area_px: int = 200
     cleanup: bool = True
+    max_cut_fraction: float = 0.0  # projected area an object may have outside an image (0: none)
 
 
 @dataclass(frozen=True)
@@ -144,6 +147,7 @@ class FitConfig:
     penalty_riou: float = 1.0
     penalty_analytic: float = 100.0
     pose_sigma_deg: float = sqfit.FitOptions.pose_sigma_deg
+    occlusion_aware: bool = sqfit.FitOptions.occlusion_aware
 
 
 _CHECKS = {
@@ -160,13 +164,14 @@ _CHECKS = {
                 "path": _optional_path, "mesh_resolution": _int(2), "max_attempts": _int(1),
                 "layout": _choice(LAYOUTS), "upright": _bool},
     "masks": {"renderer": _choice(RENDERERS), "samples": _int(3), "sampling": _choice(SAMPLING_METHODS),
-              "min_area_px": _int(0), "cleanup": _bool},
+              "min_area_px": _int(0), "cleanup": _bool, "max_cut_fraction": _float(0, 1, hi_open=True)},
     "noise": {"erosion_px": _int(0), "dilation_px": _int(0), "boundary_jitter_px": _float(0),
               "dropout": _float(0, 1, hi_open=True), "false_blobs": _int(0),
               "pose_rotation_deg": _float(0), "pose_translation_m": _float(0),
               "odometry_rotation_deg": _float(0), "odometry_translation_m": _float(0)},
     "fit": {"polygon": _choice(POLYGON_KINDS), "penalty_riou": _float(0, lo_open=True),
-            "penalty_analytic": _float(0, lo_open=True), "pose_sigma_deg": _float(0)},
+            "penalty_analytic": _float(0, lo_open=True), "pose_sigma_deg": _float(0),
+            "occlusion_aware": _bool},
 }
 _SECTIONS = {"experiment": ExperimentConfig, "camera": CameraConfig, "trajectory": TrajectoryConfig,
              "objects": ObjectsConfig, "masks": MasksConfig, "noise": NoiseConfig, "fit": FitConfig}
@@ -611,21 +616,30 @@ def surely_not_visible(objects, draws, cameras):
     return False
 
 
-def geometry_visible(objects, cameras):
-    """Whether every object is in front of every camera and strictly inside every image.
+def geometry_visible(objects, cameras, max_cut_fraction=0.0):
+    """Whether every object is in front of every camera and inside every image.
 
-    "Strictly inside" means no pixel of the first or last row or column can be covered: every
-    projected vertex has ``1 <= u <= width - 1`` and ``1 <= v <= height - 1``.
+    With ``max_cut_fraction == 0`` "inside" means strictly: no pixel of the first or last row or
+    column can be covered, every projected vertex has ``1 <= u <= width - 1`` and
+    ``1 <= v <= height - 1``. Above 0, at most that fraction of each object's projected area (see
+    :func:`sqsim.visibility.cut_fractions`) may lie outside the image.
 
     Parameters
     ----------
     objects : list of SceneObject
     cameras : list of sqfit.Camera
+    max_cut_fraction : float
+        In [0, 1).
 
     Returns
     -------
     ok : bool
     """
+    if max_cut_fraction > 0:
+        from .visibility import cut_fractions
+
+        cut = cut_fractions(objects, cameras, ZNEAR)
+        return bool(np.all(np.isfinite(cut)) and cut.max() <= max_cut_fraction)
     for cam in cameras:
         k = cam.intrinsics
         for obj in objects:

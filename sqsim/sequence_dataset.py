@@ -15,8 +15,6 @@ object in every frame); a dataset of exactly one sequence also gets ``DIR/true.t
 from __future__ import annotations
 
 import json
-import os
-import shutil
 from pathlib import Path
 
 from sqfit.formats.tum import write_tum
@@ -44,19 +42,13 @@ def write_sequence_trial(scene, index, root, renderer=None):
     resampled : int or None
         Re-draws of the sequence; ``None`` if it already existed (nothing written).
     """
-    from .dataset import _dumps, trial_name
+    from .dataset import _dumps, staged_trial_dir, trial_name
     from .sequence import simulate_sequence
 
-    trials = Path(root) / "trials"
-    final = trials / trial_name(index)
-    if final.exists():
+    if (Path(root) / "trials" / trial_name(index)).exists():
         return None
     seq = simulate_sequence(scene, scene.experiment.seed, index, renderer)
-    tmp = trials / f".tmp-{trial_name(index)}-{os.getpid()}"
-    if tmp.exists():
-        shutil.rmtree(tmp)
-    (tmp / "masks").mkdir(parents=True)
-    try:
+    with staged_trial_dir(root, index) as tmp:
         views = []
         for k in range(seq.n_frames):
             name = f"masks/view_{k:02d}.png"
@@ -72,10 +64,6 @@ def write_sequence_trial(scene, index, root, renderer=None):
         (tmp / "gt.json").write_text(_dumps(gt), encoding="utf-8")
         write_tum(tmp / "true.tum", seq.timestamps, seq.true_poses)
         write_tum(tmp / "odometry.tum", seq.timestamps, seq.odometry_poses)
-        os.replace(tmp, final)
-    except BaseException:
-        shutil.rmtree(tmp, ignore_errors=True)
-        raise
     return seq.resampled
 
 

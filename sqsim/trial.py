@@ -7,6 +7,8 @@ children (:data:`SEED_STREAMS`), so a trial's result depends only on the scene a
 - child 1: mask noise,
 - child 2: pose noise,
 - child 3: observation samples (:func:`observations`, child ``3`` then the object id).
+
+Each trial also records how much of each object is seen (:func:`sqsim.visibility.visibility`).
 """
 
 from __future__ import annotations
@@ -20,6 +22,7 @@ from sqfit.io import observations_from_images
 from .noise import corrupt_image, perturb_cameras
 from .render import get_renderer
 from .scene import child_seed, draw_objects, geometry_visible, make_objects, surely_not_visible, trial_seed
+from .visibility import visibility
 
 __all__ = ["SimulatedTrial", "simulate_trial", "sample_trial", "observations", "SEED_STREAMS"]
 
@@ -45,6 +48,12 @@ class SimulatedTrial:
         After mask noise.
     resampled : int
         Draws rejected as unobservable before this one.
+    visible_fraction : (count, v) float
+        Per object and view: pixels seen / pixels rendered alone (:mod:`sqsim.visibility`).
+    cut_fraction : (count, v) float
+        Per object and view: projected area outside the image.
+    border_cut : (count, v) bool
+        Per object and view: the clean mask touches the image border.
     """
 
     index: int
@@ -54,6 +63,9 @@ class SimulatedTrial:
     clean_images: np.ndarray
     images: np.ndarray
     resampled: int
+    visible_fraction: np.ndarray | None = None
+    cut_fraction: np.ndarray | None = None
+    border_cut: np.ndarray | None = None
 
 
 def sample_trial(scene, index, renderer=None):
@@ -82,10 +94,11 @@ def sample_trial(scene, index, renderer=None):
     min_area = max(scene.masks.min_area_px, 1)
     for attempt in range(scene.objects.max_attempts):
         draws = draw_objects(scene.objects, rng)
-        if surely_not_visible(scene.objects, draws, cameras):  # most re-draws end here, unmeshed
-            continue
+        # The anchor pre-check rejects anything reaching past the border: only for uncut scenes.
+        if scene.masks.max_cut_fraction == 0 and surely_not_visible(scene.objects, draws, cameras):
+            continue  # most re-draws end here, unmeshed
         objects = make_objects(scene.objects, draws)
-        if not geometry_visible(objects, cameras):
+        if not geometry_visible(objects, cameras, scene.masks.max_cut_fraction):
             continue
         images = renderer.render(objects, cameras)
         ids = np.array([o.id for o in objects])
@@ -112,7 +125,10 @@ def simulate_trial(scene, index, renderer=None):
     trial : SimulatedTrial
     """
     seed = trial_seed(scene.experiment.seed, index)
+    if renderer is None:
+        renderer = get_renderer(scene.masks.renderer, scene.intrinsics)
     objects, true_cameras, clean, resampled = sample_trial(scene, index, renderer)
+    visible, cut, border = visibility(objects, true_cameras, clean, renderer)
     noise = scene.noise
     mask_rng = np.random.default_rng(child_seed(seed, SEED_STREAMS["mask_noise"]))
     if any((noise.erosion_px, noise.dilation_px, noise.boundary_jitter_px, noise.dropout, noise.false_blobs)):
@@ -123,7 +139,8 @@ def simulate_trial(scene, index, renderer=None):
     cameras = perturb_cameras(true_cameras, noise.pose_rotation_deg, noise.pose_translation_m, pose_rng)
     for a in (clean, images):
         a.flags.writeable = False
-    return SimulatedTrial(int(index), objects, true_cameras, cameras, clean, images, int(resampled))
+    return SimulatedTrial(int(index), objects, true_cameras, cameras, clean, images, int(resampled),
+                          visible, cut, border)
 
 
 def observations(sim_trial, object_id, scene):

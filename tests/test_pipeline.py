@@ -17,7 +17,7 @@ def trial():
 def test_paper_chains_in_table_order():
     assert PAPER_CHAINS == ("3A", "3B", "1-3A", "1-2-3A", "1-2-3B", "3E", "1-3E", "1-2-3C", "1-2-3D",
                             "1-2-3E", "1-2-3D-3E", "1-2-3D-3A", "1-2-3D-3F")
-    assert DEFAULT_CHAIN == "1-2-3G"
+    assert DEFAULT_CHAIN == "1-2-3H"
 
 
 @pytest.mark.parametrize("chain", PAPER_CHAINS)
@@ -139,8 +139,37 @@ def test_border_warning():
     mask[0, 300:310] = True  # a separate strip on the border
     obs = [Observation.from_mask(t.cameras[0], mask, 100, rng=0, cleanup=False)] + t.observations[1:]
     result = fit(obs, "1-2")
-    assert result.warnings == ["view 0: mask touches the image border (truncated silhouette)"]
+    assert len(result.warnings) == 1
+    assert result.warnings[0].startswith("view 0: mask touches the image border (truncated silhouette; ")
     assert fit(t.observations, "1-2").warnings == []
     # Clean-up (the default) drops the strip: the object itself does not touch the border.
     cleaned = [Observation.from_mask(t.cameras[0], mask, 100, rng=0)] + t.observations[1:]
     assert fit(cleaned, "1-2").warnings == []
+
+
+def test_initial_starts_the_first_stage_at_the_given_superquadric(trial):
+    result = fit(trial.observations, initial=trial.gt)
+    assert result.status == "ok", result.message
+    assert result.chain == sqfit.pipeline.INITIAL_CHAIN
+    assert iou_3d(result.superquadric, trial.gt) > 0.95  # the truth is (nearly) a 3G minimum
+    # A vector is accepted too; a chain of G5 stages gets depths on the initial quadric.
+    same = fit(trial.observations, "3G", initial=trial.gt.to_vector())
+    np.testing.assert_allclose(same.superquadric.to_vector(), result.superquadric.to_vector())
+    far = sqfit.Superquadric((1.0, 1.0, 1.0), position=(40.0, 0.0, 0.0))
+    assert fit(trial.observations, "3D", initial=trial.gt).status == "ok"
+    assert fit(trial.observations, "3G", initial=far).superquadric != result.superquadric
+
+
+@pytest.mark.parametrize("initial, chain, error, match", [
+    ("sphere", None, TypeError, "initial must be a sqfit.Superquadric or an \\(11,\\) parameter vector"),
+    (3.0, None, TypeError, "initial must be a sqfit.Superquadric"),
+    ([1.0] * 10, None, ValueError, r"initial: xi must have shape \(11,\)"),
+    ([1.0, 1.0, -1.0] + [1.0] * 8, None, ValueError, "initial: size az must be > 0"),
+    ([1.0] * 3 + [3.0, 1.0] + [0.0] * 6, None, ValueError, "initial: shape e1 must be in"),
+    ([np.nan] + [1.0] * 10, None, ValueError, "initial: xi contains NaN"),
+    ([1.0] * 5 + [0.0] * 6, "1-2-3G", ValueError, "starts with stage '1'.*would discard it"),
+    ([1.0] * 5 + [0.0] * 6, "2-3G", ValueError, "starts with stage '2'"),
+])
+def test_bad_initial(trial, initial, chain, error, match):
+    with pytest.raises(error, match=match):
+        fit(trial.observations, chain, initial=initial)

@@ -77,7 +77,7 @@ def test_waypoints_interpolate_linearly_and_slerp(tmp_path):
     # the same waypoints from a TUM file next to the scene file
     _, wp = sqfit.formats.tum.rows_to_poses(rows)
     write_tum(tmp_path / "path.tum", [r[0] for r in rows], wp)
-    text = (f'[trajectory]\nkind = "waypoints"\nframes = 7\nwaypoints_file = "path.tum"\n')
+    text = ('[trajectory]\nkind = "waypoints"\nframes = 7\nwaypoints_file = "path.tum"\n')
     (tmp_path / "s.toml").write_text(text)
     from sqsim.scene import load_scene
     s2 = load_scene(tmp_path / "s.toml")

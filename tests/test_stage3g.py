@@ -134,15 +134,17 @@ def test_outward_normals_validation():
         outward_normals(np.zeros((2, 2)))
 
 
-def test_stage_3g_is_registered_and_is_the_default():
+def test_stage_3g_is_registered_and_ends_the_default():
     assert "3G" in sqfit.STAGES
-    assert sqfit.DEFAULT_CHAIN == "1-2-3G"
+    assert sqfit.DEFAULT_CHAIN == "1-2-3H"  # 3H: axis screen, then 3G (tests/test_axis_search.py)
 
 
 @pytest.mark.parametrize("seed", [0, 3])
 def test_chain_1_2_3g_recovers_paper_trials(seed):
     trial = paper_trial(seed)
-    result = sqfit.fit(trial.observations, "1-2-3G")
+    # Seed 3 ends 1-2-3G in a wrong-axes basin (0.81; 3H fixes it: test_axis_search.py), where the
+    # looser default prior of the pose corrections (50) slides further (0.78): pin the earlier 20.
+    result = sqfit.fit(trial.observations, "1-2-3G", options={"pose_sigma_deg": 20.0})
     assert result.ok
     assert iou_3d(result.superquadric, trial.gt) > 0.8
 

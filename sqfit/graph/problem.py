@@ -25,7 +25,7 @@ from dataclasses import asdict, dataclass, field, replace
 import numpy as np
 
 from .. import constants as C
-from .._checks import check_shape
+from .._checks import check_shape, coerce_options
 from ..camera import Camera, Intrinsics
 from ..observation import Observation
 from ..pipeline import DEFAULT_CHAIN
@@ -138,16 +138,7 @@ class GraphOptions:
     @classmethod
     def coerce(cls, options):
         """``None`` -> defaults, a dict -> GraphOptions (unknown keys raise ValueError naming them)."""
-        if options is None:
-            return cls()
-        if isinstance(options, cls):
-            return options
-        if isinstance(options, dict):
-            unknown = sorted(set(options) - set(cls.__dataclass_fields__))
-            if unknown:
-                raise ValueError(f"unknown graph option(s) {unknown}; valid: {sorted(cls.__dataclass_fields__)}")
-            return cls(**options)
-        raise TypeError(f"options must be None, a dict or a GraphOptions, got {type(options).__name__}")
+        return coerce_options(cls, options, "graph")
 
 
 @dataclass
