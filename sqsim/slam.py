@@ -56,13 +56,19 @@ OBSERVATION_STREAM = 5
 # --------------------------------------------------------------------------- command line
 
 def add_arguments(parser):
-    parser.description = (
-        "Simulate sequences of a sequence scene (trajectory.kind 'orbit' or 'waypoints'), run each through "
-        "the factor graph (superquadrics from masks, batch and iSAM2) and its baselines (odometry alone, "
-        "per-object fits on the odometry poses, QuadricSLAM quadrics from boxes), and write per sequence the "
-        "trajectories (TUM), the fitted objects (JSON), ATE/RPE (evo, no alignment: every method starts at the "
-        "known first pose), per-object 3D IoU, times and a top-down figure; summary.json and table.md over all "
-        "sequences. Re-running into the same directory resumes (finished sequences are kept).")
+    parser.description = """\
+Simulate sequences of a sequence scene (trajectory.kind "orbit" or "waypoints") and run each
+through the factor graph (superquadrics from masks: batch LM "graph", iSAM2 "graph-isam2") and its
+baselines ("odometry" alone, "fixed": per-object fits on the odometry poses, "quadric": QuadricSLAM
+quadrics from boxes). Data association comes from the instance ids.
+
+Writes, per sequence, DIR/sequences/NNNNNN/: true.tum, odometry.tum and METHOD.tum (TUM, camera ->
+world), objects.json (true and fitted superquadrics), record.json (ATE/RPE with evo, no alignment:
+every method starts at the known first pose; SE(3)-aligned ATE too; per-object 3D IoU; CPU and wall
+times; skipped objects and warnings) and topdown.png; over all sequences DIR/summary.json and
+DIR/table.md. Re-running into the same directory resumes: finished sequences are not recomputed.
+
+example: sqsim slam scenes/sequence.toml -o /tmp/slam --sequences 5 --workers 2"""
     parser.add_argument("scene", help="sequence scene TOML file, e.g. scenes/sequence.toml")
     parser.add_argument("-o", "--output", required=True, help="output directory (created; resumed if it exists)")
     parser.add_argument("--sequences", type=int, default=None,
