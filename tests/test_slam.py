@@ -180,3 +180,26 @@ def test_slam_object_seen_once_is_skipped_with_a_warning():
     fixed = record["methods"]["fixed"]
     assert "2" in fixed["skipped"] and fixed["missing"] == [2] and fixed["iou"]["2"] == 0.0
     assert "1" in fixed["objects"]
+
+
+def test_slam_over_worker_processes_matches_in_process(run_dir, tmp_path):
+    out = tmp_path / "parallel"
+    summary = run_slam(parse_scene(TINY), out, sequences=2, methods=METHODS, workers=2, progress=False,
+                       figures=False)
+    serial = json.loads((run_dir / "summary.json").read_text())
+    for m in METHODS:
+        assert summary["methods"][m]["ate_m"]["per_sequence"] == serial["methods"][m]["ate_m"]["per_sequence"]
+        assert summary["methods"][m]["iou_median_per_sequence"] == serial["methods"][m]["iou_median_per_sequence"]
+    assert not (out / "sequences" / "000000" / "topdown.png").exists()
+
+
+@pytest.mark.slow
+def test_slam_acceptance_on_the_sequence_scene(tmp_path):
+    """Issue 14's acceptance on one sequence of scenes/sequence.toml (the README gives five)."""
+    from sqsim.scene import load_scene
+
+    summary = run_slam(load_scene("scenes/sequence.toml"), tmp_path, sequences=1, progress=False, figures=False)
+    m = summary["methods"]
+    assert m["graph"]["ate_m"]["median"] <= 0.5 * m["odometry"]["ate_m"]["median"]
+    assert m["graph"]["iou"]["median"] > m["fixed"]["iou"]["median"]
+    assert m["graph"]["iou"]["median"] > m["quadric"]["iou"]["median"]
