@@ -1,6 +1,12 @@
-"""Factor-graph speed and accuracy on synthetic sequences, single process.
+"""Factor-graph speed and accuracy on synthetic or rendered sequences, single process.
 
     OPENBLAS_NUM_THREADS=1 .venv/bin/python benchmarks/bench_graph.py [--seeds 3] [--frames 40] [--objects 6]
+    OPENBLAS_NUM_THREADS=1 .venv/bin/python benchmarks/bench_graph.py --scene scenes/sequence.toml [--seeds 3]
+
+With ``--scene``: sequence 0 of each seed of a sequence scene (``sqsim.sequence.simulate_sequence``,
+rendered masks with the scene's noise and odometry), observations from its instance images at the
+odometry poses as ``sqsim slam`` makes them (the time to make them is not part of a method's time);
+``--frames`` and ``--objects`` are then ignored.
 
 Sequences: :func:`sqfit.graph.testing.synthetic_sequence` (a camera on a 120 degree arc of radius
 5 m around ``--objects`` superquadrics, ``--frames`` frames, odometry drifted by 0.5 deg and 5 mm
@@ -41,6 +47,23 @@ def _row(method, result, seq):
     return row
 
 
+def _scene_sequence(path, seed):
+    """Sequence 0 of ``seed`` of a sequence scene, with observations as ``sqsim slam`` makes them."""
+    from types import SimpleNamespace
+
+    from sqsim.scene import child_seed, load_scene, trial_seed
+    from sqsim.sequence import simulate_sequence
+    from sqsim.slam import OBSERVATION_STREAM
+
+    scene = load_scene(path)
+    seq = simulate_sequence(scene, seed=seed, index=0)
+    rng = np.random.default_rng(child_seed(trial_seed(seed, 0), OBSERVATION_STREAM))
+    observations = graph.observations_from_instances(seq.intrinsics, seq.odometry_poses, seq.images,
+                                                     min_area_px=max(scene.masks.min_area_px, 1), rng=rng)
+    return SimpleNamespace(intrinsics=seq.intrinsics, odometry_poses=seq.odometry_poses, true_poses=seq.true_poses,
+                           objects=seq.objects, observations=observations)
+
+
 def _fmt(v, spec):
     return "-" if v is None or (isinstance(v, float) and np.isnan(v)) else format(v, spec)
 
@@ -53,17 +76,20 @@ def main(argv=None):
     parser.add_argument("--objects", type=int, default=6)
     parser.add_argument("--methods", default=",".join(graph.METHODS))
     parser.add_argument("--options", default=None, help="GraphOptions fields as JSON, e.g. '{\"refit_misfit\": 0}'")
+    parser.add_argument("--scene", default=None, help="a sequence scene (e.g. scenes/sequence.toml) instead of the "
+                        "synthetic sequences")
     parser.add_argument("--json", default=None)
     args = parser.parse_args(argv)
     methods = args.methods.split(",")
     rows = []
     for seed in range(args.seed, args.seed + args.seeds):
-        seq = synthetic_sequence(seed, args.frames, args.objects)
+        seq = _scene_sequence(args.scene, seed) if args.scene else synthetic_sequence(seed, args.frames, args.objects)
         options = json.loads(args.options) if args.options else None
         results = graph.run(seq.intrinsics, seq.odometry_poses, seq.observations, methods, options)
         for m, res in results.items():
             rows.append({"seed": seed, "views": len(seq.observations), **_row(m, res, seq)})
-    print(f"{args.frames} frames, {args.objects} objects, seeds {args.seed}..{args.seed + args.seeds - 1} "
+    what = (f"{args.scene} (sequence 0 of each seed)" if args.scene else f"{args.frames} frames, {args.objects} objects")
+    print(f"{what}, seeds {args.seed}..{args.seed + args.seeds - 1}, mean views {np.mean([r['views'] for r in rows]):.0f} "
           f"({platform.processor() or platform.machine()}, OPENBLAS_NUM_THREADS={os.environ['OPENBLAS_NUM_THREADS']})")
     cols = ("ate_m", "iou_median", "seconds", "cpu_seconds", "frame_ms_median", "frame_cpu_ms_median",
             "frame_ms_max", "frame_cpu_ms_max")

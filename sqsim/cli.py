@@ -18,6 +18,7 @@ COMMANDS = {
     "sweep": ("sqsim.sweep", "run the experiment over a grid of scene values; degradation curves"),
     "generate": ("sqsim.dataset", "render a scene's trials to a mask dataset (resumable, COCO annotations)"),
     "sequence": ("sqsim.sequence_report", "simulate one image sequence: visibility, odometry drift, top-down figure"),
+    "slam": ("sqsim.slam", "run sequences through the factor graph and its baselines: trajectories, objects, ATE/RPE, IoU"),
 }
 
 

@@ -359,3 +359,21 @@ def test_observations_from_instance_images_match_the_masks():
         graph.observations_from_instances(seq.intrinsics, seq.odometry_poses, images.astype(float))
     with pytest.raises(TypeError, match="intrinsics must be a sqfit.Intrinsics"):
         graph.observations_from_instances(None, seq.odometry_poses, images)
+
+
+def test_observations_from_instances_are_labelled():
+    from sqfit.visibility import BACKGROUND, BORDER, INSTANCE
+
+    k = sqfit.Intrinsics(160, 120, 100.0, 100.0, 80.0, 60.0)
+    images = np.zeros((2, 120, 160), np.uint16)
+    images[:, 40:80, 30:70] = 1
+    images[:, 50:70, 60:90] = 2  # in front of object 1's right side
+    images[:, 10:40, 140:] = 3  # cut by the right image border
+    obs = graph.observations_from_instances(k, np.stack([np.eye(4)] * 2), images, min_area_px=50, rng=0)
+    assert set(obs) == {(f, j) for f in range(2) for j in (1, 2, 3)}
+    assert INSTANCE in obs[0, 1].contour_labels and BORDER not in obs[0, 1].contour_labels
+    assert BORDER in obs[1, 3].contour_labels and obs[1, 3].touches_border and obs[1, 3].partial
+    # no depth order in an instance image: any neighbouring instance may hide (object 2 is labelled too)
+    assert BACKGROUND in obs[0, 2].contour_labels and BORDER not in obs[0, 2].contour_labels
+    problem = graph.check_inputs(k, np.stack([np.eye(4)] * 2), obs)
+    assert any("object 3: mask touches the image border" in w and "one-sided" in w for w in problem.warnings)

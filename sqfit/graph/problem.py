@@ -15,7 +15,9 @@ Bad input: a non-finite or improper pose (a frame without a pose), an observatio
 poses do not cover, other intrinsics, or a key that is not ``(int, int)`` raise ``ValueError`` /
 ``TypeError`` naming the frame or key. An object seen in fewer than 2 frames cannot be fitted and is
 skipped with a warning in the result (:attr:`SlamResult.skipped`). A mask touching the image border
-is used, with a warning (as :func:`sqfit.fit` does): its outline is not all silhouette.
+is used, with a warning (as :func:`sqfit.fit` does): its outline is not all silhouette; outline points
+labelled ``border`` or ``instance`` (:mod:`sqfit.visibility`, as :func:`observations_from_instances`
+makes them) give one-sided ray residuals.
 """
 
 from __future__ import annotations
@@ -260,7 +262,9 @@ def check_inputs(intrinsics, odometry_poses, observations):
         obs[frame, oid] = o
         by_object.setdefault(oid, []).append(frame)
     frames, skipped = {}, {}
-    warnings = [f"frame {f}, object {j}: mask touches the image border (truncated silhouette)"
+    warnings = [f"frame {f}, object {j}: mask touches the image border (truncated silhouette; its outline labelled "
+                f"'border' counts one-sided)" if o.partial else
+                f"frame {f}, object {j}: mask touches the image border (truncated silhouette)"
                 for (f, j), o in sorted(obs.items()) if o.touches_border]
     for oid in sorted(by_object):
         seen = sorted(by_object[oid])
@@ -330,7 +334,10 @@ def observations_from_instances(intrinsics, poses, instance_images, min_area_px=
     Returns
     -------
     observations : dict of (int, int) -> Observation
-        ``(frame, object_id) -> Observation.from_mask`` of that instance's pixels.
+        ``(frame, object_id) ->`` that instance's labelled observation
+        (:func:`sqfit.io.observations_from_images`: outline points next to another instance are
+        labelled ``instance``, those on the image border ``border``; the silhouette factors treat
+        them as one-sided, :mod:`sqfit.raycost`).
     """
     if not isinstance(intrinsics, Intrinsics):
         raise TypeError(f"intrinsics must be a sqfit.Intrinsics, got {type(intrinsics).__name__}")
@@ -339,20 +346,29 @@ def observations_from_instances(intrinsics, poses, instance_images, min_area_px=
         raise ValueError(f"instance_images has {len(instance_images)} frames, poses {len(poses)}")
     if int(min_area_px) != min_area_px or min_area_px < 1:
         raise ValueError(f"min_area_px must be an integer >= 1, got {min_area_px}")
+    from ..io import observations_from_images
+
     rng = np.random.default_rng(rng)
     shape = (intrinsics.height, intrinsics.width)
-    observations = {}
-    for frame, (image, T) in enumerate(zip(instance_images, poses)):
+    checked, frames_of = [], {}
+    for frame, image in enumerate(instance_images):
         image = np.asarray(image)
         if image.shape != shape or image.dtype.kind not in "iu":
             raise ValueError(f"instance_images[{frame}] must be an integer (height, width) = {shape} image, got "
                              f"{image.dtype} {image.shape}")
-        camera = Camera(intrinsics, T)
+        checked.append(image)
         ids, counts = np.unique(image[image != 0], return_counts=True)
-        for oid, count in zip(ids, counts):
-            if count >= min_area_px:
-                observations[frame, int(oid)] = Observation.from_mask(camera, image == oid, n_samples, rng=rng)
-    return observations
+        for oid in ids[counts >= min_area_px]:
+            frames_of.setdefault(int(oid), []).append(frame)
+    observations = {}
+    for oid in sorted(frames_of):
+        frames = frames_of[oid]
+        cameras = [Camera(intrinsics, poses[f]) for f in frames]
+        # labelled: the other instances may hide the object, the image border cuts it (sqfit.visibility)
+        found = observations_from_images(cameras, np.stack([checked[f] for f in frames]), oid, n_samples, rng=rng)
+        for view, o in zip(found.views, found):
+            observations[frames[view], oid] = o
+    return dict(sorted(observations.items()))
 
 
 def observation_at(observation, T_world_camera):
