@@ -485,11 +485,19 @@ def mesh_anchors(sq, resolution=32):
     n = int(resolution)
     if n < 2:
         raise ValueError(f"resolution must be an integer >= 2, got {resolution}")
+    local = project_to_surface(_anchor_directions(n), sq.shape)
+    return _to_world(sq, local * np.asarray(sq.size))
+
+
+@lru_cache(maxsize=8)
+def _anchor_directions(n):
+    # Cube-sphere directions of mesh_anchors' lattice points (read-only, cached per resolution).
     steps = (0, n // 2, n) if n % 2 == 0 else (0, n)
     grid = np.array(np.meshgrid(steps, steps, steps, indexing="ij")).reshape(3, -1).T
     lattice = grid[np.any((grid == 0) | (grid == n), axis=1)]  # on the cube's surface
-    local = project_to_surface(_lattice_directions(lattice, n), sq.shape)
-    return _to_world(sq, local * np.asarray(sq.size))
+    directions = _lattice_directions(lattice, n)
+    directions.flags.writeable = False
+    return directions
 
 
 def _unit_mesh(resolution, shape):

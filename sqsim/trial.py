@@ -22,7 +22,7 @@ from sqfit.io import observations_from_images
 from .noise import corrupt_image, perturb_cameras
 from .render import get_renderer
 from .scene import child_seed, draw_objects, geometry_visible, make_objects, surely_not_visible, trial_seed
-from .visibility import visibility
+from .visibility import pixel_counts, visibility
 
 __all__ = ["SimulatedTrial", "simulate_trial", "sample_trial", "observations", "SEED_STREAMS"]
 
@@ -102,7 +102,7 @@ def sample_trial(scene, index, renderer=None):
             continue
         images = renderer.render(objects, cameras)
         ids = np.array([o.id for o in objects])
-        areas = (images[:, None] == ids[None, :, None, None]).sum(axis=(2, 3))
+        areas = pixel_counts(images, ids)
         if areas.min() >= min_area:
             return objects, cameras, images, attempt
     raise ValueError(f"{scene.source}: no observable trial in {scene.objects.max_attempts} draws "

@@ -17,7 +17,23 @@ import numpy as np
 
 import sqfit
 
-__all__ = ["cut_fractions", "visibility"]
+__all__ = ["cut_fractions", "pixel_counts", "visibility"]
+
+
+def pixel_counts(images, ids):
+    """Pixels of each id in each image.
+
+    Parameters
+    ----------
+    images : (v, h, w) int
+    ids : sequence of int
+
+    Returns
+    -------
+    counts : (len(ids), v) int64
+    """
+    # count_nonzero without an axis is ~10x faster than summing a boolean array over (h, w).
+    return np.array([[np.count_nonzero(im == i) for im in images] for i in ids], dtype=np.int64).reshape(len(ids), len(images))
 
 
 def cut_fractions(objects, cameras, znear):
@@ -48,6 +64,8 @@ def cut_fractions(objects, cameras, znear):
             if depth.min() <= znear:
                 out[i, j] = np.inf
                 continue
+            if (pixels.min(axis=0) >= 0).all() and pixels[:, 0].max() <= k.width and pixels[:, 1].max() <= k.height:
+                continue  # the hull lies inside the image: nothing cut (most objects; skips Qhull)
             try:
                 hull = pixels[ConvexHull(pixels).vertices]
             except (QhullError, ValueError):
@@ -82,11 +100,11 @@ def visibility(objects, cameras, clean_images, renderer):
     from .scene import ZNEAR
 
     ids = np.array([o.id for o in objects])
-    seen = (clean_images[:, None] == ids[None, :, None, None]).sum(axis=(2, 3)).T.astype(np.float64)
+    seen = pixel_counts(clean_images, ids).astype(np.float64)
     if len(objects) == 1:
         alone = seen
     else:
-        alone = np.stack([(renderer.render([o], cameras) == o.id).sum(axis=(1, 2)) for o in objects])
+        alone = np.concatenate([pixel_counts(renderer.render([o], cameras), [o.id]) for o in objects])
     visible = np.where(alone > 0, seen / np.maximum(alone, 1), 0.0)
     edges = np.stack([clean_images[:, 0], clean_images[:, -1]], axis=1)
     sides = np.stack([clean_images[:, :, 0], clean_images[:, :, -1]], axis=1)
