@@ -4,7 +4,7 @@ Usage::
 
     # One view in three cut by the image border (sqfit.testing.truncated_trial), no OpenGL:
     python scripts/visibility_report.py truncation --cuts 0,0.1,0.2,0.3,0.4,0.5 --trials 100 \
-        --chains 1-2-3G,1-2-3D-3A --json runs/visibility/truncation.json
+        --chains default,1-2-3D-3A --json runs/visibility/truncation.json
 
     # Occlusion: IoU against each object's visible fraction from finished sqsim experiments
     # (scenes/occlusion.toml with fit.occlusion_aware true and false):
@@ -41,7 +41,7 @@ def truncation(args):
 
     stages.CUT_VIEWS = args.stage12
     cuts = [float(c) for c in args.cuts.split(",")]
-    chains = args.chains.split(",")
+    chains = [sqfit.DEFAULT_CHAIN if c == "default" else c for c in args.chains.split(",")]
     rows = []
     for cut in cuts:
         ious = {(c, a): [] for c in chains for a in (True, False)}
@@ -150,7 +150,7 @@ def main(argv=None):
     t.add_argument("--cut-views", type=int, default=1)
     t.add_argument("--trials", type=int, default=100)
     t.add_argument("--seed", type=int, default=0)
-    t.add_argument("--chains", default="1-2-3G")
+    t.add_argument("--chains", default="default", help="comma-separated chains; 'default' = sqfit.DEFAULT_CHAIN")
     t.add_argument("--stage12", choices=("drop", "weight", "all"), default="weight")
     t.add_argument("--json", default=None)
     o = sub.add_parser("occlusion")
