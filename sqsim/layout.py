@@ -1,7 +1,7 @@
 """Object layouts of a scene: where the sampled objects go (``[objects] layout``).
 
 ``free`` (default, the paper's)
-    :func:`sqsim.scene.sample_objects`: every position coordinate uniform in
+    :func:`sqsim.objects.sample_objects`: every position coordinate uniform in
     ``objects.position``; objects may interpenetrate.
 ``ground``
     A room floor: the plane ``z = 0`` (world +z up) over the square ``objects.position`` x
@@ -27,7 +27,7 @@ import numpy as np
 
 import sqfit
 
-from .scene import make_object, sample_objects
+from .objects import make_object, sample_objects
 
 __all__ = ["place_objects", "ground_layout", "footprint_radius", "check_layout", "LAYOUT_GAP_M",
            "PLACEMENT_TRIES"]
@@ -48,7 +48,7 @@ def place_objects(objects, rng):
 
     Returns
     -------
-    objects : list of sqsim.scene.SceneObject or None
+    objects : list of sqsim.objects.SceneObject or None
         ``None`` when the ``ground`` layout could not place every object (draw again).
     """
     if objects.layout == "ground":
@@ -67,7 +67,7 @@ def ground_layout(objects, rng):
 
     Returns
     -------
-    objects : list of sqsim.scene.SceneObject or None
+    objects : list of sqsim.objects.SceneObject or None
     """
     placed, discs = [], []
     for oid in range(1, objects.count + 1):

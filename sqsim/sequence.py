@@ -53,7 +53,7 @@ class SimulatedSequence(Sequence):
     index : int
         Sequence (trial) index.
     seed : int
-    scene_objects : list of sqsim.scene.SceneObject
+    scene_objects : list of sqsim.objects.SceneObject
         Ground truth with meshes, ids ``1 .. count``.
     clean_images : (n, h, w) uint16
         Rendered instance ids before mask noise (``images`` is after it).
@@ -98,7 +98,7 @@ def cameras_clear(objects, poses):
 
     Parameters
     ----------
-    objects : list of sqsim.scene.SceneObject
+    objects : list of sqsim.objects.SceneObject
     poses : (n, 4, 4) float
 
     Returns

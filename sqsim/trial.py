@@ -21,7 +21,8 @@ from sqfit.io import observations_from_images
 
 from .noise import corrupt_image, perturb_cameras
 from .render import get_renderer
-from .scene import child_seed, draw_objects, geometry_visible, make_objects, surely_not_visible, trial_seed
+from .objects import draw_objects, geometry_visible, make_objects, surely_not_visible
+from .scene import child_seed, trial_seed
 from .visibility import pixel_counts, visibility
 
 __all__ = ["SimulatedTrial", "simulate_trial", "sample_trial", "observations", "SEED_STREAMS"]
@@ -36,7 +37,7 @@ class SimulatedTrial:
     Attributes
     ----------
     index : int
-    objects : list of sqsim.scene.SceneObject
+    objects : list of sqsim.objects.SceneObject
         Ground truth, ids ``1 .. count``.
     true_cameras : list of sqfit.Camera
         Poses the masks were rendered from.

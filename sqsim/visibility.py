@@ -41,7 +41,7 @@ def cut_fractions(objects, cameras, znear):
 
     Parameters
     ----------
-    objects : list of sqsim.scene.SceneObject
+    objects : list of sqsim.objects.SceneObject
     cameras : list of sqfit.Camera
     znear : float
         Metres: an object with a vertex at depth <= ``znear`` gets ``inf``.
@@ -85,7 +85,7 @@ def visibility(objects, cameras, clean_images, renderer):
 
     Parameters
     ----------
-    objects : list of sqsim.scene.SceneObject
+    objects : list of sqsim.objects.SceneObject
     cameras : list of sqfit.Camera
     clean_images : (v, h, w) int
         The noise-free instance images of all objects together.
@@ -97,7 +97,7 @@ def visibility(objects, cameras, clean_images, renderer):
     cut_fraction : (count, v) float
     border_cut : (count, v) bool
     """
-    from .scene import ZNEAR
+    from .objects import ZNEAR
 
     ids = np.array([o.id for o in objects])
     seen = pixel_counts(clean_images, ids).astype(np.float64)

@@ -6,8 +6,8 @@ import pytest
 import trimesh
 
 import sqfit
-from sqsim.scene import (OBJECT_KINDS, Scene, camera_poses, geometry_visible, load_scene, make_object,
-                         parse_scene, sample_objects, trial_seed)
+from sqsim.objects import geometry_visible, make_object, sample_objects
+from sqsim.scene import OBJECT_KINDS, Scene, camera_poses, load_scene, parse_scene, trial_seed
 from sqsim.trial import observations, sample_trial, simulate_trial
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -226,7 +226,7 @@ def test_scene_is_immutable():
 
 
 def test_early_rejection_agrees_with_the_full_visibility_test():
-    from sqsim.scene import draw_objects, geometry_visible, make_objects, surely_not_visible
+    from sqsim.objects import draw_objects, geometry_visible, make_objects, surely_not_visible
 
     scene = load_scene(ROOT / "scenes" / "paper.toml")
     cameras = scene.cameras()

@@ -5,7 +5,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from sqsim.scene import ZNEAR, geometry_visible, load_scene, make_object, parse_scene
+from sqsim.objects import ZNEAR, geometry_visible, make_object
+from sqsim.scene import load_scene, parse_scene
 from sqsim.trial import observations, sample_trial, simulate_trial
 from sqsim.visibility import cut_fractions
 
