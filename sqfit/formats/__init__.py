@@ -18,10 +18,10 @@ from .colmap import read_colmap, write_colmap
 from .importer import (POSE_FORMATS, TRAJECTORY_FORMATS, ImportedScene, fit_import, load_import, observe_track,
                        read_poses)
 from .posejson import read_pose_json, write_pose_json
-from .trajectory import match_trajectory, read_image_times, read_intrinsics
+from .trajectory import match_trajectory, read_image_times, read_intrinsics, write_image_times, write_intrinsics
 from .tum import read_tum, write_tum
 
 __all__ = ["TRACK_KEY", "read_coco", "decode_segmentation", "encode_mask", "read_colmap", "write_colmap",
            "read_pose_json", "write_pose_json", "read_tum", "write_tum", "POSE_FORMATS", "TRAJECTORY_FORMATS",
-           "read_poses", "read_intrinsics", "read_image_times", "match_trajectory", "ImportedScene", "load_import",
+           "read_poses", "read_intrinsics", "write_intrinsics", "read_image_times", "write_image_times", "match_trajectory", "ImportedScene", "load_import",
            "observe_track", "fit_import"]

@@ -30,5 +30,6 @@ class NameIndex:
             return candidates[0], None
         if not candidates:
             return None, f"no {what} with this file name or base name"
-        return None, (f"base name matches {len(candidates)} {what}s ({', '.join(sorted(candidates)[:3])}); "
+        plural = what[:-1] + "ies" if what.endswith("y") else what + "s"
+        return None, (f"base name matches {len(candidates)} {plural} ({', '.join(sorted(candidates)[:3])}); "
                       "use full names")

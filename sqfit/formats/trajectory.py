@@ -45,7 +45,8 @@ from ._names import NameIndex, base_name
 from .tum import read_tum
 
 __all__ = ["DEFAULT_MAX_TIME_DIFF", "INTRINSICS_CONVENTIONS", "INTRINSICS_FIELDS", "read_intrinsics",
-           "read_image_times", "image_timestamps", "associate", "match_trajectory"]
+           "write_intrinsics", "read_image_times", "write_image_times", "image_timestamps", "associate",
+           "match_trajectory"]
 
 #: Largest time between an image and the pose it is given, seconds (TUM ``associate.py``'s default).
 DEFAULT_MAX_TIME_DIFF = 0.02
@@ -98,7 +99,7 @@ def read_intrinsics(source, convention="opencv"):
             text = Path(text).read_text(encoding="utf-8")
         elif isinstance(source, os.PathLike) or not _looks_like_numbers(text):
             raise OSError(f"intrinsics file not found: {text} (give a file, or the numbers {_TEXT_FORM})")
-        if text.lstrip().startswith("{"):
+        if text.lstrip()[:1] in ("{", "["):
             try:
                 data = json.loads(text)
             except json.JSONDecodeError as exc:
@@ -152,6 +153,36 @@ def _from_dict(data, where):
         if not isinstance(data[k], (int, float)) or isinstance(data[k], bool):
             raise ValueError(f"{where}: {k} must be a number, got {data[k]!r}")
     return dict(data)
+
+
+def write_intrinsics(path, intrinsics, convention="opencv"):
+    """Write intrinsics as the text :func:`read_intrinsics` reads back (``fx fy cx cy width height``).
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+    intrinsics : sqfit.Intrinsics
+    convention : {"opencv", "sqfit"}
+        Principal point convention to write ``cx, cy`` in (module docstring).
+    """
+    if convention not in INTRINSICS_CONVENTIONS:
+        raise ValueError(f"intrinsics convention must be one of {list(INTRINSICS_CONVENTIONS)}, got {convention!r}")
+    k, shift = intrinsics, INTRINSICS_CONVENTIONS[convention]
+    values = [k.fx, k.fy, k.cx - shift, k.cy - shift, k.width, k.height]
+    Path(os.fspath(path)).write_text(f"# fx fy cx cy width height (principal point: {convention} convention)\n"
+                                     + " ".join(repr(v) for v in values) + "\n", encoding="utf-8")
+
+
+def write_image_times(path, times):
+    """Write ``file name -> seconds`` as a list :func:`read_image_times` reads back (``rgb.txt`` style)."""
+    lines = []
+    for name, t in times.items():
+        if not name or any(c.isspace() or c == "," for c in str(name)):
+            raise ValueError(f"image name {name!r} cannot be written: it is empty or holds a space or comma")
+        if not math.isfinite(float(t)):
+            raise ValueError(f"timestamp of {name!r} must be finite, got {t}")
+        lines.append(f"{float(t)!r} {name}\n")
+    Path(os.fspath(path)).write_text("# timestamp filename\n" + "".join(lines), encoding="utf-8")
 
 
 def read_image_times(path):
