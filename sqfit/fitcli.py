@@ -80,6 +80,39 @@ def _rng(seed, trial_name, object_id):
     return np.random.default_rng(np.random.SeedSequence([seed, key]))
 
 
+def fit_record(record, observe, chain, options, after=None):
+    """Complete one ``fits.jsonl`` record: observe the object, fit it, or say why not.
+
+    Parameters
+    ----------
+    record : dict
+        The record's identifying keys (``trial``, ``object_id``, ...); updated in place.
+    observe : callable
+        ``() -> sqfit.io.ViewObservations`` of the object.
+    chain : str
+    options : sqfit.pipeline.FitOptions
+    after : callable, optional
+        ``(record, views, result) -> None``, run after the fit (a recording, a message).
+
+    Returns
+    -------
+    record : dict
+        With the fit (:meth:`sqfit.io.ViewObservations.record`), or ``status`` ``"error"`` and the
+        message of an OSError / ValueError / TypeError raised on the way.
+    """
+    from .pipeline import fit
+
+    try:
+        views = observe()
+        result = fit(views.observations, chain, options=options)
+        record.update(views.record(result))
+        if after is not None:
+            after(record, views, result)
+    except (OSError, ValueError, TypeError) as exc:
+        record.update({"chain": chain, "status": "error", "message": str(exc)})
+    return record
+
+
 def fit_dataset(dataset, output, chain, samples=C.DEFAULT_SAMPLES, sampling="uniform", polygon="hull",
                 seed=0, progress=True, cleanup=True, rerun=None, rerun_trials=None):
     """Fit every object of every trial; returns ``(records written, errors)``.
@@ -92,7 +125,7 @@ def fit_dataset(dataset, output, chain, samples=C.DEFAULT_SAMPLES, sampling="uni
     from tqdm import tqdm
 
     from . import io
-    from .pipeline import FitOptions, fit, parse_chain
+    from .pipeline import FitOptions, parse_chain
 
     parse_chain(chain)  # fail fast on a bad chain
     options = FitOptions(polygon=polygon)
@@ -120,16 +153,15 @@ def fit_dataset(dataset, output, chain, samples=C.DEFAULT_SAMPLES, sampling="uni
             if recorder is not None:
                 recorder.log_loaded_trial(trial)
             for oid in ids:
-                record = {"trial": trial.name, "object_id": oid}
-                try:
-                    views = io.observe_views(trial.cameras, trial.images, oid, samples, sampling,
-                                             _rng(seed, trial.name, oid), cleanup)
-                    result = fit(views.observations, chain, options=options)
-                    record.update(views.record(result))
-                    if recorder is not None:
-                        recorder.log_fit(trial.name, oid, chain, result.stages, trial.cameras)
-                except (OSError, ValueError, TypeError) as exc:
-                    record.update({"chain": chain, "status": "error", "message": str(exc)})
+                def observe(oid=oid):
+                    return io.observe_views(trial.cameras, trial.images, oid, samples, sampling,
+                                            _rng(seed, trial.name, oid), cleanup)
+
+                def log(record, views, result, oid=oid):
+                    recorder.log_fit(trial.name, oid, chain, result.stages, trial.cameras)
+
+                record = fit_record({"trial": trial.name, "object_id": oid}, observe, chain, options,
+                                    None if recorder is None else log)
                 n_errors += record["status"] != "ok"
                 out.write(json.dumps(record) + "\n")
                 n_records += 1

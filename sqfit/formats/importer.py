@@ -288,6 +288,12 @@ def _track_rng(seed, track):
     return np.random.default_rng(np.random.SeedSequence([seed, zlib.crc32(str(track).encode())]))
 
 
+def _too_few_views_message(record, views, result):
+    if record["status"] == "too_few_views":
+        record["message"] = (f"track {record['track_id']!r} has {len(views.views)} usable view(s) "
+                             f"{record['images']}; fitting needs >= {C.MIN_VIEWS}")
+
+
 def fit_import(coco_path, poses_path, output, chain, samples=C.DEFAULT_SAMPLES, sampling="uniform", polygon="hull",
                seed=0, progress=True, cleanup=True, pose_format="auto", intrinsics=None, image_times=None,
                max_time_diff=None, intrinsics_convention=None):
@@ -308,7 +314,8 @@ def fit_import(coco_path, poses_path, output, chain, samples=C.DEFAULT_SAMPLES, 
     """
     from tqdm import tqdm
 
-    from ..pipeline import FitOptions, fit, parse_chain
+    from ..fitcli import fit_record
+    from ..pipeline import FitOptions, parse_chain
 
     parse_chain(chain)
     options = FitOptions(polygon=polygon)
@@ -319,15 +326,10 @@ def fit_import(coco_path, poses_path, output, chain, samples=C.DEFAULT_SAMPLES, 
     n_records = n_errors = 0
     with open(out_path, "w", encoding="utf-8") as out:
         for track in tqdm(scene.track_ids, desc="sqfit fit", unit="object", disable=not progress):
-            record = {"trial": None, "object_id": track, "track_id": track}
-            try:
-                views = observe_track(scene, track, samples, sampling, _track_rng(seed, track), cleanup)
-                record.update(views.record(fit(views.observations, chain, options=options)))
-                if record["status"] == "too_few_views":
-                    record["message"] = (f"track {track!r} has {len(views.views)} usable view(s) "
-                                         f"{record['images']}; fitting needs >= {C.MIN_VIEWS}")
-            except (OSError, ValueError, TypeError) as exc:
-                record.update({"chain": chain, "status": "error", "message": str(exc)})
+            record = fit_record({"trial": None, "object_id": track, "track_id": track},
+                                lambda: observe_track(scene, track, samples, sampling, _track_rng(seed, track),
+                                                      cleanup),
+                                chain, options, _too_few_views_message)
             n_errors += record["status"] != "ok"
             out.write(json.dumps(record) + "\n")
             n_records += 1

@@ -42,7 +42,7 @@ import numpy as np
 from .._checks import check_shape
 from ..camera import Camera, Intrinsics
 from ._names import NameIndex, base_name
-from .tum import read_tum
+from .tum import data_lines, read_tum
 
 __all__ = ["DEFAULT_MAX_TIME_DIFF", "INTRINSICS_CONVENTIONS", "INTRINSICS_FIELDS", "read_intrinsics",
            "write_intrinsics", "read_image_times", "write_image_times", "image_timestamps", "associate",
@@ -149,7 +149,7 @@ def _from_dict(data, where):
     if missing or unknown:
         raise ValueError(f"{where} needs exactly the keys {', '.join(INTRINSICS_FIELDS)}"
                          + (f"; missing {missing}" if missing else "") + (f"; unknown {unknown}" if unknown else ""))
-    for k in ("cx", "cy"):
+    for k in INTRINSICS_FIELDS:
         if not isinstance(data[k], (int, float)) or isinstance(data[k], bool):
             raise ValueError(f"{where}: {k} must be a number, got {data[k]!r}")
     return dict(data)
@@ -213,11 +213,7 @@ def read_image_times(path):
     except FileNotFoundError:
         raise OSError(f"image timestamp list not found: {path}") from None
     times, lines = {}, {}
-    for number, line in enumerate(text.splitlines(), start=1):
-        line = line.strip()
-        if not line or line.startswith("#"):
-            continue
-        fields = line.replace(",", " ").split()
+    for number, line, fields in data_lines(text):
         try:
             t = float(fields[0])
         except ValueError:
