@@ -287,3 +287,22 @@ def test_malformed_tum_file_is_a_one_line_error(tmp_path, trial):
     res = subprocess.run(cmd, capture_output=True, text=True)
     assert res.returncode == 2 and "Traceback" not in res.stderr
     assert f"{traj}:4: expected 8 finite numbers 't tx ty tz qx qy qz qw'" in res.stderr
+
+
+def test_readme_tum_commands_run(tmp_path, trial, monkeypatch):
+    import re
+    import shlex
+    from pathlib import Path
+
+    text = (Path(__file__).resolve().parents[1] / "README.md").read_text()
+    block = next(b for b in re.findall(r"```bash\n(.*?)```", text, flags=re.S) if "--poses traj.tum" in b)
+    lines = [line for line in block.strip().splitlines() if not line.startswith("#")]
+    assert len(lines) == 2 and all(shlex.split(x)[:2] == [".venv/bin/sqfit", "fit"] for x in lines)
+    monkeypatch.chdir(tmp_path)
+    write_tum_scene(tmp_path, trial)
+    (tmp_path / "groundtruth.txt").write_text((tmp_path / "traj.tum").read_text())
+    write_image_times(tmp_path / "rgb.txt", {f"rgb/{t:.6f}.png": t for t in TIMES})
+    for line in lines:
+        assert main([*shlex.split(line)[1:], "--chain", "1-2", "--no-progress"]) == 0
+        (rec,) = records(tmp_path / "fits.jsonl")
+        assert rec["views"] == [0, 1, 2], line
