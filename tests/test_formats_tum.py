@@ -29,7 +29,8 @@ def records(path):
 def test_known_tum_pose_and_opencv_principal_point(tmp_path):
     # A camera at (0, -3, 0) looking along world +y with its y axis (down) along world -z: the rotation
     # camera -> world is Rx(-90 deg), quaternion (qx, qy, qz, qw) = (-sqrt(1/2), 0, 0, sqrt(1/2)).
-    (tmp_path / "traj.tum").write_text("# t tx ty tz qx qy qz qw\n7.25 0 -3 0 -0.7071067811865476 0 0 0.7071067811865476\n")
+    (tmp_path / "traj.tum").write_text("# t tx ty tz qx qy qz qw\n"
+                                       "7.25 0 -3 0 -0.7071067811865476 0 0 0.7071067811865476\n")
     images = {1: CocoImage(1, "rgb/7.250000.png", 640, 480)}
     K = read_intrinsics("400 300 319.5 239.5 640 480")  # OpenCV: top-left pixel centre at (0, 0)
     assert K == sqfit.Intrinsics(640, 480, 400.0, 300.0, 320.0, 240.0)
@@ -241,7 +242,8 @@ def test_tum_images_without_a_pose_are_dropped_with_the_reason(tmp_path, trial):
     assert records(out)[0]["status"] == "ok"
     with pytest.raises(ValueError, match=r"no image of .* can be used with the poses of .*traj.tum \(matched by "
                                          r"timestamp\): image 'rgb/1305031102.175304.png' \(t = 1305031102.175304 s\) "
-                                         r"has no pose in .*within 0.003 s.*the trajectory spans t = 1305031102.171304"):
+                                         r"has no pose in .*within 0.003 s.*"
+                                         r"the trajectory spans t = 1305031102.171304"):
         load_import(coco, traj, intrinsics=camera, max_time_diff=0.003)
     # One image 0.1 s off its pose: the object keeps two views and the record says which was dropped and why.
     (tmp_path / "rgb.txt").write_text(f"{TIMES[0]} rgb/{TIMES[0]:.6f}.png\n{TIMES[1] + 0.1} rgb/{TIMES[1]:.6f}.png\n"

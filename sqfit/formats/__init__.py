@@ -23,5 +23,5 @@ from .tum import read_tum, write_tum
 
 __all__ = ["TRACK_KEY", "read_coco", "decode_segmentation", "encode_mask", "read_colmap", "write_colmap",
            "read_pose_json", "write_pose_json", "read_tum", "write_tum", "POSE_FORMATS", "TRAJECTORY_FORMATS",
-           "read_poses", "read_intrinsics", "write_intrinsics", "read_image_times", "write_image_times", "match_trajectory", "ImportedScene", "load_import",
-           "observe_track", "fit_import"]
+           "read_poses", "read_intrinsics", "write_intrinsics", "read_image_times", "write_image_times",
+           "match_trajectory", "ImportedScene", "load_import", "observe_track", "fit_import"]

@@ -84,7 +84,7 @@ def resolve_pose_format(path, pose_format="auto"):
 
 
 def read_poses(path, pose_format="auto"):
-    """``{image name: sqfit.Camera}`` from a pose source with image names (``pose_format`` in POSE_FORMATS or "auto")."""
+    """``{image name: sqfit.Camera}`` from a pose source with names (``pose_format`` in POSE_FORMATS or "auto")."""
     pose_format = resolve_pose_format(path, pose_format)
     if pose_format in TRAJECTORY_FORMATS:
         raise ValueError(f"{path} is a {pose_format.upper()} trajectory: it has no image names; join it to images "
@@ -102,7 +102,8 @@ class ImportedScene:
     cameras : dict
         ``COCO image id -> sqfit.Camera`` of the images that can be used.
     unusable : dict
-        ``COCO image id -> reason`` for the others (no pose, size mismatch).
+        ``COCO image id -> reason`` for the others (no pose, no timestamp or no pose near it in time,
+        size mismatch).
     """
 
     coco: object
