@@ -62,6 +62,8 @@ def test_intrinsics_forms_round_trip(tmp_path):
     assert read_intrinsics({"fx": 517.3, "fy": 516.5, "cx": 318.6, "cy": 255.3, "width": 640, "height": 480},
                            "sqfit") == K
     assert read_intrinsics("517.3, 516.5, 318.1, 254.8, 640, 480") == K
+    assert read_intrinsics([517.3, 516.5, 318.1, 254.8, 640, 480]) == K
+    assert read_intrinsics(np.array([517.3, 516.5, 318.6, 255.3, 640, 480]), "sqfit") == K
     assert read_intrinsics(K, "opencv") is K  # an Intrinsics is sqfit's already
 
 
@@ -76,6 +78,9 @@ def test_intrinsics_forms_round_trip(tmp_path):
     ({"fx": None, "fy": 1, "cx": 0, "cy": 0, "width": 4, "height": 4}, "fx must be a number, got None"),
     ({"fx": 1, "fy": 1, "cx": 0, "cy": 0, "width": "4", "height": 4}, "width must be a number, got '4'"),
     ("1 2 3 4 5", r"expected 6 numbers 'fx fy cx cy width height', got 5$"),
+    ((500, 500, 320, 240), "got 4: add the image size"),
+    (["500", "x", 1, 1, 1, 1], r"expected the numbers 'fx fy cx cy width height', got '500 x 1 1 1 1'"),
+    (525.0, "intrinsics must be a sqfit.Intrinsics, a dict, six numbers .* or a file, got float"),
 ])
 def test_bad_intrinsics(source, match):
     with pytest.raises(ValueError, match=match):

@@ -65,9 +65,9 @@ def read_intrinsics(source, convention="opencv"):
 
     Parameters
     ----------
-    source : sqfit.Intrinsics, dict, str or os.PathLike
+    source : sqfit.Intrinsics, dict, sequence, str or os.PathLike
         An ``Intrinsics`` (used as is: already sqfit's convention), a dict with the keys of
-        :data:`INTRINSICS_FIELDS`, the path of a text file ``fx fy cx cy width height`` or of a JSON
+        :data:`INTRINSICS_FIELDS`, six numbers in that order, the path of a text file ``fx fy cx cy width height`` or of a JSON
         file holding such a dict, or that text itself (``"525 525 319.5 239.5 640 480"``).
     convention : {"opencv", "sqfit"}
         Where ``cx, cy`` put the centre of the top-left pixel (module docstring).
@@ -92,6 +92,11 @@ def read_intrinsics(source, convention="opencv"):
     where = "intrinsics"
     if isinstance(source, dict):
         values = _from_dict(source, where)
+    elif isinstance(source, (list, tuple, np.ndarray)):
+        values = _from_text(" ".join(str(x) for x in np.ravel(np.asarray(source, dtype=object))), where)
+    elif not isinstance(source, (str, os.PathLike)):
+        raise ValueError(f"intrinsics must be a sqfit.Intrinsics, a dict, six numbers {_TEXT_FORM} or a file, "
+                         f"got {type(source).__name__}")
     else:
         text = str(os.fspath(source))
         if Path(text).is_file():
