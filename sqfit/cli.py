@@ -9,7 +9,7 @@ from ._cli import dispatch
 #: name -> (module with add_arguments/run, one-line help)
 COMMANDS = {
     "fit": ("sqfit.fitcli", "fit every object of a dataset (sqsim generate format), or of a COCO file with "
-            "COLMAP or JSON poses (--coco, --poses), with a chain of stages"),
+            "COLMAP, JSON or TUM poses (--coco, --poses), with a chain of stages"),
 }
 
 

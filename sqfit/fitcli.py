@@ -1,7 +1,9 @@
 """``sqfit fit DATASET -o fits.jsonl --chain C``: fit every object of a dataset.
 
 ``sqfit fit --coco annotations.json --poses sparse/0 -o fits.jsonl`` fits a user's COCO masks
-with COLMAP or JSON poses instead (:mod:`sqfit.formats.importer`; same records).
+with COLMAP or JSON poses instead, or with a TUM trajectory (``--poses traj.tum --intrinsics
+"fx fy cx cy width height"``, images matched by timestamp; :mod:`sqfit.formats.importer`,
+:mod:`sqfit.formats.trajectory`; same records).
 
 The dataset is read with :mod:`sqfit.io` (written by ``sqsim generate``, or a user's own
 ``cameras.json`` + ``masks/view_VV.png``). Objects are the ``gt.json`` records (``"id"``) when
@@ -28,7 +30,8 @@ from . import constants as C
 
 
 def add_arguments(parser):
-    from .formats.importer import POSE_FORMATS
+    from .formats.importer import POSE_FORMATS, TRAJECTORY_FORMATS
+    from .formats.trajectory import DEFAULT_MAX_TIME_DIFF, INTRINSICS_CONVENTIONS
     from .observation import POLYGON_KINDS, SAMPLING_METHODS
     from .pipeline import DEFAULT_CHAIN
 
@@ -37,9 +40,26 @@ def add_arguments(parser):
     parser.add_argument("--coco", metavar="FILE", help="COCO instance file (RLE or polygon masks, 'track_id' per "
                         "annotation groups views into objects); needs --poses (README: 'Your own data')")
     parser.add_argument("--poses", metavar="PATH", help="camera poses of the --coco images: a COLMAP model "
-                        "directory (sparse/0, binary or text) or a JSON pose file")
-    parser.add_argument("--pose-format", default="auto", choices=["auto", *POSE_FORMATS],
-                        help="format of --poses (auto: a directory is COLMAP, *.json is JSON)")
+                        "directory (sparse/0, binary or text), a JSON pose file, or a TUM trajectory "
+                        "('t tx ty tz qx qy qz qw' per line, camera -> world; needs --intrinsics)")
+    parser.add_argument("--pose-format", default="auto", choices=["auto", *POSE_FORMATS, *TRAJECTORY_FORMATS],
+                        help="format of --poses (auto: a directory is COLMAP, *.json is JSON, *.tum / *.txt is TUM)")
+    tum = parser.add_argument_group(
+        "TUM trajectory poses", "A TUM file has no intrinsics and no image names: give the intrinsics, and each "
+        "COCO image gets the pose nearest in time (as TUM's associate.py). An image's time is its file name stem "
+        "in seconds (rgb/1305031102.175304.png), or comes from --image-times. An image with no timestamp or no "
+        "pose within --max-time-diff is dropped from its objects' views, with the reason in the record.")
+    tum.add_argument("--intrinsics", metavar="'FX FY CX CY W H'|FILE",
+                     help="pinhole camera of every image: the six numbers 'fx fy cx cy width height', or a file "
+                     "holding them (text, or JSON with these keys); no distortion (undistort first)")
+    tum.add_argument("--intrinsics-convention", choices=list(INTRINSICS_CONVENTIONS), default=None,
+                     help="where --intrinsics' cx cy put the top-left pixel's centre: opencv (default; (0, 0) as "
+                     "OpenCV, ROS CameraInfo and the TUM RGB-D parameters; 0.5 px is added) or sqfit ((0.5, 0.5) "
+                     "as COLMAP and sqfit's cameras.json)")
+    tum.add_argument("--image-times", metavar="FILE", help="timestamps of the images: lines 'timestamp filename' "
+                     "as TUM RGB-D's rgb.txt (names matched as COCO file_name: exact, else base name)")
+    tum.add_argument("--max-time-diff", type=float, default=None, metavar="SECONDS",
+                     help=f"largest time between an image and its pose (default {DEFAULT_MAX_TIME_DIFF})")
     parser.add_argument("-o", "--output", required=True, help="JSON-lines file to write")
     parser.add_argument("--chain", default=DEFAULT_CHAIN, help="stages joined by '-', e.g. 1-2-3D-3A")
     parser.add_argument("--samples", type=int, default=C.DEFAULT_SAMPLES, help="samples N per observation")
@@ -60,6 +80,39 @@ def _rng(seed, trial_name, object_id):
     return np.random.default_rng(np.random.SeedSequence([seed, key]))
 
 
+def fit_record(record, observe, chain, options, after=None):
+    """Complete one ``fits.jsonl`` record: observe the object, fit it, or say why not.
+
+    Parameters
+    ----------
+    record : dict
+        The record's identifying keys (``trial``, ``object_id``, ...); updated in place.
+    observe : callable
+        ``() -> sqfit.io.ViewObservations`` of the object.
+    chain : str
+    options : sqfit.pipeline.FitOptions
+    after : callable, optional
+        ``(record, views, result) -> None``, run after the fit (a recording, a message).
+
+    Returns
+    -------
+    record : dict
+        With the fit (:meth:`sqfit.io.ViewObservations.record`), or ``status`` ``"error"`` and the
+        message of an OSError / ValueError / TypeError raised on the way.
+    """
+    from .pipeline import fit
+
+    try:
+        views = observe()
+        result = fit(views.observations, chain, options=options)
+        record.update(views.record(result))
+        if after is not None:
+            after(record, views, result)
+    except (OSError, ValueError, TypeError) as exc:
+        record.update({"chain": chain, "status": "error", "message": str(exc)})
+    return record
+
+
 def fit_dataset(dataset, output, chain, samples=C.DEFAULT_SAMPLES, sampling="uniform", polygon="hull",
                 seed=0, progress=True, cleanup=True, rerun=None, rerun_trials=None):
     """Fit every object of every trial; returns ``(records written, errors)``.
@@ -72,7 +125,7 @@ def fit_dataset(dataset, output, chain, samples=C.DEFAULT_SAMPLES, sampling="uni
     from tqdm import tqdm
 
     from . import io
-    from .pipeline import FitOptions, fit, parse_chain
+    from .pipeline import FitOptions, parse_chain
 
     parse_chain(chain)  # fail fast on a bad chain
     options = FitOptions(polygon=polygon)
@@ -100,16 +153,15 @@ def fit_dataset(dataset, output, chain, samples=C.DEFAULT_SAMPLES, sampling="uni
             if recorder is not None:
                 recorder.log_loaded_trial(trial)
             for oid in ids:
-                record = {"trial": trial.name, "object_id": oid}
-                try:
-                    views = io.observe_views(trial.cameras, trial.images, oid, samples, sampling,
-                                             _rng(seed, trial.name, oid), cleanup)
-                    result = fit(views.observations, chain, options=options)
-                    record.update(views.record(result))
-                    if recorder is not None:
-                        recorder.log_fit(trial.name, oid, chain, result.stages, trial.cameras)
-                except (OSError, ValueError, TypeError) as exc:
-                    record.update({"chain": chain, "status": "error", "message": str(exc)})
+                def observe(oid=oid):
+                    return io.observe_views(trial.cameras, trial.images, oid, samples, sampling,
+                                            _rng(seed, trial.name, oid), cleanup)
+
+                def log(record, views, result, oid=oid):
+                    recorder.log_fit(trial.name, oid, chain, result.stages, trial.cameras)
+
+                record = fit_record({"trial": trial.name, "object_id": oid}, observe, chain, options,
+                                    None if recorder is None else log)
                 n_errors += record["status"] != "ok"
                 out.write(json.dumps(record) + "\n")
                 n_records += 1
@@ -124,7 +176,9 @@ def run(args):
 
         n, errors = fit_import(args.coco, args.poses, args.output, args.chain, args.samples, args.sampling,
                                args.polygon, args.seed, progress=not args.no_progress, cleanup=args.cleanup,
-                               pose_format=args.pose_format)
+                               pose_format=args.pose_format, intrinsics=args.intrinsics,
+                               image_times=args.image_times, max_time_diff=args.max_time_diff,
+                               intrinsics_convention=args.intrinsics_convention)
         print(f"wrote {n} fit record(s) to {args.output}; {errors} not ok")
         return 0
     if args.dataset is None:

@@ -6,7 +6,8 @@ import numpy as np
 import pytest
 
 from sqfit.cli import main as sqfit_main
-from sqfit.formats import read_coco, read_colmap
+from sqfit.formats import (read_coco, read_colmap, read_pose_json, write_image_times, write_intrinsics,
+                           write_tum)
 from sqfit.io import load_trial, trial_dirs
 from sqsim.cli import main as sqsim_main
 
@@ -49,6 +50,19 @@ def records(path):
     return [json.loads(x) for x in path.read_text().splitlines()]
 
 
+def assert_same_fits(native, imported):
+    """Records of a native fit and of an import of the same dataset: same objects, views and parameters."""
+    ref = {f"{r['trial']}/{r['object_id']}": r for r in records(native)}
+    got = {r["track_id"]: r for r in records(imported)}
+    assert sorted(got) == sorted(ref) and len(got) == 6
+    for key, r in got.items():
+        assert r["status"] == ref[key]["status"] == "ok", key
+        assert r["views"] == ref[key]["views"] and r["dropped_views"] == ref[key]["dropped_views"]
+        np.testing.assert_allclose(r["params"], ref[key]["params"], rtol=1e-9, atol=1e-9, err_msg=key)
+        for a, b in zip(r["stages"], ref[key]["stages"]):
+            np.testing.assert_allclose(a["superquadric"], b["superquadric"], rtol=1e-9, atol=1e-9)
+
+
 def test_exported_model_and_coco_hold_every_view(dataset):
     model = read_colmap(dataset / "sparse" / "0")
     assert sorted(p.name for p in (dataset / "sparse" / "0").iterdir()) == \
@@ -70,15 +84,7 @@ def test_export_import_fit_equals_native_fit(dataset, tmp_path):
     assert sqfit_main(["fit", str(dataset), "-o", str(native), *args]) == 0
     assert sqfit_main(["fit", "--coco", str(dataset / "annotations.json"), "--poses", str(dataset / "sparse" / "0"),
                        "-o", str(imported), *args]) == 0
-    ref = {f"{r['trial']}/{r['object_id']}": r for r in records(native)}
-    got = {r["track_id"]: r for r in records(imported)}
-    assert sorted(got) == sorted(ref) and len(got) == 6
-    for key, r in got.items():
-        assert r["status"] == ref[key]["status"] == "ok", key
-        assert r["views"] == ref[key]["views"] and r["dropped_views"] == ref[key]["dropped_views"]
-        np.testing.assert_allclose(r["params"], ref[key]["params"], rtol=1e-9, atol=1e-9, err_msg=key)
-        for a, b in zip(r["stages"], ref[key]["stages"]):
-            np.testing.assert_allclose(a["superquadric"], b["superquadric"], rtol=1e-9, atol=1e-9)
+    assert_same_fits(native, imported)
 
 
 def test_model_is_rebuilt_deterministically_on_resume(dataset, tmp_path):
@@ -143,3 +149,22 @@ def test_json_poses_of_the_coco_file_reproduce_native_fits_exactly(dataset, tmp_
     assert sqfit_main(["fit", "--coco", coco, "--poses", coco, "-o", str(imported), *args]) == 0
     ref = {f"{r['trial']}/{r['object_id']}": r["params"] for r in records(native)}
     assert {r["track_id"]: r["params"] for r in records(imported)} == ref
+
+
+def test_tum_trajectory_import_fits_as_native(dataset, tmp_path):
+    # Each image's camera (from annotations.json: the fitter's noisy pose, as the native fit reads it)
+    # as a 30 Hz TUM trajectory, the image times 3 ms after their poses as a TUM RGB-D rgb.txt, and the
+    # intrinsics with OpenCV's principal point: the import gives the native fit.
+    cameras = read_pose_json(dataset / "annotations.json")
+    times = 1.7e9 + np.arange(len(cameras)) / 30.0
+    write_tum(tmp_path / "cameras.tum", times, np.stack([c.pose for c in cameras.values()]))
+    write_image_times(tmp_path / "rgb.txt", dict(zip(cameras, times + 0.003)))
+    (intrinsics,) = {c.intrinsics for c in cameras.values()}
+    write_intrinsics(tmp_path / "camera.txt", intrinsics)
+    native, imported = tmp_path / "native.jsonl", tmp_path / "imported.jsonl"
+    args = ["--chain", "1-2-3D", "--seed", "3", "--samples", "50", "--no-progress"]
+    assert sqfit_main(["fit", str(dataset), "-o", str(native), *args]) == 0
+    assert sqfit_main(["fit", "--coco", str(dataset / "annotations.json"), "--poses", str(tmp_path / "cameras.tum"),
+                       "--intrinsics", str(tmp_path / "camera.txt"), "--image-times", str(tmp_path / "rgb.txt"),
+                       "-o", str(imported), *args]) == 0
+    assert_same_fits(native, imported)

@@ -165,8 +165,10 @@ def test_json_pose_errors(tmp_path, images, match):
 def test_pose_format_detection(tmp_path):
     assert detect_pose_format(tmp_path) == "colmap"
     assert detect_pose_format(tmp_path / "p.json") == "json"
-    with pytest.raises(ValueError, match="cannot tell the pose format of .*poses.txt.*--pose-format"):
-        detect_pose_format(tmp_path / "poses.txt")
+    assert detect_pose_format(tmp_path / "groundtruth.txt") == detect_pose_format(tmp_path / "a.TUM") == "tum"
+    with pytest.raises(ValueError, match="cannot tell the pose format of .*poses.yaml.*--pose-format "
+                                         r"\(colmap, json, tum\)"):
+        detect_pose_format(tmp_path / "poses.yaml")
     with pytest.raises(OSError, match="pose source not found"):
         read_poses(tmp_path / "missing.json")
     with pytest.raises(ValueError, match="pose format must be one of"):

@@ -4,12 +4,15 @@ Joining the two files:
 
 - Poses come from a pose source in :data:`POSE_FORMATS` (a COLMAP model directory, a JSON
   pose file), each a reader ``path -> {image name: sqfit.Camera}`` that does its own pose
-  convention conversion once.
-- A COCO image is matched to a pose by its ``file_name``: first the exact name (COLMAP stores
+  convention conversion once; or from a timestamped trajectory in :data:`TRAJECTORY_FORMATS` (a
+  TUM file), which has no intrinsics and no image names: the user gives the intrinsics, each
+  image gets a timestamp and the nearest pose in time (:mod:`sqfit.formats.trajectory`).
+- A COCO image is matched to a named pose by its ``file_name``: first the exact name (COLMAP stores
   names relative to its image folder, e.g. ``frames/0001.png``), else the base name
   (``0001.png``) when exactly one pose has it. A COCO image with no match, or whose
-  ``width`` x ``height`` differs from its camera's, cannot be used: each object seen there
-  records that view as dropped, with the reason. No match at all is an error.
+  ``width`` x ``height`` differs from its camera's, cannot be used (likewise an image without a
+  timestamp or without a trajectory pose near enough in time): each object seen there records
+  that view as dropped, with the reason. No match at all is an error.
 - Objects are the tracks of :mod:`sqfit.formats.coco` (``track_id``); an object's views are the
   images where its track has an annotation (several annotations of one track in one image are
   merged). Each view is observed from an instance image holding the object (id 1) over every
@@ -28,42 +31,64 @@ from __future__ import annotations
 import json
 import zlib
 from dataclasses import dataclass, field
-from pathlib import Path, PurePosixPath
+from pathlib import Path
 
 import numpy as np
 
 from .. import constants as C
+from ._names import NameIndex
 from .coco import read_coco
 from .colmap import read_colmap
 from .posejson import read_pose_json
+from .tum import read_tum
 
-__all__ = ["POSE_FORMATS", "detect_pose_format", "read_poses", "ImportedScene", "match_cameras", "load_import",
-           "observe_track", "fit_import"]
+__all__ = ["POSE_FORMATS", "TRAJECTORY_FORMATS", "detect_pose_format", "resolve_pose_format", "read_poses",
+           "ImportedScene", "match_cameras", "load_import", "observe_track", "fit_import"]
 
-#: Pose sources: name -> reader ``path -> {image name: sqfit.Camera (T_world_camera)}``.
-#: A new source (e.g. TUM trajectories) is one reader here and one rule in detect_pose_format.
+#: Pose sources with image names: name -> reader ``path -> {image name: sqfit.Camera (T_world_camera)}``.
+#: A new source is one reader here and one rule in detect_pose_format.
 POSE_FORMATS = {"colmap": read_colmap, "json": read_pose_json}
+
+#: Timestamped trajectories: name -> reader ``path -> (timestamps (m,), T_world_camera (m, 4, 4))``,
+#: joined to images by time with user intrinsics (:func:`sqfit.formats.trajectory.match_trajectory`).
+TRAJECTORY_FORMATS = {"tum": read_tum}
+
+#: Suffixes of TUM trajectory files (``groundtruth.txt`` in TUM RGB-D; evo writes ``.tum`` or ``.txt``).
+TUM_SUFFIXES = (".tum", ".txt")
 
 
 def detect_pose_format(path):
-    """``"colmap"`` for a directory, ``"json"`` for a ``.json`` file; ValueError otherwise."""
+    """``"colmap"`` for a directory, ``"json"`` for ``.json``, ``"tum"`` for ``.tum``/``.txt``; else ValueError."""
     path = Path(path)
     if path.is_dir():
         return "colmap"
     if path.suffix.lower() == ".json":
         return "json"
-    raise ValueError(f"cannot tell the pose format of {path} (a COLMAP model directory or a .json file); "
-                     f"name it with --pose-format ({', '.join(POSE_FORMATS)})")
+    if path.suffix.lower() in TUM_SUFFIXES:
+        return "tum"
+    raise ValueError(f"cannot tell the pose format of {path} (a COLMAP model directory, a .json file or a TUM "
+                     f"trajectory {'/'.join(TUM_SUFFIXES)}); name it with --pose-format "
+                     f"({', '.join([*POSE_FORMATS, *TRAJECTORY_FORMATS])})")
 
 
-def read_poses(path, pose_format="auto"):
-    """``{image name: sqfit.Camera}`` from a pose source (``pose_format`` in POSE_FORMATS or "auto")."""
+def resolve_pose_format(path, pose_format="auto"):
+    """The format of a pose source: ``pose_format`` checked, or detected from ``path`` if "auto"."""
     if pose_format == "auto":
         if not Path(path).exists():
             raise OSError(f"pose source not found: {path}")
-        pose_format = detect_pose_format(path)
-    if pose_format not in POSE_FORMATS:
-        raise ValueError(f"pose format must be one of {['auto', *POSE_FORMATS]}, got {pose_format!r}")
+        return detect_pose_format(path)
+    if pose_format not in POSE_FORMATS and pose_format not in TRAJECTORY_FORMATS:
+        raise ValueError(f"pose format must be one of {['auto', *POSE_FORMATS, *TRAJECTORY_FORMATS]}, "
+                         f"got {pose_format!r}")
+    return pose_format
+
+
+def read_poses(path, pose_format="auto"):
+    """``{image name: sqfit.Camera}`` from a pose source with names (``pose_format`` in POSE_FORMATS or "auto")."""
+    pose_format = resolve_pose_format(path, pose_format)
+    if pose_format in TRAJECTORY_FORMATS:
+        raise ValueError(f"{path} is a {pose_format.upper()} trajectory: it has no image names; join it to images "
+                         "by time with load_import(..., intrinsics=...) or sqfit.formats.trajectory.match_trajectory")
     return POSE_FORMATS[pose_format](path)
 
 
@@ -77,7 +102,8 @@ class ImportedScene:
     cameras : dict
         ``COCO image id -> sqfit.Camera`` of the images that can be used.
     unusable : dict
-        ``COCO image id -> reason`` for the others (no pose, size mismatch).
+        ``COCO image id -> reason`` for the others (no pose, no timestamp or no pose near it in time,
+        size mismatch).
     """
 
     coco: object
@@ -125,19 +151,15 @@ def match_cameras(images, poses, source="the pose source"):
     unusable : dict
         ``image id -> reason``.
     """
-    by_base = {}
-    for name in poses:
-        by_base.setdefault(PurePosixPath(name.replace("\\", "/")).name, []).append(name)
+    index = NameIndex(poses)
     cameras, unusable = {}, {}
     for image_id, image in images.items():
         name = image.file_name
-        candidates = [name] if name in poses else by_base.get(PurePosixPath(name.replace("\\", "/")).name, [])
-        if len(candidates) != 1:
-            how = "no pose with this file name or base name" if not candidates else \
-                f"base name matches {len(candidates)} poses ({', '.join(sorted(candidates)[:3])}); use full names"
+        found, how = index.find(name)
+        if found is None:
             unusable[image_id] = f"image {name!r} is not in {source}: {how}"
             continue
-        cam = poses[candidates[0]]
+        cam = poses[found]
         if (cam.intrinsics.width, cam.intrinsics.height) != (image.width, image.height):
             unusable[image_id] = (f"image {name!r} is {image.width}x{image.height} in COCO but its camera in "
                                   f"{source} is {cam.intrinsics.width}x{cam.intrinsics.height}")
@@ -146,15 +168,28 @@ def match_cameras(images, poses, source="the pose source"):
     return cameras, unusable
 
 
-def load_import(coco_path, poses_path, pose_format="auto"):
+def load_import(coco_path, poses_path, pose_format="auto", intrinsics=None, image_times=None, max_time_diff=None,
+                intrinsics_convention=None):
     """Read a COCO instance file and a pose source and join them.
 
     Parameters
     ----------
     coco_path : str or os.PathLike
     poses_path : str or os.PathLike
-        COLMAP model directory or JSON pose file.
-    pose_format : {"auto", "colmap", "json"}
+        COLMAP model directory, JSON pose file or TUM trajectory.
+    pose_format : {"auto", "colmap", "json", "tum"}
+    intrinsics : sqfit.Intrinsics, dict, str or os.PathLike, optional
+        TUM only (required there): the camera of every image,
+        :func:`sqfit.formats.trajectory.read_intrinsics` (``"fx fy cx cy width height"`` or a file).
+    image_times : dict, str or os.PathLike, optional
+        TUM only: ``file name -> seconds`` or an ``rgb.txt``-style list; default: the file name
+        stem as seconds (:func:`sqfit.formats.trajectory.image_timestamps`).
+    max_time_diff : float, optional
+        TUM only: seconds between an image and its pose at most (default
+        :data:`sqfit.formats.trajectory.DEFAULT_MAX_TIME_DIFF`).
+    intrinsics_convention : {"opencv", "sqfit"}, optional
+        TUM only: principal point convention of ``intrinsics`` (default "opencv": top-left pixel
+        centre at (0, 0), as OpenCV, ROS and the TUM RGB-D parameters).
 
     Returns
     -------
@@ -163,17 +198,40 @@ def load_import(coco_path, poses_path, pose_format="auto"):
     Raises
     ------
     OSError, ValueError
-        Unreadable files (messages from the readers), or fewer than two COCO images with a pose.
+        Unreadable files (messages from the readers), a TUM trajectory without intrinsics, TUM
+        options with another pose format, or fewer than two COCO images with a pose.
     """
     coco = read_coco(coco_path)
-    poses = read_poses(poses_path, pose_format)
-    cameras, unusable = match_cameras(coco.images, poses, str(poses_path))
-    if not poses:
-        raise ValueError(f"{poses_path} holds no image with a pose")
+    pose_format = resolve_pose_format(poses_path, pose_format)
+    tum_options = {"intrinsics": intrinsics, "image_times": image_times, "max_time_diff": max_time_diff,
+                   "intrinsics_convention": intrinsics_convention}
+    if pose_format in TRAJECTORY_FORMATS:
+        from .trajectory import DEFAULT_MAX_TIME_DIFF, match_trajectory, read_intrinsics
+
+        if intrinsics is None:
+            raise ValueError(f"{poses_path} is a {pose_format.upper()} trajectory, which has no camera intrinsics: "
+                             "give them (--intrinsics 'fx fy cx cy width height', or a file holding them)")
+        camera = read_intrinsics(intrinsics, intrinsics_convention or "opencv")
+        times, trajectory = TRAJECTORY_FORMATS[pose_format](poses_path)
+        cameras, unusable = match_trajectory(coco.images, (times, trajectory), camera, image_times,
+                                             DEFAULT_MAX_TIME_DIFF if max_time_diff is None else max_time_diff,
+                                             str(poses_path))
+        how = "matched by timestamp"
+        hint = f"the trajectory spans t = {times[0]:.6f} .. {times[-1]:.6f} s"
+    else:
+        given = [name for name, value in tum_options.items() if value is not None]
+        if given:
+            raise ValueError(f"{', '.join(given)} only apply to a TUM trajectory; {poses_path} is a {pose_format} "
+                             "pose source, which carries its own intrinsics and image names")
+        poses = POSE_FORMATS[pose_format](poses_path)
+        if not poses:
+            raise ValueError(f"{poses_path} holds no image with a pose")
+        cameras, unusable = match_cameras(coco.images, poses, str(poses_path))
+        how = "matched by file name, then base name"
+        hint = f"pose image names look like {sorted(poses)[:2]}"
     if coco.images and not cameras:
-        raise ValueError(f"no image of {coco_path} can be used with the poses of {poses_path} (matched by file "
-                         f"name, then base name): {next(iter(unusable.values()))}; pose image names look like "
-                         f"{sorted(poses)[:2]}")
+        raise ValueError(f"no image of {coco_path} can be used with the poses of {poses_path} ({how}): "
+                         f"{next(iter(unusable.values()))}; {hint}")
     if coco.images and len(cameras) < C.MIN_VIEWS:
         raise ValueError(f"only {len(cameras)} image of {coco_path} can be used with the poses of {poses_path}; "
                          f"fitting needs >= {C.MIN_VIEWS} views of each object")
@@ -231,14 +289,21 @@ def _track_rng(seed, track):
     return np.random.default_rng(np.random.SeedSequence([seed, zlib.crc32(str(track).encode())]))
 
 
+def _too_few_views_message(record, views, result):
+    if record["status"] == "too_few_views":
+        record["message"] = (f"track {record['track_id']!r} has {len(views.views)} usable view(s) "
+                             f"{record['images']}; fitting needs >= {C.MIN_VIEWS}")
+
+
 def fit_import(coco_path, poses_path, output, chain, samples=C.DEFAULT_SAMPLES, sampling="uniform", polygon="hull",
-               seed=0, progress=True, cleanup=True, pose_format="auto"):
+               seed=0, progress=True, cleanup=True, pose_format="auto", intrinsics=None, image_times=None,
+               max_time_diff=None, intrinsics_convention=None):
     """Fit every track of a COCO file with cameras from a pose source; write ``fits.jsonl``.
 
     Parameters
     ----------
-    coco_path, poses_path, pose_format
-        As :func:`load_import`.
+    coco_path, poses_path, pose_format, intrinsics, image_times, max_time_diff, intrinsics_convention
+        As :func:`load_import` (the last four for a TUM trajectory only).
     output : str or os.PathLike
         JSON-lines file (one record per track; module docstring).
     chain, samples, sampling, polygon, seed, progress, cleanup
@@ -250,25 +315,22 @@ def fit_import(coco_path, poses_path, output, chain, samples=C.DEFAULT_SAMPLES, 
     """
     from tqdm import tqdm
 
-    from ..pipeline import FitOptions, fit, parse_chain
+    from ..fitcli import fit_record
+    from ..pipeline import FitOptions, parse_chain
 
     parse_chain(chain)
     options = FitOptions(polygon=polygon)
-    scene = load_import(coco_path, poses_path, pose_format)
+    scene = load_import(coco_path, poses_path, pose_format, intrinsics, image_times, max_time_diff,
+                        intrinsics_convention)
     out_path = Path(output)
     out_path.parent.mkdir(parents=True, exist_ok=True)
     n_records = n_errors = 0
     with open(out_path, "w", encoding="utf-8") as out:
         for track in tqdm(scene.track_ids, desc="sqfit fit", unit="object", disable=not progress):
-            record = {"trial": None, "object_id": track, "track_id": track}
-            try:
-                views = observe_track(scene, track, samples, sampling, _track_rng(seed, track), cleanup)
-                record.update(views.record(fit(views.observations, chain, options=options)))
-                if record["status"] == "too_few_views":
-                    record["message"] = (f"track {track!r} has {len(views.views)} usable view(s) "
-                                         f"{record['images']}; fitting needs >= {C.MIN_VIEWS}")
-            except (OSError, ValueError, TypeError) as exc:
-                record.update({"chain": chain, "status": "error", "message": str(exc)})
+            record = fit_record({"trial": None, "object_id": track, "track_id": track},
+                                lambda: observe_track(scene, track, samples, sampling, _track_rng(seed, track),
+                                                      cleanup),
+                                chain, options, _too_few_views_message)
             n_errors += record["status"] != "ok"
             out.write(json.dumps(record) + "\n")
             n_records += 1

@@ -132,6 +132,17 @@ def write_tum(path, timestamps, poses):
                                      encoding="utf-8")
 
 
+def data_lines(text):
+    """``(line number, line, fields)`` of each line that is not blank or a ``#`` comment.
+
+    Lines are stripped; fields are split at spaces, tabs and commas, as the TUM tools do.
+    """
+    for number, line in enumerate(text.splitlines(), start=1):
+        line = line.strip()
+        if line and not line.startswith("#"):
+            yield number, line, line.replace(",", " ").split()
+
+
 def read_tum(path):
     """Read a TUM trajectory file.
 
@@ -160,11 +171,7 @@ def read_tum(path):
     except FileNotFoundError:
         raise OSError(f"TUM trajectory file not found: {path}") from None
     rows, lines = [], []
-    for number, line in enumerate(text.splitlines(), start=1):
-        line = line.strip()
-        if not line or line.startswith("#"):
-            continue
-        fields = line.replace(",", " ").split()
+    for number, line, fields in data_lines(text):
         try:
             values = [float(x) for x in fields]
         except ValueError:
