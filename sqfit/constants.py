@@ -29,3 +29,9 @@ DEFAULT_SAMPLES = 100
 
 #: Views of one object a fit needs at least (one view fixes no depth); fewer is ``too_few_views``.
 MIN_VIEWS = 2
+
+#: A fit whose R-IOU-M (its silhouettes against the visible part of the masks) is below this gets
+#: a warning in ``FitResult.warnings``: its silhouettes barely overlap the masks, so the superquadric
+#: is very likely wrong. Good fits score 0.75-0.95 on clean and noisy masks (README, "Beyond the
+#: paper"); stage 3H re-fits such a result once (``sqfit.axis_search.RESCUE_R_IOU_M``).
+POOR_FIT_R_IOU_M = 0.5

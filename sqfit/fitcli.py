@@ -71,7 +71,7 @@ def add_arguments(parser):
     parser.add_argument("--seed", type=int, default=0, help="seed of the mask sampling")
     from .recording import add_arguments as add_rerun_arguments
 
-    add_rerun_arguments(parser, "cameras, masks, ground truth, every stage of every fit")
+    add_rerun_arguments(parser, "cameras, masks, ground truth, every stage of every fit (native datasets; not with --coco)")
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
 
 
@@ -172,6 +172,9 @@ def run(args):
     if args.coco is not None or args.poses is not None:
         if args.dataset is not None or args.coco is None or args.poses is None:
             raise ValueError("give either a DATASET directory or --coco FILE with --poses PATH")
+        if args.rerun is not None:
+            raise ValueError("--rerun records native datasets only (sqsim generate format); "
+                             "it is not available with --coco yet")
         from .formats.importer import fit_import
 
         n, errors = fit_import(args.coco, args.poses, args.output, args.chain, args.samples, args.sampling,
@@ -179,12 +182,21 @@ def run(args):
                                pose_format=args.pose_format, intrinsics=args.intrinsics,
                                image_times=args.image_times, max_time_diff=args.max_time_diff,
                                intrinsics_convention=args.intrinsics_convention)
-        print(f"wrote {n} fit record(s) to {args.output}; {errors} not ok")
+        print(_summary_line(n, errors, args.output))
         return 0
     if args.dataset is None:
         raise ValueError("give a DATASET directory, or --coco FILE with --poses PATH")
     n, errors = fit_dataset(args.dataset, args.output, args.chain, args.samples, args.sampling, args.polygon,
                             args.seed, progress=not args.no_progress, cleanup=args.cleanup, rerun=args.rerun,
                             rerun_trials=args.rerun_trials)
-    print(f"wrote {n} fit record(s) to {args.output}; {errors} not ok")
+    print(_summary_line(n, errors, args.output))
     return 0
+
+
+def _summary_line(n, errors, output):
+    poor = 0
+    with open(output) as f:
+        for line in f:
+            poor += any(w.startswith("poor fit") for w in json.loads(line).get("warnings") or ())
+    note = f"; {poor} flagged as poor fits (R-IOU-M < {C.POOR_FIT_R_IOU_M}: see their warnings)" if poor else ""
+    return f"wrote {n} fit record(s) to {output}; {errors} not ok{note}"

@@ -426,6 +426,9 @@ def fit(observations, chain=None, *, initial=None, rng=None, options=None):
         for rec, s in zip((r for r in result.stages if r.superquadric is not None), scores):
             rec.r_iou_m = float(s)
         result.r_iou_m = float(scores[-1])
+        if result.r_iou_m < C.POOR_FIT_R_IOU_M:
+            result.warnings.append(f"poor fit: its silhouettes match the masks with R-IOU-M {result.r_iou_m:.3f} "
+                                   f"(< {C.POOR_FIT_R_IOU_M}); the superquadric is very likely wrong")
     if result.status == "ok":
         result.message = f"chain {chain_str} finished: last stage {result.stages[-1].status}"
     result.seconds = time.perf_counter() - t0

@@ -133,3 +133,37 @@ def test_batch_residuals_keep_hinges_and_one_sided_rays(trial, start):
     # The one-sided contour/outside rays never carry an "outside" (negative) residual.
     hinged = one_sided & (rays.modes != INSIDE)
     assert hinged.any() and np.all(r[:, :len(rays)][:, hinged] >= 0.0)
+
+
+def test_rescue_refits_a_result_that_misses_the_masks(monkeypatch):
+    # paper_trial(80): the screen and 3G end in 3G's "far, huge" minimum (R-IOU-M 0.28, IoU 0.03);
+    # the rescue through 3D-3A and the screen recovers the object.
+    from sqfit import axis_search
+
+    trial = paper_trial(80)
+    monkeypatch.setattr(axis_search, "RESCUE_R_IOU_M", 0.0)
+    first = sqfit.fit(trial.observations, "1-2-3H")
+    assert first.r_iou_m < 0.5 and iou_3d(first.superquadric, trial.gt) < 0.1
+    assert any(w.startswith("poor fit") for w in first.warnings)
+    monkeypatch.setattr(axis_search, "RESCUE_R_IOU_M", 0.5)
+    rescued = sqfit.fit(trial.observations, "1-2-3H")
+    assert rescued.r_iou_m > 0.8 and iou_3d(rescued.superquadric, trial.gt) > 0.7
+    assert rescued.stages[-1].message.startswith("rescue: R-IOU-M 0.282 < 0.5, re-fitted through 3D-3A-3H")
+    assert "kept the rescue" in rescued.stages[-1].message
+    assert not any(w.startswith("poor fit") for w in rescued.warnings)
+    assert rescued.stages[-1].nfev > first.stages[-1].nfev
+
+
+def test_rescue_keeps_the_first_fit_when_a_stage_fails(monkeypatch):
+    from sqfit import axis_search
+
+    def broken(state, obs, options):
+        raise np.linalg.LinAlgError("Singular matrix")
+
+    trial = paper_trial(80)
+    monkeypatch.setitem(sqfit.STAGES, "3A", broken)
+    result = sqfit.fit(trial.observations, "1-2-3H")
+    assert result.status == "ok"
+    assert "rescue (3D-3A-3H) failed: Singular matrix" in result.stages[-1].message
+    monkeypatch.setattr(axis_search, "RESCUE_R_IOU_M", 0.0)
+    assert result.superquadric == sqfit.fit(trial.observations, "1-2-3H").superquadric

@@ -89,6 +89,24 @@ def test_view_with_empty_mask_is_named_in_the_record(tmp_path):
     assert record["warnings"][0] == "view 1 dropped: the object's mask is empty in this view"
 
 
+def test_poor_fits_are_counted_on_screen(tmp_path, capsys):
+    # Stages 1-2 on paper_trial(1) give an ellipsoid whose silhouettes barely match the masks.
+    root = tmp_path / "ds"
+    write_trial(root, "000000", paper_trial(1))
+    out = tmp_path / "fits.jsonl"
+    assert main(["fit", str(root), "-o", str(out), "--chain", "1-2", "--no-progress"]) == 0
+    (record,) = [json.loads(x) for x in out.read_text().splitlines()]
+    assert record["status"] == "ok" and record["warnings"][-1].startswith("poor fit: ")
+    assert "0 not ok; 1 flagged as poor fits (R-IOU-M < 0.5: see their warnings)" in capsys.readouterr().out
+
+
+def test_rerun_with_coco_is_refused(tmp_path):
+    res = subprocess.run([sys.executable, "-m", "sqfit.cli", "fit", "--coco", str(tmp_path / "a.json"), "--poses",
+                          str(tmp_path), "-o", str(tmp_path / "f.jsonl"), "--rerun", str(tmp_path / "r.rrd")],
+                         capture_output=True, text=True)
+    assert res.returncode == 2 and "--rerun records native datasets only" in res.stderr
+
+
 def test_observe_views_names_views_and_keeps_samples():
     from sqfit import Observation
     from sqfit.io import observations_from_images, observe_views

@@ -138,13 +138,24 @@ def test_border_warning():
     mask = t.masks[0].copy()
     mask[0, 300:310] = True  # a separate strip on the border
     obs = [Observation.from_mask(t.cameras[0], mask, 100, rng=0, cleanup=False)] + t.observations[1:]
-    result = fit(obs, "1-2")
+    result = fit(obs, "1-2-3H")
     assert len(result.warnings) == 1
     assert result.warnings[0].startswith("view 0: mask touches the image border (truncated silhouette; ")
-    assert fit(t.observations, "1-2").warnings == []
+    assert fit(t.observations, "1-2-3H").warnings == []
     # Clean-up (the default) drops the strip: the object itself does not touch the border.
     cleaned = [Observation.from_mask(t.cameras[0], mask, 100, rng=0)] + t.observations[1:]
-    assert fit(cleaned, "1-2").warnings == []
+    assert fit(cleaned, "1-2-3H").warnings == []
+
+
+def test_poor_fit_is_flagged():
+    # Stages 1-2 alone give a rough ellipsoid; on this trial its silhouettes barely match the masks.
+    trial = paper_trial(1)
+    rough = fit(trial.observations, "1-2")
+    assert rough.r_iou_m < sqfit.constants.POOR_FIT_R_IOU_M
+    assert any(w.startswith("poor fit: its silhouettes match the masks with R-IOU-M") for w in rough.warnings)
+    good = fit(trial.observations)
+    assert good.r_iou_m > sqfit.constants.POOR_FIT_R_IOU_M
+    assert not [w for w in good.warnings if w.startswith("poor fit")]
 
 
 def test_initial_starts_the_first_stage_at_the_given_superquadric(trial):
