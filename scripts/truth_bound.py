@@ -37,7 +37,7 @@ import numpy as np  # noqa: E402
 import sqfit  # noqa: E402
 from sqfit.metrics import IOU_GRID_CELLS, iou_3d, iou_3d_mesh  # noqa: E402
 from sqfit.multistart import misfit  # noqa: E402
-from sqfit.raycost import contour_rays  # noqa: E402
+from sqfit.rays import contour_rays  # noqa: E402
 
 #: IoU margin below the truth-started bound from which a trial counts as lost.
 LOST_MARGIN = 0.05

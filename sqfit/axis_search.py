@@ -79,7 +79,8 @@ from . import constants as C
 from ._checks import check_shape
 from .multistart import symmetric_candidates
 from .pipeline import _NUMERICAL_ERRORS, r_iou_m, to_superquadric
-from .raycost import batch_ray_residuals, contour_rays
+from .raycost import batch_ray_residuals
+from .rays import contour_rays
 from .stage3g import silhouette_stage
 from .stages import STAGES, StageError, register
 

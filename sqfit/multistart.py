@@ -75,7 +75,8 @@ import numpy as np
 from . import constants as C
 from ._checks import check_shape
 from .pipeline import r_iou_m, to_superquadric
-from .raycost import contour_rays, ray_residuals
+from .raycost import ray_residuals
+from .rays import contour_rays
 from .stage3g import minimise, silhouette_stage
 from .stages import FitState, register
 from .superquadric import euler_to_matrix, matrix_to_euler
@@ -172,7 +173,7 @@ def _screen_rays(obs):
 def misfit(xi, rays, penalty_weight=C.PENALTY_ANALYTIC):
     """3G misfit of ``xi``: ``sqrt(sum r**2 / v)`` over the rows of :func:`sqfit.raycost.ray_residuals`.
 
-    With the per-view weights of :func:`sqfit.raycost.contour_rays` this is the RMS over the ``v``
+    With the per-view weights of :func:`sqfit.rays.contour_rays` this is the RMS over the ``v``
     views of each view's RMS grazing residual (plus the penalty rows, zero inside the bounds).
     Equals ``sqrt(2 cost / v)`` for a Levenberg-Marquardt cost on the same rays.
     """

@@ -28,7 +28,8 @@ from dataclasses import replace
 import numpy as np
 
 from .lm import DenseJacobian, levenberg_marquardt
-from .raycost import contour_rays, posed_ray_residuals, ray_residuals
+from .raycost import posed_ray_residuals, ray_residuals
+from .rays import contour_rays
 from .stages import StageError, register
 
 __all__ = ["N_CONTOUR", "BAND_PX", "silhouette_stage", "minimise", "camera_corrections"]
@@ -80,7 +81,7 @@ def silhouette_stage(state, obs, options, name="3G", plain_first=True):
 
 
 def minimise(rays, x0, options, sigma):
-    """LM on the 3G residuals of ``rays`` (:func:`sqfit.raycost.contour_rays`) from ``x0``:
+    """LM on the 3G residuals of ``rays`` (:func:`sqfit.rays.contour_rays`) from ``x0``:
     ``(11,)`` if ``sigma == 0``, else ``(11 + 3 v,)`` with pose corrections and prior scale
     ``sigma`` (radians). Returns the :class:`sqfit.lm.LMResult`; used by 3G and by 3S
     (:mod:`sqfit.multistart`) to screen candidates on its own rays."""

@@ -5,8 +5,8 @@ import sqfit
 from sqfit import constants as C
 from sqfit.axis_search import CANDIDATES, axis_candidates, batch_levenberg_marquardt
 from sqfit.metrics import iou_3d
-from sqfit.raycost import (INSIDE, RaySet, batch_log_gauge_jacobian, batch_ray_residuals, contour_rays,
-                           log_gauge_jacobian, ray_residuals)
+from sqfit.raycost import batch_log_gauge_jacobian, batch_ray_residuals, log_gauge_jacobian, ray_residuals
+from sqfit.rays import INSIDE, RaySet, contour_rays
 from sqfit.testing import paper_trial
 
 
@@ -66,7 +66,7 @@ def test_batch_residuals_validation(trial):
     rays = contour_rays(trial.observations, 16)
     with pytest.raises(ValueError, match=r"X must have shape \(n, 11\)"):
         batch_ray_residuals(np.ones(11), rays)
-    with pytest.raises(TypeError, match="rays must be a sqfit.raycost.RaySet"):
+    with pytest.raises(TypeError, match="rays must be a sqfit.rays.RaySet"):
         batch_ray_residuals(np.ones((2, 11)), "rays")
 
 

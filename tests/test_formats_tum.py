@@ -10,7 +10,7 @@ import pytest
 import sqfit
 from sqfit.cli import main
 from sqfit.formats import (encode_mask, load_import, match_trajectory, read_image_times, read_intrinsics, read_poses,
-                           read_pose_json, write_image_times, write_intrinsics, write_pose_json,
+                           write_image_times, write_intrinsics, write_pose_json,
                            write_tum)
 from sqfit.formats.coco import CocoImage
 from sqfit.formats.importer import _track_rng

@@ -3,8 +3,8 @@ import pytest
 
 import sqfit
 from sqfit.metrics import iou_3d
-from sqfit.raycost import (CONTOUR, INSIDE, OUTSIDE, RaySet, contour_rays, outward_normals, posed_ray_residuals,
-                           ray_minima, ray_residuals)
+from sqfit.raycost import posed_ray_residuals, ray_minima, ray_residuals
+from sqfit.rays import CONTOUR, INSIDE, OUTSIDE, RaySet, contour_rays, outward_normals
 from sqfit.superquadric import Superquadric, implicit
 from sqfit.testing import paper_trial
 from _numeric import central_difference

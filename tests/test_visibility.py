@@ -7,7 +7,8 @@ import sqfit
 from sqfit import Camera, Intrinsics, Observation, look_at
 from sqfit.io import observations_from_images
 from sqfit.metrics import iou_3d
-from sqfit.raycost import CONTOUR, OUTSIDE, RaySet, contour_rays, ray_residuals
+from sqfit.raycost import ray_residuals
+from sqfit.rays import CONTOUR, OUTSIDE, RaySet, contour_rays
 from sqfit.testing import paper_trial, truncated_trial
 from sqfit.visibility import (BACKGROUND, BORDER, INSTANCE, INTERIOR, OCCLUDER_REACH_PX, hiding_pixels,
                               outline_labels, point_labels, silhouette_fraction)

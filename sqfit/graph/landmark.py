@@ -36,7 +36,8 @@ from .._checks import check_shape
 from ..costs import LOWER_BOUNDS, UPPER_BOUNDS
 from ..observation import Observation
 from ..pipeline import to_superquadric
-from ..raycost import contour_rays, ray_residuals
+from ..raycost import ray_residuals
+from ..rays import contour_rays
 from ..superquadric import Superquadric
 
 __all__ = ["N_SHAPE", "camera_rays", "silhouette_residuals", "bounds_residuals", "landmark_to_superquadric",
@@ -67,7 +68,7 @@ def camera_rays(observation, n_contour):
     -------
     rays : RaySet
         ``origins`` all zero, ``directions`` the pixel bearings ``(n, 3)`` with unit depth (camera
-        frame); modes, weights and any other per-ray arrays as :func:`sqfit.raycost.contour_rays`
+        frame); modes, weights and any other per-ray arrays as :func:`sqfit.rays.contour_rays`
         gives them.
     """
     if not isinstance(observation, Observation):
