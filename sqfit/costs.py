@@ -39,8 +39,8 @@ import numpy as np
 from . import constants as C
 from .camera import bearings
 from .observation import Observation
-from .silhouette import (DEFAULT_DIRECTIONS, NEWTON_TOL, batch_iou, batch_silhouettes, camera_arrays,
-                         convex_iou_jacobian, half_planes, silhouette_gradient)
+from .polygon import batch_iou, convex_iou_jacobian, half_planes
+from .silhouette import DEFAULT_DIRECTIONS, NEWTON_TOL, batch_silhouettes, camera_arrays, silhouette_gradient
 from .superquadric import rotation_and_derivatives
 from .visibility import BORDER
 from .visible_iou import clipped_convex_iou_jacobian, hidden_counts, image_rectangles, points_in_convex
@@ -115,7 +115,7 @@ class ObservationSet:
         return len(self.observations)
 
     def targets(self, kind):
-        """Observation polygons for :func:`sqfit.silhouette.batch_iou`: ``(targets, convex, planes)``.
+        """Observation polygons for :func:`sqfit.polygon.batch_iou`: ``(targets, convex, planes)``.
 
         ``hull`` polygons are padded to a common length by repeating their last vertex.
         """
@@ -224,7 +224,7 @@ def riou_residuals(xi, obs, polygon="hull", weight=C.PENALTY_RIOU, n_directions=
         :func:`sqfit.silhouette.batch_silhouettes`).
     jacobian : bool
         Also return the analytic derivative of the view residuals (``polygon="hull"`` only):
-        :func:`sqfit.silhouette.convex_iou_jacobian` (the IoU's gradient in the vertices) pulled
+        :func:`sqfit.polygon.convex_iou_jacobian` (the IoU's gradient in the vertices) pulled
         back through :func:`sqfit.silhouette.silhouette_gradient` (the vertices' velocities, as
         :func:`sqfit.silhouette.vertex_velocities`). It is the derivative of the IoU of the
         silhouette polygon whose vertices move with the touching points. Finite differences of
@@ -297,7 +297,7 @@ def hidden_at(xi, obs, polygon="hull", n_directions=DEFAULT_DIRECTIONS, tol=NEWT
 def visible_iou(polys, valid, obs, polygon="hull", hidden=None):
     """IoU of batched silhouettes with the observation polygons, over the visible image part.
 
-    As :func:`sqfit.silhouette.batch_iou`, but in ``obs.border_views`` only the part of each
+    As :func:`sqfit.polygon.batch_iou`, but in ``obs.border_views`` only the part of each
     silhouette inside the image counts, and in ``obs.occluded_views`` the pixels that may hide the
     object count in neither intersection nor union (:mod:`sqfit.visible_iou`).
 

@@ -156,7 +156,8 @@ def r_iou(sq, cameras, polygons):
     -------
     r_iou : float
     """
-    from .silhouette import polygon_iou, silhouette
+    from .polygon import polygon_iou
+    from .silhouette import silhouette
 
     if len(cameras) != len(polygons) or len(cameras) == 0:
         raise ValueError(f"need one polygon per camera, got {len(polygons)} polygons for {len(cameras)} cameras")

@@ -41,7 +41,7 @@ import numpy as np
 from . import constants as C
 from ._checks import check_choice
 from .camera import Camera, pixel_centers
-from .silhouette import polygon_area
+from .polygon import polygon_area
 from .visibility import BACKGROUND, INTERIOR, hiding_pixels, outline_labels, point_labels, silhouette_fraction
 
 __all__ = ["Observation", "ObservationList", "SAMPLING_METHODS", "POLYGON_KINDS"]

@@ -23,7 +23,8 @@ import numpy as np
 from .camera import Camera, Intrinsics, look_at
 from .observation import Observation
 from .raster import fill_convex_polygon
-from .silhouette import polygon_area, silhouette
+from .polygon import polygon_area
+from .silhouette import silhouette
 from .superquadric import Superquadric
 
 __all__ = ["PAPER_INTRINSICS", "paper_cameras", "random_superquadric", "polygon_mask", "Trial", "paper_trial",

@@ -8,9 +8,9 @@ clipped to the image rectangle ``R``:
 ``IoU_R(S, Q) = |S n Q| / (|S n R| + |Q| - |S n Q|)``,
 
 which is the IoU of ``S n R`` and ``Q`` because ``Q`` lies inside the image. For convex ``S``
-and ``Q`` both areas come from the clipping of :func:`sqfit.silhouette.convex_iou`, and the
+and ``Q`` both areas come from the clipping of :func:`sqfit.polygon.convex_iou`, and the
 derivative in the vertices of ``S`` is analytic (the flux of the vertex velocities across the
-pieces of ``S``'s edges inside ``Q``, resp. ``R``, as :func:`sqfit.silhouette.convex_iou_jacobian`).
+pieces of ``S``'s edges inside ``Q``, resp. ``R``, as :func:`sqfit.polygon.convex_iou_jacobian`).
 
 Occlusion: the pixels that may hide the object (``Observation.hidden``, :mod:`sqfit.visibility`)
 are left out of both the intersection and the union, counted as unit squares at their centres
@@ -24,7 +24,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .silhouette import _convex_overlap, half_planes
+from .polygon import _convex_overlap, half_planes
 
 __all__ = ["image_rectangles", "clipped_convex_iou", "clipped_convex_iou_jacobian", "hidden_counts",
            "points_in_convex"]
@@ -58,7 +58,7 @@ def clipped_convex_iou(S, Q, R, q_planes=None, r_planes=None):
     R : (..., 4, 2) float
         The image rectangle (:func:`image_rectangles`).
     q_planes, r_planes : tuple, optional
-        :func:`sqfit.silhouette.half_planes` of ``Q`` and ``R``.
+        :func:`sqfit.polygon.half_planes` of ``Q`` and ``R``.
 
     Returns
     -------

@@ -6,7 +6,7 @@ import numpy as np
 
 import sqfit
 from sqfit.observation import convex_hull
-from sqfit.silhouette import polygon_area
+from sqfit.polygon import polygon_area
 from sqfit.superquadric import sample_surface_uniform, volume
 
 

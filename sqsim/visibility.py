@@ -53,7 +53,7 @@ def cut_fractions(objects, cameras, znear):
     """
     from scipy.spatial import ConvexHull, QhullError
 
-    from sqfit.silhouette import polygon_area, polygon_iou
+    from sqfit.polygon import polygon_area, polygon_iou
 
     out = np.zeros((len(objects), len(cameras)))
     for j, cam in enumerate(cameras):

@@ -3,8 +3,9 @@ import pytest
 from scipy.spatial import ConvexHull
 
 from sqfit import Camera, Intrinsics, Superquadric, look_at, project
-from sqfit.silhouette import (ZNEAR, batch_silhouettes, camera_arrays, convex_iou, convex_iou_jacobian, polygon_area,
-                              polygon_iou, silhouette, silhouette_gradient, vertex_velocities)
+from sqfit.polygon import convex_iou, convex_iou_jacobian, polygon_area, polygon_iou
+from sqfit.silhouette import (ZNEAR, batch_silhouettes, camera_arrays, silhouette, silhouette_gradient,
+                              vertex_velocities)
 from sqfit.superquadric import to_mesh
 
 CAM = Camera(Intrinsics(640, 480, 400.0, 300.0, 320.0, 240.0), look_at([10.0, 0, 0], [0, 0, 0]))

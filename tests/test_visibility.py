@@ -12,7 +12,7 @@ from sqfit.rays import CONTOUR, OUTSIDE, RaySet, contour_rays
 from sqfit.testing import paper_trial, truncated_trial
 from sqfit.visibility import (BACKGROUND, BORDER, INSTANCE, INTERIOR, OCCLUDER_REACH_PX, hiding_pixels,
                               outline_labels, point_labels, silhouette_fraction)
-from sqfit.silhouette import polygon_iou
+from sqfit.polygon import polygon_iou
 from sqfit.visible_iou import clipped_convex_iou, clipped_convex_iou_jacobian, image_rectangles, points_in_convex
 from _numeric import central_difference
 
