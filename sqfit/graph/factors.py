@@ -2,22 +2,133 @@
 of :mod:`sqfit.graph.landmark` and :mod:`sqfit.graph.quadric`.
 
 A factor is one (frame, object) pair, never one pixel: the Python callback is the cost, so a view's
-rays are evaluated together (one call of :func:`sqfit.raycost.ray_residuals`). Each callback keeps
-the ray minimisers of its last call as the warm start of the next (valid for any nearby value).
+rays are evaluated together. The silhouette factors of one graph go further and share a
+:class:`SilhouetteFactors` evaluator: GTSAM calls the factors one by one (``error`` at a trial point,
+``linearize`` at an accepted one), and the first call at new values evaluates every factor of the
+graph whose variables changed in one vectorised call
+(:func:`sqfit.graph.landmark.batch_silhouette_residuals`); the factors then serve their rows from that
+evaluation until their variables change again. Measured on the rendered scene (``benchmarks/
+bench_graph.py``): one factor alone costs ~1 ms, nearly all numpy's per-call overhead on its 32 rays.
+Each factor keeps its ray minimisers as the warm start of its next evaluation (valid for any nearby
+value).
 """
 
 from __future__ import annotations
 
+import threading
+
 import gtsam
 import numpy as np
 
-from .landmark import bounds_residuals, silhouette_residuals
+from .landmark import batch_silhouette_residuals, bounds_residuals, stack_rays
 from .quadric import box_residuals
 
-__all__ = ["silhouette_factor", "bounds_factor", "box_factor"]
+__all__ = ["SilhouetteFactors", "silhouette_factor", "bounds_factor", "box_factor"]
 
 
-def silhouette_factor(noise, camera_key, pose_key, shape_key, rays):
+class SilhouetteFactors:
+    """The silhouette factors of one graph, evaluated together (module docstring).
+
+    A resource with state (the last evaluation of each factor), so a class: make one per graph, add
+    its factors with :meth:`factor`. Factors of different graphs must not share one (an evaluation
+    reads every factor's variables from the values GTSAM passes; a factor whose variables are not
+    all there is left out of it).
+
+    Attributes
+    ----------
+    evaluations : int
+        Vectorised evaluations so far.
+    factor_evaluations : int
+        Factor evaluations they contained (one factor, all its rays).
+    """
+
+    def __init__(self):
+        self._keys, self._rays, self._stacked = [], [], {}
+        self._x, self._out, self._d = [], [], []
+        self._lock = threading.Lock()
+        self.evaluations = self.factor_evaluations = 0
+
+    def __len__(self):
+        return len(self._keys)
+
+    def factor(self, noise, camera_key, pose_key, shape_key, rays):
+        """A new silhouette factor of this graph (arguments: :func:`silhouette_factor`)."""
+        i = len(self._keys)
+        self._keys.append((camera_key, pose_key, shape_key))
+        self._rays.append(rays)
+        self._x.append(None)
+        self._out.append(None)
+        self._d.append(None)
+
+        def error(this, values, jacobians):
+            x = _factor_values(values, camera_key, pose_key, shape_key)
+            with self._lock:
+                if self._x[i] is None or not np.array_equal(x, self._x[i]):
+                    self._evaluate(values)
+                r, Jc, Jl, Js = self._out[i]
+            if not np.all(np.isfinite(r)) or not (np.all(np.isfinite(Jc)) and np.all(np.isfinite(Jl))
+                                                  and np.all(np.isfinite(Js))):
+                raise FloatingPointError(f"silhouette factor ({gtsam.DefaultKeyFormatter(camera_key)}, "
+                                         f"{gtsam.DefaultKeyFormatter(pose_key)}): non-finite residual at shape "
+                                         f"{x[32:]}")
+            if jacobians is not None:
+                jacobians[0], jacobians[1], jacobians[2] = Jc, Jl, Js
+            return r
+
+        return gtsam.CustomFactor(noise, [camera_key, pose_key, shape_key], error)
+
+    def _evaluate(self, values):
+        """Evaluate every factor whose variables are in ``values`` and differ from its last evaluation."""
+        read = {}
+        for keys in self._keys:
+            for slot, key in enumerate(keys):
+                if key not in read:
+                    read[key] = _read(values, key, pose=slot < 2)
+        stale, x = [], {}
+        for i, keys in enumerate(self._keys):
+            if any(read[key] is None for key in keys):
+                continue
+            x[i] = np.concatenate([read[key] for key in keys])
+            if self._x[i] is None or not np.array_equal(x[i], self._x[i]):
+                stale.append(i)
+        by_length = {}
+        for i in stale:
+            by_length.setdefault(len(self._rays[i]), []).append(i)
+        for idx in by_length.values():
+            X = np.stack([x[i] for i in idx])
+            d0 = np.stack([np.full(len(self._rays[i]), np.nan) if self._d[i] is None else self._d[i] for i in idx])
+            with np.errstate(all="ignore"):
+                r, Jc, Jl, Js, d = batch_silhouette_residuals(X[:, :16].reshape(-1, 4, 4), X[:, 16:32].reshape(-1, 4, 4),
+                                                              X[:, 32:], self._stack(idx), d0)
+            for j, i in enumerate(idx):
+                self._x[i], self._out[i], self._d[i] = x[i], (r[j], Jc[j], Jl[j], Js[j]), d[j]
+            self.factor_evaluations += len(idx)
+        self.evaluations += 1
+
+    def _stack(self, idx):
+        key = tuple(idx)
+        if key not in self._stacked:
+            # the stale sets repeat (all factors in a batch solve, those of the relinearised
+            # variables in iSAM2): keep the last few stackings
+            if len(self._stacked) > 8:
+                self._stacked.pop(next(iter(self._stacked)))
+            self._stacked[key] = stack_rays([self._rays[i] for i in idx])
+        return self._stacked[key]
+
+
+def _read(values, key, pose):
+    """A variable as a flat array (a pose's 4 x 4 matrix row by row), or None when ``values`` lacks it."""
+    if not values.exists(key):
+        return None
+    return values.atPose3(key).matrix().ravel() if pose else np.asarray(values.atVector(key), dtype=np.float64)
+
+
+def _factor_values(values, camera_key, pose_key, shape_key):
+    return np.concatenate([values.atPose3(camera_key).matrix().ravel(), values.atPose3(pose_key).matrix().ravel(),
+                           values.atVector(shape_key)])
+
+
+def silhouette_factor(noise, camera_key, pose_key, shape_key, rays, batch=None):
     """Silhouette factor of one view of one superquadric landmark.
 
     Parameters
@@ -28,31 +139,10 @@ def silhouette_factor(noise, camera_key, pose_key, shape_key, rays):
         Keys of the camera ``Pose3``, the landmark ``Pose3`` and its size/shape vector (5,).
     rays : RaySet
         Camera-frame rays (:func:`sqfit.graph.landmark.camera_rays`).
+    batch : SilhouetteFactors, optional
+        The evaluator of the graph's silhouette factors; default: one of its own.
     """
-    last = {}
-
-    def error(this, values, jacobians):
-        Tc = values.atPose3(camera_key).matrix()
-        Tl = values.atPose3(pose_key).matrix()
-        s = values.atVector(shape_key)
-        x = np.concatenate([Tc.ravel(), Tl.ravel(), s])
-        # Levenberg-Marquardt linearises at the point whose error it has just evaluated: the residual
-        # function returns the Jacobians anyway, so that second call is served from here.
-        if "x" in last and np.array_equal(x, last["x"]):
-            r, Jc, Jl, Js = last["out"]
-        else:
-            with np.errstate(all="ignore"):
-                r, Jc, Jl, Js, d = silhouette_residuals(Tc, Tl, s, rays, last.get("d"))
-            if not (np.all(np.isfinite(r)) and np.all(np.isfinite(Jc)) and np.all(np.isfinite(Jl))
-                    and np.all(np.isfinite(Js))):
-                raise FloatingPointError(f"silhouette factor ({gtsam.DefaultKeyFormatter(camera_key)}, "
-                                         f"{gtsam.DefaultKeyFormatter(pose_key)}): non-finite residual at shape {s}")
-            last.update(x=x, out=(r, Jc, Jl, Js), d=d)
-        if jacobians is not None:
-            jacobians[0], jacobians[1], jacobians[2] = Jc, Jl, Js
-        return r
-
-    return gtsam.CustomFactor(noise, [camera_key, pose_key, shape_key], error)
+    return (SilhouetteFactors() if batch is None else batch).factor(noise, camera_key, pose_key, shape_key, rays)
 
 
 def bounds_factor(shape_key, weight):

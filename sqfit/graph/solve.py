@@ -33,7 +33,7 @@ import numpy as np
 from gtsam.symbol_shorthand import L, Q, S, X
 
 from .. import pipeline
-from .factors import bounds_factor, box_factor, silhouette_factor
+from .factors import SilhouetteFactors, bounds_factor, box_factor, silhouette_factor
 from .landmark import camera_rays, landmark_to_superquadric, superquadric_to_landmark
 from .problem import GraphOptions, SlamResult, check_inputs, observation_at, ready_to_initialise
 from .quadric import initialise_quadric, observation_box, quadric_to_superquadric
@@ -99,7 +99,7 @@ def _initial_fit(problem, oid, frames, poses, options):
     return superquadric_to_landmark(res.superquadric), ""
 
 
-def _add_landmark(graph, values, problem, oid, frames, landmark, options):
+def _add_landmark(graph, values, problem, oid, frames, landmark, options, batch):
     T, shape = landmark
     shape = np.asarray(shape, dtype=np.float64)
     values.insert(L(oid), gtsam.Pose3(T))
@@ -111,15 +111,17 @@ def _add_landmark(graph, values, problem, oid, frames, landmark, options):
     graph.add(gtsam.PriorFactorPose3(L(oid), gtsam.Pose3(T), gtsam.noiseModel.Diagonal.Sigmas(np.array([rot] * 3 + [pos] * 3))))
     graph.add(gtsam.PriorFactorVector(S(oid), shape, gtsam.noiseModel.Isotropic.Sigma(len(shape), size)))
     for f in frames:
-        graph.add(_silhouette(problem, f, oid, options))
+        graph.add(_silhouette(problem, f, oid, options, batch))
 
 
-def _silhouette(problem, frame, oid, options):
+def _silhouette(problem, frame, oid, options, batch):
+    """The silhouette factor of ``(frame, oid)``, evaluated with the graph's other ones by ``batch``
+    (a :class:`sqfit.graph.factors.SilhouetteFactors`)."""
     rays = camera_rays(problem.observations[frame, oid], options.n_contour)
     # the ray residuals carry contour_rays' weights 1 / sqrt(n): sigma per weighted row
     sigma = options.silhouette_sigma / np.sqrt(len(rays))
     return silhouette_factor(_robust(len(rays), sigma, options.huber_k), X(frame), L(oid),
-                             S(oid), rays)
+                             S(oid), rays, batch)
 
 
 def _lm(graph, values, options):
@@ -206,6 +208,7 @@ class _Growth:
             for f in frames:
                 self.by_frame.setdefault(f, []).append(oid)
         self.pending, self.added, self.failed, self.current = {}, [], set(), {}
+        self.batch = SilhouetteFactors()
 
     def add(self, frames):
         """``(graph, values)`` of the new factors and variables for ``frames`` (the next frames)."""
@@ -223,7 +226,7 @@ class _Growth:
         if oid in self.failed:
             return
         if oid in self.added:
-            graph.add(_silhouette(self.problem, i, oid, self.options))
+            graph.add(_silhouette(self.problem, i, oid, self.options, self.batch))
             return
         frames = self.pending.setdefault(oid, [])
         frames.append(i)
@@ -235,7 +238,7 @@ class _Growth:
             _skip(self.result, oid, message)
             self.failed.add(oid)
             return
-        _add_landmark(graph, values, self.problem, oid, frames, landmark, self.options)
+        _add_landmark(graph, values, self.problem, oid, frames, landmark, self.options, self.batch)
         self.added.append(oid)
 
     def update(self, estimate, n):
@@ -286,9 +289,9 @@ def _batch(problem, options):
 def _object_misfit(problem, values, oid, options):
     """RMS whitened ray residual of object ``oid``'s silhouette factors at ``values`` (1: a typical
     ray one ``silhouette_sigma`` off)."""
-    sub, rows = gtsam.NonlinearFactorGraph(), 0
+    sub, rows, batch = gtsam.NonlinearFactorGraph(), 0, SilhouetteFactors()
     for f in problem.frames[oid]:
-        sub.add(_silhouette(problem, f, oid, options))
+        sub.add(_silhouette(problem, f, oid, options, batch))
         rows += options.n_contour
     return float(np.sqrt(2.0 * sub.error(values) / rows))
 
