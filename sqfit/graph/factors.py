@@ -44,7 +44,9 @@ class SilhouetteFactors:
 
     def __init__(self):
         self._keys, self._rays, self._stacked = [], [], {}
-        self._x, self._out, self._d = [], [], []
+        # per factor: the variables of its last evaluation (bytes: exact, and cheap to compare), its
+        # rows (None where non-finite) and its ray minimisers (the next warm start)
+        self._at, self._out, self._d = [], [], []
         self._lock = threading.Lock()
         self.evaluations = self.factor_evaluations = 0
 
@@ -56,24 +58,24 @@ class SilhouetteFactors:
         i = len(self._keys)
         self._keys.append((camera_key, pose_key, shape_key))
         self._rays.append(rays)
-        self._x.append(None)
+        self._at.append(None)
         self._out.append(None)
         self._d.append(None)
 
         def error(this, values, jacobians):
-            x = _factor_values(values, camera_key, pose_key, shape_key)
+            at = (values.atPose3(camera_key).matrix().tobytes() + values.atPose3(pose_key).matrix().tobytes()
+                  + values.atVector(shape_key).tobytes())
             with self._lock:
-                if self._x[i] is None or not np.array_equal(x, self._x[i]):
+                if at != self._at[i]:
                     self._evaluate(values)
-                r, Jc, Jl, Js = self._out[i]
-            if not np.all(np.isfinite(r)) or not (np.all(np.isfinite(Jc)) and np.all(np.isfinite(Jl))
-                                                  and np.all(np.isfinite(Js))):
+                out = self._out[i]
+            if out is None:
                 raise FloatingPointError(f"silhouette factor ({gtsam.DefaultKeyFormatter(camera_key)}, "
                                          f"{gtsam.DefaultKeyFormatter(pose_key)}): non-finite residual at shape "
-                                         f"{x[32:]}")
+                                         f"{values.atVector(shape_key)}")
             if jacobians is not None:
-                jacobians[0], jacobians[1], jacobians[2] = Jc, Jl, Js
-            return r
+                jacobians[0], jacobians[1], jacobians[2] = out[1:]
+            return out[0]
 
         return gtsam.CustomFactor(noise, [camera_key, pose_key, shape_key], error)
 
@@ -84,24 +86,26 @@ class SilhouetteFactors:
             for slot, key in enumerate(keys):
                 if key not in read:
                     read[key] = _read(values, key, pose=slot < 2)
-        stale, x = [], {}
+        stale, at = [], {}
         for i, keys in enumerate(self._keys):
             if any(read[key] is None for key in keys):
                 continue
-            x[i] = np.concatenate([read[key] for key in keys])
-            if self._x[i] is None or not np.array_equal(x[i], self._x[i]):
+            at[i] = b"".join(read[key].tobytes() for key in keys)
+            if at[i] != self._at[i]:
                 stale.append(i)
         by_length = {}
         for i in stale:
             by_length.setdefault(len(self._rays[i]), []).append(i)
         for idx in by_length.values():
-            X = np.stack([x[i] for i in idx])
+            Tc, Tl, shape = (np.stack([read[self._keys[i][slot]] for i in idx]) for slot in range(3))
             d0 = np.stack([np.full(len(self._rays[i]), np.nan) if self._d[i] is None else self._d[i] for i in idx])
             with np.errstate(all="ignore"):
-                r, Jc, Jl, Js, d = batch_silhouette_residuals(X[:, :16].reshape(-1, 4, 4), X[:, 16:32].reshape(-1, 4, 4),
-                                                              X[:, 32:], self._stack(idx), d0)
+                out = batch_silhouette_residuals(Tc, Tl, shape, self._stack(idx), d0)
+            finite = np.logical_and.reduce([np.isfinite(a).reshape(len(idx), -1).all(axis=1) for a in out[:4]])
+            r, Jc, Jl, Js, d = out
             for j, i in enumerate(idx):
-                self._x[i], self._out[i], self._d[i] = x[i], (r[j], Jc[j], Jl[j], Js[j]), d[j]
+                self._at[i], self._d[i] = at[i], d[j]
+                self._out[i] = (r[j], Jc[j], Jl[j], Js[j]) if finite[j] else None
             self.factor_evaluations += len(idx)
         self.evaluations += 1
 
@@ -117,15 +121,10 @@ class SilhouetteFactors:
 
 
 def _read(values, key, pose):
-    """A variable as a flat array (a pose's 4 x 4 matrix row by row), or None when ``values`` lacks it."""
+    """A variable (a pose as its (4, 4) matrix), or None when ``values`` lacks it."""
     if not values.exists(key):
         return None
-    return values.atPose3(key).matrix().ravel() if pose else np.asarray(values.atVector(key), dtype=np.float64)
-
-
-def _factor_values(values, camera_key, pose_key, shape_key):
-    return np.concatenate([values.atPose3(camera_key).matrix().ravel(), values.atPose3(pose_key).matrix().ravel(),
-                           values.atVector(shape_key)])
+    return values.atPose3(key).matrix() if pose else values.atVector(key)
 
 
 def silhouette_factor(noise, camera_key, pose_key, shape_key, rays, batch=None):

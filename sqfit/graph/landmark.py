@@ -224,10 +224,16 @@ def batch_silhouette_residuals(T_world_camera, T_world_sq, shape, rays, d0=None)
     d, _ = _gauge_minima(np.ascontiguousarray((rel0 / a).T), np.ascontiguousarray((ul_flat / a).T), rel0, ul_flat,
                          ratio, e1, e2, None if d0 is None else np.reshape(d0, k * n))
     d = d.reshape(k, n)
-    xi = np.zeros((k, C.N_PARAMS))
-    xi[:, :N_SHAPE] = clipped
     y = origins + d[..., None] * ul
-    log_m, d_log_m = batch_log_gauge_jacobian(xi, y)
+    # the factors of one landmark share its shape: one Jacobian call per distinct shape, not per factor
+    log_m, d_log_m = np.empty((k, n)), np.empty((k, n, C.N_PARAMS))
+    shapes, which = np.unique(clipped, axis=0, return_inverse=True)
+    for j, sj in enumerate(shapes):
+        rows = np.flatnonzero(which.ravel() == j)
+        xi = np.zeros((1, C.N_PARAMS))
+        xi[0, :N_SHAPE] = sj
+        lm, dlm = batch_log_gauge_jacobian(xi, y[rows].reshape(1, -1, 3))
+        log_m[rows], d_log_m[rows] = lm.reshape(len(rows), n), dlm.reshape(len(rows), n, C.N_PARAMS)
     phi, dphi = _phi(log_m)
     active = np.where(rays.hinge_in, phi > 0, np.where(rays.hinge_out, (phi < 0) & rays.two_sided, True))
     scale = rays.weights * active
