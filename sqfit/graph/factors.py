@@ -104,8 +104,10 @@ class SilhouetteFactors:
             finite = np.logical_and.reduce([np.isfinite(a).reshape(len(idx), -1).all(axis=1) for a in out[:4]])
             r, Jc, Jl, Js, d = out
             for j, i in enumerate(idx):
-                self._at[i], self._d[i] = at[i], d[j]
-                self._out[i] = (r[j], Jc[j], Jl[j], Js[j]) if finite[j] else None
+                # copies, not views: a view would keep this evaluation's arrays alive for as long as
+                # any one of its factors is not re-evaluated (iSAM2 leaves old frames' factors alone)
+                self._at[i], self._d[i] = at[i], d[j].copy()
+                self._out[i] = (r[j].copy(), Jc[j].copy(), Jl[j].copy(), Js[j].copy()) if finite[j] else None
             self.factor_evaluations += len(idx)
         self.evaluations += 1
 
