@@ -424,6 +424,10 @@ def test_a_landmark_left_in_a_poor_minimum_is_refitted(small):
         values.insert(L(oid), gtsam.Pose3(T))
         values.insert(S(oid), s)
     misfit = {oid: solve._object_misfit(prob, values, oid, options) for oid in seq.objects}
+    cache = {}  # the batch solve hands the re-fit the graph's rays: the same misfit from them
+    assert solve._object_misfit(prob, values, 2, options, cache) == misfit[2]
+    assert sorted(cache) == [(f, 2) for f in prob.frames[2]]
+    assert solve._object_misfit(prob, values, 2, options, cache) == misfit[2]
     assert misfit[2] > options.refit_misfit > max(misfit[1], misfit[3]), misfit
     result = graph.SlamResult("graph", seq.true_poses)
     assert solve._refit(prob, values, list(seq.objects), options, result)
