@@ -105,6 +105,103 @@ def test_silhouette_shape_outside_the_domain_is_clipped_with_zero_columns():
     assert np.all(landmark.bounds_residuals(s, 100.0)[0] == 0)
 
 
+# --- the graph's factors evaluated together -------------------------------------------------------
+
+def _factor_cases(n=5, seed=0):
+    """``n`` (camera, landmark, shape, rays) cases around the test view: one shape outside the domain
+    (clipped), one-sided rays in one, two ray sets."""
+    rng = np.random.default_rng(seed)
+    Tl, s = _perturbed_landmark()
+    rays = [_rays(), _rays(T=sqfit.look_at([-3.0, 2.5, 1.0], [0.0, 0.0, 0.4]))]
+    one_sided = _rays()
+    object.__setattr__(one_sided, "two_sided", np.arange(len(one_sided)) % 3 != 0)
+    object.__setattr__(one_sided, "_hinge_in", np.flatnonzero(~one_sided.two_sided))
+    cases = []
+    for i in range(n):
+        shape = s * rng.uniform(0.9, 1.1, 5)
+        if i == 2:
+            shape[3] = 2.4  # clipped to EVAL_UPPER
+        ray_set = one_sided if i == 3 else rays[i % 2]
+        T_cam = T_CAM if ray_set is not rays[1] else sqfit.look_at([-3.0, 2.5, 1.0], [0.0, 0.0, 0.4])
+        cases.append((_retract(T_cam, rng.normal(0, 0.02, 6)), _retract(Tl, rng.normal(0, 0.02, 6)), shape, ray_set))
+    return cases
+
+
+def test_batched_silhouette_residuals_equal_one_factor_at_a_time():
+    cases = _factor_cases()
+    Tc, Tl, shapes, rays = (list(c) for c in zip(*cases))
+    stacked = landmark.stack_rays(rays)
+    out = landmark.batch_silhouette_residuals(np.array(Tc), np.array(Tl), np.array(shapes), stacked)
+    for i, case in enumerate(cases):
+        ref = landmark.silhouette_residuals(*case)
+        assert np.abs(ref[0]).max() > 1e-3
+        for got, want in zip(out, ref):
+            np.testing.assert_allclose(got[i], want, rtol=1e-6, atol=1e-9 * max(1.0, np.abs(want).max()))
+    # warm start (NaN: none) gives the same minimisers and residuals
+    d0 = out[4].copy()
+    d0[1] = np.nan
+    warm = landmark.batch_silhouette_residuals(np.array(Tc), np.array(Tl), np.array(shapes), stacked, d0)
+    for got, want in zip(warm, out):
+        np.testing.assert_allclose(got, want, rtol=1e-6, atol=1e-9)
+
+
+def test_stack_rays_checks_its_input():
+    with pytest.raises(ValueError, match="ray_sets must not be empty"):
+        landmark.stack_rays([])
+    with pytest.raises(ValueError, match=r"same number of rays, got lengths \[16, 24\]"):
+        landmark.stack_rays([_rays(), _rays(n=16)])
+
+
+def _cases_graph(cases, batch):
+    values, fs = gtsam.Values(), []
+    for i, (Tc, Tl, shape, rays) in enumerate(cases):
+        values.insert(X(i), gtsam.Pose3(Tc))
+        values.insert(L(i), gtsam.Pose3(Tl))
+        values.insert(S(i), shape)
+        fs.append(factors.silhouette_factor(gtsam.noiseModel.Unit.Create(len(rays)), X(i), L(i), S(i), rays, batch))
+    return values, fs
+
+
+def _rows(f, values):
+    lin = f.linearize(values)
+    return f.unwhitenedError(values), lin.jacobian()[0]
+
+
+def test_shared_evaluation_serves_every_factor_and_recomputes_only_what_changed():
+    cases = _factor_cases()
+    batch = factors.SilhouetteFactors()
+    values, shared = _cases_graph(cases, batch)
+    _, alone = _cases_graph(cases, None)  # each factor with an evaluator of its own
+    for f, g in zip(shared, alone):
+        for a, b in zip(_rows(f, values), _rows(g, values)):
+            np.testing.assert_allclose(a, b, rtol=1e-6, atol=1e-9)
+    assert (batch.evaluations, batch.factor_evaluations) == (1, len(cases))  # one call evaluated all
+    # move one camera: only its factor is re-evaluated, and every factor still gives fresh rows
+    moved = gtsam.Values(values)
+    moved.update(X(1), gtsam.Pose3(_retract(cases[1][0], np.full(6, 0.01))))
+    for f, g in zip(shared, alone):
+        for a, b in zip(_rows(f, moved), _rows(g, moved)):
+            np.testing.assert_allclose(a, b, rtol=1e-6, atol=1e-9)
+    assert (batch.evaluations, batch.factor_evaluations) == (2, len(cases) + 1)
+    np.testing.assert_allclose(shared[1].unwhitenedError(moved), landmark.silhouette_residuals(
+        moved.atPose3(X(1)).matrix(), cases[1][1], cases[1][2], cases[1][3])[0], rtol=1e-6, atol=1e-9)
+    # back at the first values: re-evaluated, not served from a stale cache
+    np.testing.assert_allclose(shared[1].unwhitenedError(values), alone[1].unwhitenedError(values), atol=1e-9)
+    # values holding only some factors' variables: the others are left out
+    part = gtsam.Values()
+    for key in (X(0), L(0), S(0)):
+        part.insert(key, values.atPose3(key) if key != S(0) else values.atVector(key))
+    np.testing.assert_allclose(shared[0].unwhitenedError(part), alone[0].unwhitenedError(part), atol=1e-9)
+
+
+def test_a_non_finite_residual_names_the_factor():
+    Tc, Tl, shape, rays = _factor_cases(1)[0]
+    values, (f,) = _cases_graph([(Tc, Tl, shape, rays)], None)
+    values.update(S(0), np.array([np.nan, 0.3, 0.3, 1.0, 1.0]))
+    with pytest.raises(FloatingPointError, match=r"silhouette factor \(x0, l0\): non-finite residual"):
+        f.unwhitenedError(values)
+
+
 def _linearized(factor, values, keys, dims):
     """Jacobian blocks of a unit-noise factor as GTSAM linearises it, and central differences of its
     error under GTSAM's own retraction."""
@@ -327,6 +424,10 @@ def test_a_landmark_left_in_a_poor_minimum_is_refitted(small):
         values.insert(L(oid), gtsam.Pose3(T))
         values.insert(S(oid), s)
     misfit = {oid: solve._object_misfit(prob, values, oid, options) for oid in seq.objects}
+    cache = {}  # the batch solve hands the re-fit the graph's rays: the same misfit from them
+    assert solve._object_misfit(prob, values, 2, options, cache) == misfit[2]
+    assert sorted(cache) == [(f, 2) for f in prob.frames[2]]
+    assert solve._object_misfit(prob, values, 2, options, cache) == misfit[2]
     assert misfit[2] > options.refit_misfit > max(misfit[1], misfit[3]), misfit
     result = graph.SlamResult("graph", seq.true_poses)
     assert solve._refit(prob, values, list(seq.objects), options, result)

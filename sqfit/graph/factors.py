@@ -2,22 +2,134 @@
 of :mod:`sqfit.graph.landmark` and :mod:`sqfit.graph.quadric`.
 
 A factor is one (frame, object) pair, never one pixel: the Python callback is the cost, so a view's
-rays are evaluated together (one call of :func:`sqfit.raycost.ray_residuals`). Each callback keeps
-the ray minimisers of its last call as the warm start of the next (valid for any nearby value).
+rays are evaluated together. The silhouette factors of one graph go further and share a
+:class:`SilhouetteFactors` evaluator: GTSAM calls the factors one by one (``error`` at a trial point,
+``linearize`` at an accepted one), and the first call at new values evaluates every factor of the
+graph whose variables changed in one vectorised call
+(:func:`sqfit.graph.landmark.batch_silhouette_residuals`); the factors then serve their rows from that
+evaluation until their variables change again. Measured on the rendered scene (``benchmarks/
+bench_graph.py``): one factor alone costs ~1 ms, nearly all numpy's per-call overhead on its 32 rays.
+Each factor keeps its ray minimisers as the warm start of its next evaluation (valid for any nearby
+value).
 """
 
 from __future__ import annotations
 
+import threading
+
 import gtsam
 import numpy as np
 
-from .landmark import bounds_residuals, silhouette_residuals
+from .landmark import batch_silhouette_residuals, bounds_residuals, stack_rays
 from .quadric import box_residuals
 
-__all__ = ["silhouette_factor", "bounds_factor", "box_factor"]
+__all__ = ["SilhouetteFactors", "silhouette_factor", "bounds_factor", "box_factor"]
 
 
-def silhouette_factor(noise, camera_key, pose_key, shape_key, rays):
+class SilhouetteFactors:
+    """The silhouette factors of one graph, evaluated together (module docstring).
+
+    A resource with state (the last evaluation of each factor), so a class: make one per graph, add
+    its factors with :meth:`factor`. Factors of different graphs must not share one (an evaluation
+    reads every factor's variables from the values GTSAM passes; a factor whose variables are not
+    all there is left out of it).
+
+    Attributes
+    ----------
+    evaluations : int
+        Vectorised evaluations so far.
+    factor_evaluations : int
+        Factor evaluations they contained (one factor, all its rays).
+    """
+
+    def __init__(self):
+        self._keys, self._rays, self._stacked = [], [], {}
+        # per factor: the variables of its last evaluation (bytes: exact, and cheap to compare), its
+        # rows (None where non-finite) and its ray minimisers (the next warm start)
+        self._at, self._out, self._d = [], [], []
+        self._lock = threading.Lock()
+        self.evaluations = self.factor_evaluations = 0
+
+    def __len__(self):
+        return len(self._keys)
+
+    def factor(self, noise, camera_key, pose_key, shape_key, rays):
+        """A new silhouette factor of this graph (arguments: :func:`silhouette_factor`)."""
+        i = len(self._keys)
+        self._keys.append((camera_key, pose_key, shape_key))
+        self._rays.append(rays)
+        self._at.append(None)
+        self._out.append(None)
+        self._d.append(None)
+
+        def error(this, values, jacobians):
+            at = (values.atPose3(camera_key).matrix().tobytes() + values.atPose3(pose_key).matrix().tobytes()
+                  + values.atVector(shape_key).tobytes())
+            with self._lock:
+                if at != self._at[i]:
+                    self._evaluate(values)
+                out = self._out[i]
+            if out is None:
+                raise FloatingPointError(f"silhouette factor ({gtsam.DefaultKeyFormatter(camera_key)}, "
+                                         f"{gtsam.DefaultKeyFormatter(pose_key)}): non-finite residual at shape "
+                                         f"{values.atVector(shape_key)}")
+            if jacobians is not None:
+                jacobians[0], jacobians[1], jacobians[2] = out[1:]
+            return out[0]
+
+        return gtsam.CustomFactor(noise, [camera_key, pose_key, shape_key], error)
+
+    def _evaluate(self, values):
+        """Evaluate every factor whose variables are in ``values`` and differ from its last evaluation."""
+        read = {}
+        for keys in self._keys:
+            for slot, key in enumerate(keys):
+                if key not in read:
+                    read[key] = _read(values, key, pose=slot < 2)
+        stale, at = [], {}
+        for i, keys in enumerate(self._keys):
+            if any(read[key] is None for key in keys):
+                continue
+            at[i] = b"".join(read[key].tobytes() for key in keys)
+            if at[i] != self._at[i]:
+                stale.append(i)
+        by_length = {}
+        for i in stale:
+            by_length.setdefault(len(self._rays[i]), []).append(i)
+        for idx in by_length.values():
+            Tc, Tl, shape = (np.stack([read[self._keys[i][slot]] for i in idx]) for slot in range(3))
+            d0 = np.stack([np.full(len(self._rays[i]), np.nan) if self._d[i] is None else self._d[i] for i in idx])
+            with np.errstate(all="ignore"):
+                out = batch_silhouette_residuals(Tc, Tl, shape, self._stack(idx), d0)
+            finite = np.logical_and.reduce([np.isfinite(a).reshape(len(idx), -1).all(axis=1) for a in out[:4]])
+            r, Jc, Jl, Js, d = out
+            for j, i in enumerate(idx):
+                # copies, not views: a view would keep this evaluation's arrays alive for as long as
+                # any one of its factors is not re-evaluated (iSAM2 leaves old frames' factors alone)
+                self._at[i], self._d[i] = at[i], d[j].copy()
+                self._out[i] = (r[j].copy(), Jc[j].copy(), Jl[j].copy(), Js[j].copy()) if finite[j] else None
+            self.factor_evaluations += len(idx)
+        self.evaluations += 1
+
+    def _stack(self, idx):
+        key = tuple(idx)
+        if key not in self._stacked:
+            # the stale sets repeat (all factors in a batch solve, those of the relinearised
+            # variables in iSAM2): keep the last few stackings
+            if len(self._stacked) > 8:
+                self._stacked.pop(next(iter(self._stacked)))
+            self._stacked[key] = stack_rays([self._rays[i] for i in idx])
+        return self._stacked[key]
+
+
+def _read(values, key, pose):
+    """A variable (a pose as its (4, 4) matrix), or None when ``values`` lacks it."""
+    if not values.exists(key):
+        return None
+    return values.atPose3(key).matrix() if pose else values.atVector(key)
+
+
+def silhouette_factor(noise, camera_key, pose_key, shape_key, rays, batch=None):
     """Silhouette factor of one view of one superquadric landmark.
 
     Parameters
@@ -28,31 +140,10 @@ def silhouette_factor(noise, camera_key, pose_key, shape_key, rays):
         Keys of the camera ``Pose3``, the landmark ``Pose3`` and its size/shape vector (5,).
     rays : RaySet
         Camera-frame rays (:func:`sqfit.graph.landmark.camera_rays`).
+    batch : SilhouetteFactors, optional
+        The evaluator of the graph's silhouette factors; default: one of its own.
     """
-    last = {}
-
-    def error(this, values, jacobians):
-        Tc = values.atPose3(camera_key).matrix()
-        Tl = values.atPose3(pose_key).matrix()
-        s = values.atVector(shape_key)
-        x = np.concatenate([Tc.ravel(), Tl.ravel(), s])
-        # Levenberg-Marquardt linearises at the point whose error it has just evaluated: the residual
-        # function returns the Jacobians anyway, so that second call is served from here.
-        if "x" in last and np.array_equal(x, last["x"]):
-            r, Jc, Jl, Js = last["out"]
-        else:
-            with np.errstate(all="ignore"):
-                r, Jc, Jl, Js, d = silhouette_residuals(Tc, Tl, s, rays, last.get("d"))
-            if not (np.all(np.isfinite(r)) and np.all(np.isfinite(Jc)) and np.all(np.isfinite(Jl))
-                    and np.all(np.isfinite(Js))):
-                raise FloatingPointError(f"silhouette factor ({gtsam.DefaultKeyFormatter(camera_key)}, "
-                                         f"{gtsam.DefaultKeyFormatter(pose_key)}): non-finite residual at shape {s}")
-            last.update(x=x, out=(r, Jc, Jl, Js), d=d)
-        if jacobians is not None:
-            jacobians[0], jacobians[1], jacobians[2] = Jc, Jl, Js
-        return r
-
-    return gtsam.CustomFactor(noise, [camera_key, pose_key, shape_key], error)
+    return (SilhouetteFactors() if batch is None else batch).factor(noise, camera_key, pose_key, shape_key, rays)
 
 
 def bounds_factor(shape_key, weight):

@@ -33,7 +33,7 @@ import numpy as np
 from gtsam.symbol_shorthand import L, Q, S, X
 
 from .. import pipeline
-from .factors import bounds_factor, box_factor, silhouette_factor
+from .factors import SilhouetteFactors, bounds_factor, box_factor, silhouette_factor
 from .landmark import camera_rays, landmark_to_superquadric, superquadric_to_landmark
 from .problem import GraphOptions, SlamResult, check_inputs, observation_at, ready_to_initialise
 from .quadric import initialise_quadric, observation_box, quadric_to_superquadric
@@ -99,7 +99,7 @@ def _initial_fit(problem, oid, frames, poses, options):
     return superquadric_to_landmark(res.superquadric), ""
 
 
-def _add_landmark(graph, values, problem, oid, frames, landmark, options):
+def _add_landmark(graph, values, problem, oid, frames, landmark, options, batch, rays_cache=None):
     T, shape = landmark
     shape = np.asarray(shape, dtype=np.float64)
     values.insert(L(oid), gtsam.Pose3(T))
@@ -111,15 +111,22 @@ def _add_landmark(graph, values, problem, oid, frames, landmark, options):
     graph.add(gtsam.PriorFactorPose3(L(oid), gtsam.Pose3(T), gtsam.noiseModel.Diagonal.Sigmas(np.array([rot] * 3 + [pos] * 3))))
     graph.add(gtsam.PriorFactorVector(S(oid), shape, gtsam.noiseModel.Isotropic.Sigma(len(shape), size)))
     for f in frames:
-        graph.add(_silhouette(problem, f, oid, options))
+        graph.add(_silhouette(problem, f, oid, options, batch, rays_cache))
 
 
-def _silhouette(problem, frame, oid, options):
-    rays = camera_rays(problem.observations[frame, oid], options.n_contour)
+def _silhouette(problem, frame, oid, options, batch, rays_cache=None):
+    """The silhouette factor of ``(frame, oid)``, evaluated with the graph's other ones by ``batch``
+    (a :class:`sqfit.graph.factors.SilhouetteFactors`); ``rays_cache`` (a dict) keeps the rays of
+    the factors made so far, for the re-fit's factors of the same views."""
+    rays = None if rays_cache is None else rays_cache.get((frame, oid))
+    if rays is None:
+        rays = camera_rays(problem.observations[frame, oid], options.n_contour)
+        if rays_cache is not None:
+            rays_cache[frame, oid] = rays
     # the ray residuals carry contour_rays' weights 1 / sqrt(n): sigma per weighted row
     sigma = options.silhouette_sigma / np.sqrt(len(rays))
     return silhouette_factor(_robust(len(rays), sigma, options.huber_k), X(frame), L(oid),
-                             S(oid), rays)
+                             S(oid), rays, batch)
 
 
 def _lm(graph, values, options):
@@ -206,6 +213,7 @@ class _Growth:
             for f in frames:
                 self.by_frame.setdefault(f, []).append(oid)
         self.pending, self.added, self.failed, self.current = {}, [], set(), {}
+        self.batch, self.rays = SilhouetteFactors(), {}
 
     def add(self, frames):
         """``(graph, values)`` of the new factors and variables for ``frames`` (the next frames)."""
@@ -223,7 +231,7 @@ class _Growth:
         if oid in self.failed:
             return
         if oid in self.added:
-            graph.add(_silhouette(self.problem, i, oid, self.options))
+            graph.add(_silhouette(self.problem, i, oid, self.options, self.batch, self.rays))
             return
         frames = self.pending.setdefault(oid, [])
         frames.append(i)
@@ -235,7 +243,7 @@ class _Growth:
             _skip(self.result, oid, message)
             self.failed.add(oid)
             return
-        _add_landmark(graph, values, self.problem, oid, frames, landmark, self.options)
+        _add_landmark(graph, values, self.problem, oid, frames, landmark, self.options, self.batch, self.rays)
         self.added.append(oid)
 
     def update(self, estimate, n):
@@ -270,7 +278,7 @@ def _batch(problem, options):
                                      replace(options, relative_tolerance=options.window_relative_tolerance))
             result.iterations += iterations
             growth.update(values, min(start + window, n))
-        if _refit(problem, values, growth.added, options, result):
+        if _refit(problem, values, growth.added, options, result, growth.rays):
             values, iterations = _lm(graph, values, options)
             result.iterations += iterations
     except _SOLVER_ERRORS as exc:
@@ -283,26 +291,26 @@ def _batch(problem, options):
     return result
 
 
-def _object_misfit(problem, values, oid, options):
+def _object_misfit(problem, values, oid, options, rays_cache=None):
     """RMS whitened ray residual of object ``oid``'s silhouette factors at ``values`` (1: a typical
     ray one ``silhouette_sigma`` off)."""
-    sub, rows = gtsam.NonlinearFactorGraph(), 0
+    sub, rows, batch = gtsam.NonlinearFactorGraph(), 0, SilhouetteFactors()
     for f in problem.frames[oid]:
-        sub.add(_silhouette(problem, f, oid, options))
+        sub.add(_silhouette(problem, f, oid, options, batch, rays_cache))
         rows += options.n_contour
     return float(np.sqrt(2.0 * sub.error(values) / rows))
 
 
-def _refit(problem, values, oids, options, result):
+def _refit(problem, values, oids, options, result, rays_cache=None):
     """Re-initialise the landmarks left in a poor minimum (misfit above ``refit_misfit``) by
     :func:`sqfit.fit` on all their frames at the solved poses; keep a refit that fits better.
-    Returns whether a landmark changed."""
+    Returns whether a landmark changed. ``rays_cache``: :func:`_silhouette`."""
     if options.refit_misfit <= 0:
         return False
     poses = _poses(values, problem.n_frames)
     changed = False
     for oid in oids:
-        before = _object_misfit(problem, values, oid, options)
+        before = _object_misfit(problem, values, oid, options, rays_cache)
         if before <= options.refit_misfit:
             continue
         landmark, _ = _initial_fit(problem, oid, problem.frames[oid], poses, options)
@@ -311,7 +319,7 @@ def _refit(problem, values, oids, options, result):
         trial = gtsam.Values(values)
         trial.update(L(oid), gtsam.Pose3(landmark[0]))
         trial.update(S(oid), np.asarray(landmark[1], dtype=np.float64))
-        after = _object_misfit(problem, trial, oid, options)
+        after = _object_misfit(problem, trial, oid, options, rays_cache)
         if after < before:
             values.update(L(oid), gtsam.Pose3(landmark[0]))
             values.update(S(oid), np.asarray(landmark[1], dtype=np.float64))
