@@ -61,7 +61,13 @@ rays per view instead of 64 took as long; 10 screening rays per view instead of 
 10th percentile to 0.761. The screen's ray minimisers stop at 1e-6 relative instead of 3G's 1e-10
 (same fits, ~3 ms less); 1e-4 saved another ~2.5 ms but lowered the 10th percentile of IoU
 (paper scene, 100 trials) from 0.842 to 0.826 (seed 0) and from 0.841 to 0.777 (seed 1). Cutting
-the screen to 10 steps lowered it from 0.912 to 0.833 (30 trials). The screen's Jacobians of all candidates are one
+the screen to 10 steps lowered it from 0.912 to 0.833 (30 trials). The screen's ray minimisers take
+at most :data:`SCREEN_MAX_NEWTON` (10) Newton / bisection steps on rays whose warm bracket failed,
+instead of 3G's 30: the few slow rays (bisecting at the near-kinks of box-like candidates) held
+every step's vectorised loop for up to 30 passes. Truth-bound runs (``scripts/truth_bound.py``, 100
+paper trials, seeds 0 and 1; paper-noisy 100, cylinders and boxes 30, seeds 0 and 1) gave the same
+medians within 0.003 and the same or higher 10th percentiles and means; a cap of 8 lowered the
+mean on paper seed 1 (0.949 against 0.954), 6 lowered it on seed 0. The screen's Jacobians of all candidates are one
 vectorised call per step (:func:`sqfit.raycost.batch_log_gauge_jacobian`; a loop over the six
 candidates cost ~6 ms of ~33).
 
@@ -103,6 +109,11 @@ PRUNE_AFTER = None
 PRUNE_RATIO = 4.0
 #: Relative tolerance of the screen's ray minimisers (3G: 1e-10; see :func:`sqfit.raycost.batch_ray_minima`).
 SCREEN_RTOL = 1e-6
+#: Newton / bisection steps at most of the screen's ray minimisers for rays whose warm bracket did not
+#: hold (3G: 30; warm rays: 6 in both). The tail of slow rays (near-kinks of box-like candidates,
+#: bisecting) set the time of every step: 10 instead of 30 cut the default chain from ~31.5 to
+#: ~28 ms per object with the same accuracy (module docstring).
+SCREEN_MAX_NEWTON = 10
 #: A 3H result whose R-IOU-M (the fitter's own, visible part of the masks) is below this is re-fitted
 #: through :data:`RESCUE_STAGES` and the screen, and the better of the two by R-IOU-M is kept.
 #: Good fits score 0.75-0.95 on clean and noisy masks; the 3G minima this catches score below 0.3.
@@ -166,7 +177,7 @@ def batch_levenberg_marquardt(X0, rays, iterations, weight=C.PENALTY_ANALYTIC, p
     if int(iterations) != iterations or iterations < 0:
         raise ValueError(f"iterations must be an integer >= 0, got {iterations}")
     with np.errstate(all="ignore"):
-        r, J, d = batch_ray_residuals(X, rays, weight, rtol=SCREEN_RTOL)
+        r, J, d = batch_ray_residuals(X, rays, weight, rtol=SCREEN_RTOL, max_newton=SCREEN_MAX_NEWTON)
         cost = 0.5 * np.einsum("bm,bm->b", r, r)
         ok = np.isfinite(cost) & np.isfinite(J).all(axis=(1, 2))
         cost = np.where(ok, cost, np.inf)
@@ -187,7 +198,8 @@ def batch_levenberg_marquardt(X0, rays, iterations, weight=C.PENALTY_ANALYTIC, p
             finite = np.isfinite(dx).all(axis=1)
             trial = np.where(finite[:, None], X[act] + dx, X[act])
             dx = np.where(finite[:, None], dx, 0.0)
-            r_new, J_new, d_new = batch_ray_residuals(trial, rays, weight, d[act], rtol=SCREEN_RTOL)
+            r_new, J_new, d_new = batch_ray_residuals(trial, rays, weight, d[act], rtol=SCREEN_RTOL,
+                                                      max_newton=SCREEN_MAX_NEWTON)
             cost_new = 0.5 * np.einsum("bm,bm->b", r_new, r_new)
             Jdx = np.einsum("bmk,bk->bm", J[act], dx)
             predicted = -np.einsum("bk,bk->b", g[act], dx) - 0.5 * np.einsum("bm,bm->b", Jdx, Jdx)

@@ -135,7 +135,7 @@ def ray_minima(xi, origins, directions, d0=None):
     return d[0], log_m[0]
 
 
-def batch_ray_minima(X, origins, directions, d0=None, rtol=_D_RTOL):
+def batch_ray_minima(X, origins, directions, d0=None, rtol=_D_RTOL, max_newton=_MAX_NEWTON):
     """:func:`ray_minima` for ``b`` superquadrics at once, on the same rays (one vectorised solve).
 
     Parameters
@@ -146,6 +146,9 @@ def batch_ray_minima(X, origins, directions, d0=None, rtol=_D_RTOL):
     rtol : float
         Relative tolerance on ``d`` (an error ``delta`` in ``d`` changes ``m`` by ``O(delta**2)``:
         a screen can stop much earlier than the default).
+    max_newton : int
+        Newton / bisection steps at most for a ray whose warm-start bracket did not hold (or with no
+        warm start); rays whose bracket held take at most :data:`_MAX_NEWTON_WARM`.
 
     Returns
     -------
@@ -164,7 +167,8 @@ def batch_ray_minima(X, origins, directions, d0=None, rtol=_D_RTOL):
     if b == 1:  # scalar exponents: the common case stays as fast as before
         e1, e2 = float(X[0, 3]), float(X[0, 4])
     q0, u = np.ascontiguousarray((rel0 / a_ray).T), np.ascontiguousarray((ul / a_ray).T)
-    d, log_m = _gauge_minima(q0, u, rel0, ul, ratio, e1, e2, None if d0 is None else np.reshape(d0, b * n), rtol)
+    d, log_m = _gauge_minima(q0, u, rel0, ul, ratio, e1, e2, None if d0 is None else np.reshape(d0, b * n), rtol,
+                             max_newton)
     return d.reshape(b, n), log_m.reshape(b, n)
 
 
@@ -173,7 +177,7 @@ def _take(e, idx):
     return e if np.ndim(e) == 0 else e[idx]
 
 
-def _gauge_minima(q0, u, rel0, ul, ratio, e1, e2, d0, rtol=_D_RTOL):
+def _gauge_minima(q0, u, rel0, ul, ratio, e1, e2, d0, rtol=_D_RTOL, max_newton=_MAX_NEWTON):
     """The solver of :func:`ray_minima` on rays in unit-size superquadric coordinates.
 
     ``q0``, ``u`` are ``(3, n)``; ``rel0``, ``ul`` the same rays in superquadric coordinates
@@ -217,8 +221,8 @@ def _gauge_minima(q0, u, rel0, ul, ratio, e1, e2, d0, rtol=_D_RTOL):
     dd, lo_a, hi_a, tola = d.copy(), lo, hi, tol
     dx = dx_old = hi - lo
     qa, ua, e1a, e2a = q0, u, e1, e2
-    budget = np.where(cold, _MAX_NEWTON, _MAX_NEWTON_WARM)
-    for it in range(1, _MAX_NEWTON + 1):
+    budget = np.where(cold, max_newton, _MAX_NEWTON_WARM)
+    for it in range(1, max(max_newton, _MAX_NEWTON_WARM) + 1):
         _, lg1, lg2 = _line_log_gauge(qa, ua, dd, e1a, e2a)
         neg = lg1 < 0
         lo_a = np.where(neg, dd, lo_a)
@@ -316,7 +320,7 @@ def ray_residuals(xi, rays, weight=C.PENALTY_ANALYTIC, d0=None):
     return r, J, d
 
 
-def batch_ray_residuals(X, rays, weight=C.PENALTY_ANALYTIC, d0=None, rtol=_D_RTOL):
+def batch_ray_residuals(X, rays, weight=C.PENALTY_ANALYTIC, d0=None, rtol=_D_RTOL, max_newton=_MAX_NEWTON):
     """:func:`ray_residuals` of ``b`` superquadrics on the same rays (one vectorised ray solve).
 
     Parameters
@@ -327,8 +331,8 @@ def batch_ray_residuals(X, rays, weight=C.PENALTY_ANALYTIC, d0=None, rtol=_D_RTO
         ``c_p`` of the penalty rows.
     d0 : (b, n) float, optional
         Warm start of the ray minimisers.
-    rtol : float
-        Tolerance of the ray minimisers (:func:`batch_ray_minima`).
+    rtol, max_newton : float, int
+        Tolerance and step budget of the ray minimisers (:func:`batch_ray_minima`).
 
     Returns
     -------
@@ -340,7 +344,7 @@ def batch_ray_residuals(X, rays, weight=C.PENALTY_ANALYTIC, d0=None, rtol=_D_RTO
     if not isinstance(rays, RaySet):
         raise TypeError(f"rays must be a sqfit.rays.RaySet, got {type(rays).__name__}")
     b, n, k = len(X), len(rays), C.N_PARAMS
-    d, _ = batch_ray_minima(X, rays.origins, rays.directions, d0, rtol)
+    d, _ = batch_ray_minima(X, rays.origins, rays.directions, d0, rtol, max_newton)
     r = np.empty((b, n + k))
     J = np.zeros((b, n + k, k))
     points = rays.origins[None] + d[:, :, None] * rays.directions[None]
