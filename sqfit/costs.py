@@ -369,17 +369,49 @@ def radial_terms(xi, points):
     d_point : (n, 3) float
         ``d g3 / d point`` (world frame).
     """
-    a, e1, e2 = xi[0:3], float(xi[3]), float(xi[4])
     R, dR = rotation_and_derivatives(xi[8:11])
-    rel = points - xi[5:8]
+    g3, d_xi, d_point = _radial_core(np.asarray(xi, dtype=np.float64)[None], R[None], dR.reshape(1, 3, 9),
+                                     np.asarray(points, dtype=np.float64)[None])
+    return g3[0], d_xi[0], d_point[0]
+
+
+def batch_radial_terms(X, points):
+    """:func:`radial_terms` of ``b`` superquadrics at once, each at its own points.
+
+    Parameters
+    ----------
+    X : (b, 11) float
+    points : (b, n, 3) float
+        World coordinates; row ``i`` belongs to ``X[i]``.
+
+    Returns
+    -------
+    g3 : (b, n) float
+    d_xi : (b, n, 11) float
+    d_point : (b, n, 3) float
+    """
+    X = np.asarray(X, dtype=np.float64)
+    RdR = [rotation_and_derivatives(x[8:11]) for x in X]
+    R = np.stack([m[0] for m in RdR])
+    dR = np.stack([m[1] for m in RdR]).reshape(len(X), 3, 9)
+    return _radial_core(X, R, dR, np.asarray(points, dtype=np.float64))
+
+
+def _radial_core(X, R, dR, points):
+    """The formulas of :func:`radial_terms` over a batch: ``X (b, 11)``, ``R (b, 3, 3)``, the
+    rotation derivatives ``dR (b, 3, 9)`` and ``points (b, n, 3)``."""
+    b, n = points.shape[:2]
+    a = X[:, None, 0:3]
+    e1, e2 = X[:, 3, None], X[:, 4, None]
+    rel = points - X[:, None, 5:8]
     y = rel @ R
     y[y == 0.0] = _TINY  # keeps log finite; the weight of such a coordinate is 0 anyway
-    norm2 = (y * y).sum(axis=1)
+    norm2 = (y * y).sum(axis=2)
     la = np.log(np.abs(y)) - np.log(np.abs(a))
-    X = (2.0 / e2) * la[:, :2]
-    XY = np.logaddexp(X[:, 0], X[:, 1])
-    wxy = np.exp(X - XY[:, None])
-    A, Bz = (e2 / e1) * XY, (2.0 / e1) * la[:, 2]
+    Xl = (2.0 / e2)[..., None] * la[..., :2]
+    XY = np.logaddexp(Xl[..., 0], Xl[..., 1])
+    wxy = np.exp(Xl - XY[..., None])
+    A, Bz = (e2 / e1) * XY, (2.0 / e1) * la[..., 2]
     L = np.logaddexp(A, Bz)
     wA = np.exp(A - L)
     wB = 1.0 - wA
@@ -388,27 +420,27 @@ def radial_terms(xi, points):
     g3 = S - norm
     # d L / d log|y_i| (= - d L / d log|a_i|): power-mean weights times 2 / e1.
     dl = np.empty_like(y)
-    dl[:, :2] = wxy * wA[:, None]
-    dl[:, 2] = wB
+    dl[..., :2] = wxy * wA[..., None]
+    dl[..., 2] = wB
     half_S = 0.5 * S
     # d G3 / d y = S y / |y|^2 - (e1 / 2) S dL/dy - y / |y|, with e1 dl / 2 = power-mean weights.
-    d_y = ((S - norm) / norm2)[:, None] * y - half_S[:, None] * (2.0 * dl) / y
-    d_xi = np.empty((len(points), C.N_PARAMS))
-    d_xi[:, 0:3] = S[:, None] * dl / a
+    d_y = ((S - norm) / norm2)[..., None] * y - half_S[..., None] * (2.0 * dl) / y
+    d_xi = np.empty((b, n, C.N_PARAMS))
+    d_xi[..., 0:3] = S[..., None] * dl / a
     # d G3 / d e1 = -S (L - wA A - wB Bz) / 2; d G3 / d e2 = -S wA (XY - wx X1 - wy X2) / 2.
     with np.errstate(invalid="ignore"):
         de1 = L - wA * A - wB * Bz
-        de2 = XY - wxy[:, 0] * X[:, 0] - wxy[:, 1] * X[:, 1]
+        de2 = XY - wxy[..., 0] * Xl[..., 0] - wxy[..., 1] * Xl[..., 1]
     if not (np.isfinite(de1).all() and np.isfinite(de2).all()):  # 0 * -inf (a zero size): 0
         de1 = L - _wmul(wA, A) - _wmul(wB, Bz)
-        de2 = XY - _wmul(wxy[:, 0], X[:, 0]) - _wmul(wxy[:, 1], X[:, 1])
-    d_xi[:, 3] = -half_S * de1
-    d_xi[:, 4] = -half_S * wA * de2
-    d_point = d_y @ R.T
-    d_xi[:, 5:8] = -d_point
+        de2 = XY - _wmul(wxy[..., 0], Xl[..., 0]) - _wmul(wxy[..., 1], Xl[..., 1])
+    d_xi[..., 3] = -half_S * de1
+    d_xi[..., 4] = -half_S * wA * de2
+    d_point = d_y @ R.transpose(0, 2, 1)
+    d_xi[..., 5:8] = -d_point
     # y = R^T (x - p): d y_i / d r_k = sum_j dR_k[j, i] rel_j.
-    outer = (rel[:, :, None] * d_y[:, None, :]).reshape(len(points), 9)
-    d_xi[:, 8:11] = outer @ dR.reshape(3, 9).T
+    outer = (rel[..., :, None] * d_y[..., None, :]).reshape(b, n, 9)
+    d_xi[..., 8:11] = outer @ dR.transpose(0, 2, 1)
     return g3, d_xi, d_point
 
 

@@ -41,7 +41,7 @@ import numpy as np
 
 from . import constants as C
 from ._checks import check_shape
-from .costs import LOWER_BOUNDS, UPPER_BOUNDS, _wmul, penalty, penalty_jacobian, radial_terms, rotation_and_derivatives
+from .costs import LOWER_BOUNDS, UPPER_BOUNDS, batch_radial_terms, penalty, penalty_jacobian, rotation_and_derivatives
 from .silhouette import ZNEAR
 from .rays import RaySet
 
@@ -264,15 +264,8 @@ def log_gauge_jacobian(xi, points):
     log_g : (n,) float
     d_xi : (n, 11) float
     """
-    g3, d_g3, _ = radial_terms(xi, points)
-    rel = points - xi[5:8]
-    norm = np.linalg.norm(rel, axis=1)
-    norm = np.where(norm > 0, norm, _TINY)
-    S = g3 + norm
-    d_norm_p = -rel / norm[:, None]
-    d_xi = -d_g3 / S[:, None]
-    d_xi[:, 5:8] = d_norm_p / norm[:, None] - (d_g3[:, 5:8] + d_norm_p) / S[:, None]
-    return np.log(norm) - np.log(S), d_xi
+    log_g, d_xi = batch_log_gauge_jacobian(np.asarray(xi, dtype=np.float64)[None], np.asarray(points)[None])
+    return log_g[0], d_xi[0]
 
 
 def _ray_terms(xi, rays, directions, d0, d=None):
@@ -369,8 +362,8 @@ def batch_ray_residuals(X, rays, weight=C.PENALTY_ANALYTIC, d0=None, rtol=_D_RTO
 def batch_log_gauge_jacobian(X, points):
     """:func:`log_gauge_jacobian` of ``b`` superquadrics at once, each at its own points.
 
-    The same formulas as :func:`sqfit.costs.radial_terms` (``d_point`` omitted) broadcast over the
-    batch, so a screen pays one vectorised evaluation per step instead of one per candidate.
+    From :func:`sqfit.costs.batch_radial_terms`, so a screen pays one vectorised evaluation per step
+    instead of one per candidate.
 
     Parameters
     ----------
@@ -384,46 +377,9 @@ def batch_log_gauge_jacobian(X, points):
     d_xi : (b, n, 11) float
     """
     X = np.asarray(X, dtype=np.float64)
-    b, n = points.shape[:2]
-    a = X[:, None, 0:3]
-    e1, e2 = X[:, 3, None], X[:, 4, None]
-    RdR = [rotation_and_derivatives(x[8:11]) for x in X]
-    R = np.stack([m[0] for m in RdR])
-    dR = np.stack([m[1] for m in RdR]).reshape(b, 3, 9)
+    g3, d_g3, _ = batch_radial_terms(X, points)
     rel = points - X[:, None, 5:8]
-    y = rel @ R
-    y[y == 0.0] = _TINY
-    norm2 = (y * y).sum(axis=2)
-    la = np.log(np.abs(y)) - np.log(np.abs(a))
-    Xl = (2.0 / e2)[..., None] * la[..., :2]
-    XY = np.logaddexp(Xl[..., 0], Xl[..., 1])
-    wxy = np.exp(Xl - XY[..., None])
-    A, Bz = (e2 / e1) * XY, (2.0 / e1) * la[..., 2]
-    L = np.logaddexp(A, Bz)
-    wA = np.exp(A - L)
-    wB = 1.0 - wA
-    S = np.exp(0.5 * (np.log(norm2) - e1 * L))
-    norm = np.sqrt(norm2)
-    g3 = S - norm
-    dl = np.empty_like(y)
-    dl[..., :2] = wxy * wA[..., None]
-    dl[..., 2] = wB
-    half_S = 0.5 * S
-    d_y = ((S - norm) / norm2)[..., None] * y - half_S[..., None] * (2.0 * dl) / y
-    d_g3 = np.empty((b, n, C.N_PARAMS))
-    d_g3[..., 0:3] = S[..., None] * dl / a
-    with np.errstate(invalid="ignore"):
-        de1 = L - wA * A - wB * Bz
-        de2 = XY - wxy[..., 0] * Xl[..., 0] - wxy[..., 1] * Xl[..., 1]
-    if not (np.isfinite(de1).all() and np.isfinite(de2).all()):  # 0 * -inf (a zero size): 0
-        de1 = L - _wmul(wA, A) - _wmul(wB, Bz)
-        de2 = XY - _wmul(wxy[..., 0], Xl[..., 0]) - _wmul(wxy[..., 1], Xl[..., 1])
-    d_g3[..., 3] = -half_S * de1
-    d_g3[..., 4] = -half_S * wA * de2
-    d_point = d_y @ R.transpose(0, 2, 1)
-    d_g3[..., 5:8] = -d_point
-    outer = (rel[..., :, None] * d_y[..., None, :]).reshape(b, n, 9)
-    d_g3[..., 8:11] = outer @ dR.transpose(0, 2, 1)
+    norm = np.sqrt((rel * rel).sum(axis=2))
     # log g = log|y| - log S with S = g3 + |y| (see log_gauge_jacobian).
     rnorm = np.where(norm > 0, norm, _TINY)
     S_ = g3 + rnorm
