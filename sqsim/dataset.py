@@ -24,6 +24,7 @@ import numpy as np
 from sqfit.io import FORMAT, FORMAT_VERSION, load_trial, trial_dirs, write_mask_png
 
 from . import __version__
+from ._files import atomic_write_text
 from .scene import OBJECT_KINDS, load_scene, parse_scene
 from .sequence_dataset import finish_sequence_dataset, write_sequence_trial
 from .trajectory import is_sequence
@@ -40,12 +41,6 @@ def trial_name(index):
 
 def _dumps(obj):
     return json.dumps(obj, sort_keys=True, indent=1, allow_nan=False) + "\n"
-
-
-def _atomic_write_text(path, text):
-    tmp = path.with_name(f".{path.name}.tmp-{os.getpid()}")
-    tmp.write_text(text, encoding="utf-8")
-    os.replace(tmp, path)
 
 
 def write_trial(scene, index, root, renderer=None):
@@ -159,7 +154,7 @@ def _prepare(root, scene):
         raise ValueError(f"{root}/trials holds trials but no dataset.json; use another output directory")
     for stale in (root / "trials").glob(".tmp-*"):
         shutil.rmtree(stale, ignore_errors=True)
-    _atomic_write_text(meta_path, _dumps(meta))
+    atomic_write_text(meta_path, _dumps(meta))
 
 
 def generate(scene, output, trials=None, seed=None, workers=1, progress=True, scheduler=None, rerun=None,
@@ -221,7 +216,7 @@ def generate(scene, output, trials=None, seed=None, workers=1, progress=True, sc
     if is_sequence(scene):
         finish_sequence_dataset(root)
     else:
-        _atomic_write_text(root / "annotations.json", json.dumps(build_annotations(root), sort_keys=True) + "\n")
+        atomic_write_text(root / "annotations.json", json.dumps(build_annotations(root), sort_keys=True) + "\n")
     if colmap:
         from .export import write_colmap_model
 

@@ -41,6 +41,8 @@ from pathlib import Path
 
 import numpy as np
 
+from ._files import atomic_write_text, check_or_write_run_config
+
 FORMAT = "sqkit-experiment"
 FORMAT_VERSION = 1
 STAGE_IOU_CELLS = 2**16
@@ -163,7 +165,8 @@ def run_experiment(scene, output, *, trials=None, chains=None, seed=None, worker
         check_recording_path(rerun, rerun_trials)
     out = Path(output)
     out.mkdir(parents=True, exist_ok=True)
-    _check_or_write_config(out, scene, chains)
+    check_or_write_run_config(out / "experiment.json", {"format": FORMAT, "version": FORMAT_VERSION,
+                                                        "scene": scene.to_dict()}, scene, "experiment", "scene or seed")
 
     jsonl = out / "trials.jsonl"
     records = _read_records(jsonl)
@@ -206,31 +209,6 @@ def record_rerun(path, scene, records, max_trials=None):
             recorder.log_trial(name, sim.cameras, sim.images, sim.true_cameras, [o.to_dict() for o in sim.objects])
             for r in sorted(by_trial[index], key=lambda r: (r["object"], r["chain"])):
                 recorder.log_fit(name, r["object"], r["chain"], r["stages"], sim.cameras)
-
-
-def _check_or_write_config(out, scene, chains):
-    path = out / "experiment.json"
-    config = {"format": FORMAT, "version": FORMAT_VERSION, "scene": scene.to_dict()}
-    if path.exists():
-        try:
-            old = json.loads(path.read_text())
-        except json.JSONDecodeError as exc:
-            raise ValueError(f"{path} is not valid JSON ({exc}); remove it or use another --output") from None
-        from .scene import parse_scene
-
-        fixed = lambda s: {k: v for k, v in s.items() if k != "experiment"}  # noqa: E731
-        try:
-            # Through the parser, so keys added to the scene format since then take their defaults.
-            old_scene = parse_scene(old.get("scene", {}), source=str(path)).to_dict()
-        except ValueError:
-            old_scene = None
-        same = (old.get("format") == FORMAT and old_scene is not None
-                and fixed(old_scene) == fixed(config["scene"])
-                and old_scene["experiment"]["seed"] == scene.experiment.seed)
-        if not same:
-            raise ValueError(f"{out} holds a different experiment (scene or seed differ); "
-                             "use another --output directory or delete it")
-    _atomic_write(path, json.dumps(config, indent=1, sort_keys=True))
 
 
 def _read_records(jsonl):
@@ -400,10 +378,10 @@ def write_reports(out, scene, chains, records, figures=True):
                      key=lambda r: (r["trial"], r["object"], chains.index(r["chain"])))
     resampled = sum({r["trial"]: r["resampled"] for r in records}.values())
     summary = report.summarize(records, chains, scene.experiment.name, scene.experiment.seed, trials, resampled)
-    _atomic_write(out / "summary.json", json.dumps(summary, indent=1))
-    _atomic_write(out / "table.md", report.table_markdown(summary))
-    _atomic_write(out / "table.tex", report.table_latex(summary))
-    _atomic_write(out / "comparison.md", report.paper_comparison(summary))
+    atomic_write_text(out / "summary.json", json.dumps(summary, indent=1))
+    atomic_write_text(out / "table.md", report.table_markdown(summary))
+    atomic_write_text(out / "table.tex", report.table_latex(summary))
+    atomic_write_text(out / "comparison.md", report.paper_comparison(summary))
     best = report.best_chain(summary) if records else None
     if best is not None and figures:
         _atomic_figure(report.violin_figure, out / "violin.png", records, best)
@@ -429,10 +407,3 @@ def _atomic_figure(draw, path, *args):
     tmp = path.with_name(f".{path.stem}.tmp-{os.getpid()}{path.suffix}")
     draw(*args, tmp)
     os.replace(tmp, path)
-
-
-def _atomic_write(path, text):
-    tmp = path.with_name(f".{path.name}.tmp-{os.getpid()}")
-    tmp.write_text(text)
-    os.replace(tmp, path)
-

@@ -99,13 +99,13 @@ def sequence_annotations(root):
 
 def finish_sequence_dataset(root):
     """Write ``annotations.json`` and, for a single sequence, ``DIR/true.tum`` / ``DIR/odometry.tum``."""
-    from .dataset import _atomic_write_text
+    from ._files import atomic_write_text
 
     root = Path(root)
-    _atomic_write_text(root / "annotations.json", json.dumps(sequence_annotations(root), sort_keys=True) + "\n")
+    atomic_write_text(root / "annotations.json", json.dumps(sequence_annotations(root), sort_keys=True) + "\n")
     sequences = trial_dirs(root)
     for name in TRAJECTORY_FILES:
         if len(sequences) == 1:
-            _atomic_write_text(root / name, (sequences[0] / name).read_text(encoding="utf-8"))
+            atomic_write_text(root / name, (sequences[0] / name).read_text(encoding="utf-8"))
         elif (root / name).exists():
             (root / name).unlink()

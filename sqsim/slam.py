@@ -44,6 +44,8 @@ from pathlib import Path
 
 import numpy as np
 
+from ._files import atomic_write_text, check_or_write_run_config
+
 __all__ = ["add_arguments", "run", "run_slam", "slam_sequence", "evaluate_sequence", "trajectory_errors",
            "parse_methods", "FORMAT"]
 
@@ -171,7 +173,9 @@ def run_slam(scene, output, *, sequences=None, seed=None, methods=None, options=
     scene = scene.with_overrides({"experiment.seed": seed, "experiment.trials": n})
     out = Path(output)
     out.mkdir(parents=True, exist_ok=True)
-    _check_or_write_config(out, scene, methods, options)
+    check_or_write_run_config(out / "slam.json", {"format": FORMAT, "version": FORMAT_VERSION, "scene": scene.to_dict(),
+                                                  "methods": methods, "options": options},
+                              scene, "slam run", "scene, seed, methods or options")
     pending = [i for i in range(n) if not (_sequence_dir(out, i) / "record.json").exists()]
     args = [(scene.to_dict(), seed, i, methods, options) for i in pending]
     _map(args, out, workers, scheduler, progress, figures)
@@ -179,33 +183,13 @@ def run_slam(scene, output, *, sequences=None, seed=None, methods=None, options=
     from .slam_report import summarize, table_markdown
 
     summary = summarize(records, methods, scene.experiment.name, seed, options)
-    _atomic_write(out / "summary.json", json.dumps(summary, indent=1))
-    _atomic_write(out / "table.md", table_markdown(summary))
+    atomic_write_text(out / "summary.json", json.dumps(summary, indent=1))
+    atomic_write_text(out / "table.md", table_markdown(summary))
     return summary
 
 
 def _sequence_dir(out, index):
     return Path(out) / "sequences" / f"{int(index):06d}"
-
-
-def _check_or_write_config(out, scene, methods, options):
-    path = out / "slam.json"
-    config = {"format": FORMAT, "version": FORMAT_VERSION, "scene": scene.to_dict(), "methods": methods,
-              "options": options}
-    if path.exists():
-        try:
-            old = json.loads(path.read_text())
-        except json.JSONDecodeError as exc:
-            raise ValueError(f"{path} is not valid JSON ({exc}); remove it or use another --output") from None
-        fixed = lambda s: {k: v for k, v in s.items() if k != "experiment"}  # noqa: E731
-        old_scene = old.get("scene", {})
-        same = (old.get("format") == FORMAT and fixed(old_scene) == fixed(config["scene"])
-                and old_scene.get("experiment", {}).get("seed") == scene.experiment.seed
-                and old.get("methods") == methods and old.get("options") == options)
-        if not same:
-            raise ValueError(f"{out} holds a different slam run (scene, seed, methods or options differ); "
-                             "use another --output directory or delete it")
-    _atomic_write(path, json.dumps(config, indent=1, sort_keys=True))
 
 
 def _map(args, out, workers, scheduler, progress, figures):
@@ -245,7 +229,7 @@ def _write_sequence(out, record, figures):
             write_tum(d / f"{name}.tum", t, np.asarray(poses))
     objects = {"true": record["true_objects"],
                "methods": {m: r["objects"] for m, r in record["methods"].items()}}
-    _atomic_write(d / "objects.json", json.dumps(objects, indent=1))
+    atomic_write_text(d / "objects.json", json.dumps(objects, indent=1))
     if figures:
         from .slam_report import plot_topdown
 
@@ -254,13 +238,7 @@ def _write_sequence(out, record, figures):
         os.replace(tmp, d / "topdown.png")
     slim = {k: v for k, v in record.items() if k not in ("true_poses", "odometry_poses", "timestamps")}
     slim["methods"] = {m: {k: v for k, v in r.items() if k != "poses"} for m, r in record["methods"].items()}
-    _atomic_write(d / "record.json", json.dumps(slim, indent=1))
-
-
-def _atomic_write(path, text):
-    tmp = path.with_name(f".{path.name}.tmp-{os.getpid()}")
-    tmp.write_text(text)
-    os.replace(tmp, path)
+    atomic_write_text(d / "record.json", json.dumps(slim, indent=1))
 
 
 # --------------------------------------------------------------------------- one sequence (worker)

@@ -32,7 +32,8 @@ from pathlib import Path
 
 import numpy as np
 
-from .experiment import _atomic_figure, _atomic_write, _read_records, parse_chains, run_experiment
+from ._files import atomic_write_text
+from .experiment import _atomic_figure, _read_records, parse_chains, run_experiment
 
 QUANTITIES = ("iou", "r_iou", "r_iou_m", "time_s")
 
@@ -165,8 +166,8 @@ def run_sweep(scene, axes, output, *, trials=None, chains=None, seed=None, worke
         for chain in summary["chains"]:
             rows.append(_row(point, chain, summary, records))
     out.mkdir(parents=True, exist_ok=True)
-    _atomic_write(out / "sweep.jsonl", "".join(json.dumps(r, sort_keys=True) + "\n" for r in rows))
-    _atomic_write(out / "sweep.md", sweep_markdown(rows, axes))
+    atomic_write_text(out / "sweep.jsonl", "".join(json.dumps(r, sort_keys=True) + "\n" for r in rows))
+    atomic_write_text(out / "sweep.md", sweep_markdown(rows, axes))
     _atomic_figure(sweep_figure, out / "sweep.png", rows, axes)
     return rows
 
