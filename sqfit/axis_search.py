@@ -67,8 +67,8 @@ instead of 3G's 30: the few slow rays (bisecting at the near-kinks of box-like c
 every step's vectorised loop for up to 30 passes. Truth-bound runs (``scripts/truth_bound.py``, 100
 paper trials, seeds 0 and 1; paper-noisy 100, cylinders and boxes 30, seeds 0 and 1) gave the same
 medians within 0.003 and the same or higher 10th percentiles and means; a cap of 8 lowered the
-mean on paper seed 1 (0.949 against 0.954), 6 lowered it on seed 0. The screen's Jacobians of all candidates are one
-vectorised call per step (:func:`sqfit.raycost.batch_log_gauge_jacobian`; a loop over the six
+mean on paper seed 1 (0.949 against 0.954), 6 lowered it on seed 0. The screen's Jacobians of all
+candidates are one vectorised call per step (:func:`sqfit.raycost.batch_log_gauge_jacobian`; a loop over the six
 candidates cost ~6 ms of ~33).
 
 Deterministic; no random numbers. The input state's cost is not used.
@@ -90,8 +90,8 @@ from .rays import contour_rays
 from .stage3g import silhouette_stage
 from .stages import STAGES, StageError, register
 
-__all__ = ["N_SCREEN_CONTOUR", "SCREEN_ITERATIONS", "CANDIDATES", "RESCUE_R_IOU_M", "RESCUE_STAGES", "axis_candidates",
-           "batch_levenberg_marquardt", "axis_search_stage"]
+__all__ = ["N_SCREEN_CONTOUR", "SCREEN_ITERATIONS", "SCREEN_MAX_NEWTON", "CANDIDATES", "RESCUE_R_IOU_M",
+           "RESCUE_STAGES", "axis_candidates", "batch_levenberg_marquardt", "axis_search_stage"]
 
 #: Names of the rows of :func:`axis_candidates`, in order.
 CANDIDATES = ("input", "R45", "P1", "P1R45", "P2", "P2R45")
@@ -238,18 +238,20 @@ def axis_search_stage(state, obs, options):
     score = _visible_r_iou_m(new, obs, options)
     if score >= RESCUE_R_IOU_M:
         return new
+    path = "-".join(RESCUE_STAGES) + "-3H"
     try:
-        start = state
+        start, nfev = state, 0
         for name in RESCUE_STAGES:
             start = STAGES[name](start, obs, options)
+            nfev += start.nfev
         other = _screen_and_refine(start, obs, options)
         other_score = _visible_r_iou_m(other, obs, options)
     except (StageError, *_NUMERICAL_ERRORS) as exc:
-        return replace(new, message=f"{new.message}; rescue ({'-'.join(RESCUE_STAGES)}-3H) failed: {exc}")
+        return replace(new, message=f"{new.message}; rescue ({path}) failed: {exc}")
     keep, lost = (other, new) if other_score > score else (new, other)
-    note = (f"rescue: R-IOU-M {score:.3f} < {RESCUE_R_IOU_M}, re-fitted through {'-'.join(RESCUE_STAGES)}-3H "
-            f"to {other_score:.3f}; kept the {'rescue' if keep is other else 'first fit'}")
-    return replace(keep, nfev=keep.nfev + lost.nfev, message=f"{note}; {keep.message}")
+    note = (f"rescue: R-IOU-M {score:.3f} < {RESCUE_R_IOU_M}, re-fitted through {path} to {other_score:.3f}; "
+            f"kept the {'rescue' if keep is other else 'first fit'}")
+    return replace(keep, nfev=keep.nfev + lost.nfev + nfev, message=f"{note}; {keep.message}")
 
 
 def _visible_r_iou_m(state, obs, options):

@@ -71,7 +71,8 @@ def add_arguments(parser):
     parser.add_argument("--seed", type=int, default=0, help="seed of the mask sampling")
     from .recording import add_arguments as add_rerun_arguments
 
-    add_rerun_arguments(parser, "cameras, masks, ground truth, every stage of every fit (native datasets; not with --coco)")
+    add_rerun_arguments(parser, "cameras, masks, ground truth, every stage of every fit "
+                                "(native datasets; not with --coco)")
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
 
 
