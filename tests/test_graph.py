@@ -478,3 +478,30 @@ def test_observations_from_instances_are_labelled():
     assert BACKGROUND in obs[0, 2].contour_labels and BORDER not in obs[0, 2].contour_labels
     problem = graph.check_inputs(k, np.stack([np.eye(4)] * 2), obs)
     assert any("object 3: mask touches the image border" in w and "one-sided" in w for w in problem.warnings)
+
+
+def test_a_landmark_whose_silhouettes_miss_the_masks_is_refitted(small):
+    # 3G's "far, huge" minimum has a low ray misfit: the overlap with the masks (R-IOU-M) catches it.
+    # With the misfit test switched off (refit_misfit huge), only the overlap can call the re-fit.
+    from sqfit.graph import problem as gproblem, solve
+
+    seq, _ = small
+    options = graph.GraphOptions(refit_misfit=1e9)
+    prob = gproblem.check_inputs(seq.intrinsics, seq.true_poses, seq.observations)
+    values = gtsam.Values()
+    for i, T in enumerate(seq.true_poses):
+        values.insert(X(i), gtsam.Pose3(T))
+    for oid, sq in seq.objects.items():
+        if oid == 2:  # moved 20 m up: its silhouettes leave the masks
+            sq = sqfit.Superquadric(sq.size, sq.shape, np.array(sq.position) + (0.0, 0.0, 20.0), sq.rotation)
+        T, s = landmark.superquadric_to_landmark(sq)
+        values.insert(L(oid), gtsam.Pose3(T))
+        values.insert(S(oid), s)
+    overlap = {oid: solve._object_overlap(prob, values, oid, seq.true_poses) for oid in seq.objects}
+    assert overlap[2] < sqfit.constants.POOR_FIT_R_IOU_M < min(overlap[1], overlap[3]), overlap
+    result = graph.SlamResult("graph", seq.true_poses)
+    assert solve._refit(prob, values, list(seq.objects), options, result)
+    assert [w.split(":")[0] for w in result.warnings] == ["object 2"] and "R-IOU-M" in result.warnings[0]
+    refit = landmark.landmark_to_superquadric(values.atPose3(L(2)).matrix(), values.atVector(S(2)))
+    assert solve._object_overlap(prob, values, 2, seq.true_poses) > 0.7
+    assert iou_3d(refit, seq.objects[2]) > 0.8

@@ -86,7 +86,10 @@ class GraphOptions:
     refit_misfit : float
         After the batch solve, a landmark whose RMS whitened ray residual is above this (a poor
         local minimum: its silhouettes disagree) is re-initialised by :func:`sqfit.fit` on all its
-        frames at the solved poses, kept if it fits better, and the graph solved again; 0 disables.
+        frames at the solved poses, kept if it fits better, and the graph solved again; so is a
+        landmark whose silhouettes barely overlap its masks (R-IOU-M below
+        ``sqfit.constants.POOR_FIT_R_IOU_M``: 3G's "far, huge" minimum, whose misfit is low), kept
+        if it overlaps more; 0 disables both.
     isam2_relinearize_threshold : float
         iSAM2 relinearises a variable when its update exceeds this (tangent-space norm).
     isam2_dogleg : bool

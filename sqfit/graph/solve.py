@@ -32,6 +32,7 @@ import gtsam
 import numpy as np
 from gtsam.symbol_shorthand import L, Q, S, X
 
+from .. import constants as C
 from .. import pipeline
 from .factors import SilhouetteFactors, bounds_factor, box_factor, silhouette_factor
 from .landmark import camera_rays, landmark_to_superquadric, superquadric_to_landmark
@@ -301,17 +302,33 @@ def _object_misfit(problem, values, oid, options, rays_cache=None):
     return float(np.sqrt(2.0 * sub.error(values) / rows))
 
 
+def _object_overlap(problem, values, oid, poses):
+    """R-IOU-M of object ``oid``'s landmark against its observations at ``poses``: how much its
+    silhouettes overlap its masks (``sqfit.pipeline.r_iou_m``; 3G's "far, huge" minimum has a low
+    misfit but almost no overlap)."""
+    from ..costs import ObservationSet
+
+    obs = ObservationSet([observation_at(problem.observations[f, oid], poses[f]) for f in problem.frames[oid]])
+    sq = landmark_to_superquadric(values.atPose3(L(oid)).matrix(), values.atVector(S(oid)))
+    return float(pipeline.r_iou_m([sq], obs)[0])
+
+
 def _refit(problem, values, oids, options, result, rays_cache=None):
-    """Re-initialise the landmarks left in a poor minimum (misfit above ``refit_misfit``) by
-    :func:`sqfit.fit` on all their frames at the solved poses; keep a refit that fits better.
-    Returns whether a landmark changed. ``rays_cache``: :func:`_silhouette`."""
+    """Re-initialise the landmarks left in a poor minimum by :func:`sqfit.fit` on all their frames at
+    the solved poses: those whose silhouettes disagree (misfit above ``refit_misfit``; a refit is
+    kept if its misfit is lower) and those whose silhouettes barely overlap their masks (R-IOU-M
+    below ``sqfit.constants.POOR_FIT_R_IOU_M``, 3G's "far, huge" minimum, whose misfit is low; a
+    refit is kept if it overlaps more). Returns whether a landmark changed. ``rays_cache``:
+    :func:`_silhouette`."""
     if options.refit_misfit <= 0:
         return False
     poses = _poses(values, problem.n_frames)
     changed = False
     for oid in oids:
         before = _object_misfit(problem, values, oid, options, rays_cache)
-        if before <= options.refit_misfit:
+        overlap = _object_overlap(problem, values, oid, poses)
+        disjoint = overlap < C.POOR_FIT_R_IOU_M
+        if before <= options.refit_misfit and not disjoint:
             continue
         landmark, _ = _initial_fit(problem, oid, problem.frames[oid], poses, options)
         if landmark is None:
@@ -320,11 +337,13 @@ def _refit(problem, values, oids, options, result, rays_cache=None):
         trial.update(L(oid), gtsam.Pose3(landmark[0]))
         trial.update(S(oid), np.asarray(landmark[1], dtype=np.float64))
         after = _object_misfit(problem, trial, oid, options, rays_cache)
-        if after < before:
+        overlap_after = _object_overlap(problem, trial, oid, poses)
+        if (overlap_after > overlap) if disjoint else (after < before):
             values.update(L(oid), gtsam.Pose3(landmark[0]))
             values.update(S(oid), np.asarray(landmark[1], dtype=np.float64))
             result.warnings.append(f"object {oid}: re-initialised from all {len(problem.frames[oid])} frames "
-                                   f"(misfit {before:.2f} -> {after:.2f})")
+                                   f"(misfit {before:.2f} -> {after:.2f}, R-IOU-M {overlap:.2f} -> "
+                                   f"{overlap_after:.2f})")
             changed = True
     return changed
 
