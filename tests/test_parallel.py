@@ -21,7 +21,9 @@ def test_map_unordered_local_processes_consumes_lazily():
 
     results = map_unordered(_square, args(), workers=2, in_flight=3)
     first = next(results)
-    assert first in {0, 1, 4} and len(consumed) <= 4  # three submitted, one refill at most
+    # Three submitted; each finished task frees a slot that is refilled before its result is yielded,
+    # and up to all three may finish together: at most 3 + 3 consumed by then (not all 20).
+    assert first in {0, 1, 4} and len(consumed) <= 6
     assert sorted([first, *results]) == [i * i for i in range(20)]
 
 
