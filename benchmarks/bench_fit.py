@@ -28,7 +28,7 @@ import numpy as np  # noqa: E402
 
 import sqfit  # noqa: E402
 from sqfit.metrics import iou_3d, r_iou  # noqa: E402
-from sqfit.silhouette import silhouette  # noqa: E402
+from sqfit.geometry.silhouette import silhouette  # noqa: E402
 from sqfit.testing import paper_trial  # noqa: E402
 
 #: Table II of the paper: chain -> (median IoU, median R-IOU-M, median time s).

@@ -3,7 +3,7 @@
     OPENBLAS_NUM_THREADS=1 .venv/bin/python benchmarks/bench_graph.py [--seeds 3] [--frames 40] [--objects 6]
     OPENBLAS_NUM_THREADS=1 .venv/bin/python benchmarks/bench_graph.py --scene scenes/sequence.toml [--seeds 3]
 
-With ``--scene``: sequence 0 (``--sequences``) of each seed of a sequence scene (``sqsim.sequence.simulate_sequence``,
+With ``--scene``: sequence 0 (``--sequences``) of each seed of a sequence scene (``sqsim.imaging.sequence.simulate_sequence``,
 rendered masks with the scene's noise and odometry), observations from its instance images at the
 odometry poses as ``sqsim slam`` makes them (the time to make them is not part of a method's time);
 ``--frames`` and ``--objects`` are then ignored.
@@ -59,9 +59,9 @@ def _scene_sequence(path, seed, index=0):
     """Sequence ``index`` of ``seed`` of a sequence scene, with observations as ``sqsim slam`` makes them."""
     from types import SimpleNamespace
 
-    from sqsim.scene import child_seed, load_scene, trial_seed
-    from sqsim.sequence import simulate_sequence
-    from sqsim.slam import OBSERVATION_STREAM
+    from sqsim.world.scene import child_seed, load_scene, trial_seed
+    from sqsim.imaging.sequence import simulate_sequence
+    from sqsim.runs.slam import OBSERVATION_STREAM
 
     scene = load_scene(path)
     seq = simulate_sequence(scene, seed=seed, index=index)

@@ -3,7 +3,7 @@
     OPENBLAS_NUM_THREADS=1 .venv/bin/python benchmarks/bench_multistart.py [--trials 100] [--triggers 0.01,0.04]
 
 Trials are ``sqfit.testing.paper_trial`` (as ``bench_fit.py``). For every trial, ``1-2-3G`` and
-``1-2-3G-3S`` at each ``sqfit.multistart.TRIGGER_MISFIT`` are timed alternately, best of
+``1-2-3G-3S`` at each ``sqfit.fitting.restarts.TRIGGER_MISFIT`` are timed alternately, best of
 ``--repeat``, so load changes on a shared machine hit all of them alike (``bench_fit.py`` times
 one chain after the other). Prints per setting: fits that triggered, 3D IoU median / mean, counts
 below 0.7 and 0.5, median and mean seconds, and the median time relative to ``1-2-3G``.
@@ -21,7 +21,7 @@ os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 import numpy as np  # noqa: E402
 
 import sqfit  # noqa: E402
-from sqfit import multistart  # noqa: E402
+from sqfit.fitting import restarts  # noqa: E402
 from sqfit.metrics import iou_3d  # noqa: E402
 from sqfit.testing import paper_trial  # noqa: E402
 
@@ -30,7 +30,7 @@ BASE, MULTI = "1-2-3G", "1-2-3G-3S"
 
 def _time(trial, chain, trigger):
     if trigger is not None:
-        multistart.TRIGGER_MISFIT = trigger
+        restarts.TRIGGER_MISFIT = trigger
     t0 = time.perf_counter()
     result = sqfit.fit(trial.observations, chain)
     return time.perf_counter() - t0, result
@@ -44,7 +44,7 @@ def main(argv=None):
     parser.add_argument("--repeat", type=int, default=2, help="fits per trial and setting; the fastest is kept")
     parser.add_argument("--json", metavar="PATH", help="write per-trial figures here")
     args = parser.parse_args(argv)
-    default = multistart.TRIGGER_MISFIT
+    default = restarts.TRIGGER_MISFIT
     settings = [(BASE, None)] + [(MULTI, float(t)) for t in args.triggers.split(",")]
     trials = [paper_trial(args.seed + i) for i in range(args.trials)]
     sqfit.fit(trials[0].observations, MULTI)  # warm-up: imports and caches
@@ -62,7 +62,7 @@ def main(argv=None):
                         # The gate's message is "3S: misfit m <= TRIGGER_MISFIT: kept".
                         triggered[i, k] = chain == MULTI and "<=" not in result.stages[-1].message
     finally:
-        multistart.TRIGGER_MISFIT = default
+        restarts.TRIGGER_MISFIT = default
     print(f"# {len(trials)} paper trials (seeds {args.seed}..{args.seed + len(trials) - 1}), alternating, "
           f"best of {args.repeat}, OPENBLAS_NUM_THREADS={os.environ.get('OPENBLAS_NUM_THREADS')}")
     print("| chain | TRIGGER_MISFIT | triggered | IoU median | IoU mean | IoU < 0.7 | IoU < 0.5 | "

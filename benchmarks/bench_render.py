@@ -17,27 +17,22 @@ and the whole ``simulate_sequence`` (layout, re-draws, rendering, visibility, od
 
 from __future__ import annotations
 
-import argparse
 import os
 import time
-from pathlib import Path
 
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
-ROOT = Path(__file__).resolve().parents[1]
+from _common import scene_parser  # noqa: E402
+
 
 
 def main():
-    parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    parser.add_argument("--scene", default=str(ROOT / "scenes" / "paper.toml"))
-    parser.add_argument("--trials", type=int, default=100)
-    parser.add_argument("--renderer", default=None, help="osmesa | egl | polygon (default: the scene's)")
-    parser.add_argument("--repeat", type=int, default=3, help="timing repetitions (best is reported)")
+    parser = scene_parser(__doc__, "timing repetitions (best is reported)")
     args = parser.parse_args()
 
-    from sqsim.render import get_renderer
-    from sqsim.scene import load_scene
-    from sqsim.trial import sample_trial, simulate_trial
+    from sqsim.imaging.render import get_renderer
+    from sqsim.world.scene import load_scene
+    from sqsim.imaging.trial import sample_trial, simulate_trial
 
     scene = load_scene(args.scene)
     if args.renderer:
@@ -67,7 +62,7 @@ def main():
 
 def bench_sequences(scene, renderer, args):
     import sqfit
-    from sqsim.sequence import sample_sequence, simulate_sequence
+    from sqsim.imaging.sequence import sample_sequence, simulate_sequence
 
     k = scene.intrinsics
     drawn = [sample_sequence(scene, index=i, renderer=renderer) for i in range(args.trials)]

@@ -1,6 +1,6 @@
 """Whole-trial throughput of one process: instance masks per second written by ``sqsim generate``.
 
-Times ``sqsim.dataset.write_trial`` (sampling with re-draws, meshing, rendering, noise, PNG and
+Times ``sqsim.data.dataset.write_trial`` (sampling with re-draws, meshing, rendering, noise, PNG and
 JSON writing, atomic rename) for trials ``0 .. N-1`` of a scene (default scenes/paper.toml: 3
 views of 640 x 480 per trial) into a fresh temporary dataset, and for reference
 ``simulate_trial`` (everything but writing) and ``Renderer.render`` alone on the same trials.
@@ -16,7 +16,6 @@ alternating rounds.
 
 from __future__ import annotations
 
-import argparse
 import os
 import shutil
 import tempfile
@@ -25,7 +24,8 @@ from pathlib import Path
 
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
-ROOT = Path(__file__).resolve().parents[1]
+from _common import scene_parser  # noqa: E402
+
 
 
 def _clock(fn):
@@ -35,19 +35,15 @@ def _clock(fn):
 
 
 def main():
-    parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    parser.add_argument("--scene", default=str(ROOT / "scenes" / "paper.toml"))
-    parser.add_argument("--trials", type=int, default=100)
-    parser.add_argument("--renderer", default=None, help="osmesa | egl | polygon (default: the scene's)")
-    parser.add_argument("--repeat", type=int, default=3, help="alternating rounds (best is reported)")
+    parser = scene_parser(__doc__, "alternating rounds (best is reported)")
     parser.add_argument("--dir", default=None, help="where the temporary dataset is written (default: the system's "
                                                     "temporary directory; e.g. /dev/shm to leave out the disk)")
     args = parser.parse_args()
 
-    from sqsim.dataset import write_trial
-    from sqsim.render import get_renderer
-    from sqsim.scene import load_scene
-    from sqsim.trial import sample_trial, simulate_trial
+    from sqsim.data.dataset import write_trial
+    from sqsim.imaging.render import get_renderer
+    from sqsim.world.scene import load_scene
+    from sqsim.imaging.trial import sample_trial, simulate_trial
 
     scene = load_scene(args.scene)
     if args.renderer:

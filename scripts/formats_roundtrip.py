@@ -28,7 +28,7 @@ def main(argv=None):
     from sqfit.cli import main as sqfit_main
     from sqfit.formats import read_pose_json, write_image_times, write_intrinsics, write_tum
     from sqfit.metrics import iou_3d
-    from sqfit.superquadric import Superquadric
+    from sqfit.geometry.superquadric import Superquadric
     from sqsim.cli import main as sqsim_main
 
     p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)

@@ -10,10 +10,10 @@ import argparse
 
 import numpy as np
 
-from sqsim.odometry import integrate_odometry
-from sqsim.scene import load_scene
-from sqsim.sequence_report import drift
-from sqsim.trajectory import sequence_poses
+from sqsim.world.odometry import integrate_odometry
+from sqsim.world.scene import load_scene
+from sqsim.reports.sequence import drift
+from sqsim.world.trajectory import sequence_poses
 
 
 def main():

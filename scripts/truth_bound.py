@@ -15,7 +15,7 @@ sqfit.constants.SILHOUETTE_SHAPE_BOUNDS[0]``); other kinds have no bound. 3D IoU
 
 A trial is *lost* by a chain when its IoU is more than :data:`LOST_MARGIN` below the bound. A lost
 trial is a *search failure* when the 3G misfit (RMS grazing residual, 64 outline rays per view,
-given cameras: :func:`sqfit.multistart.misfit`) at the truth-started answer is below
+given cameras: :func:`sqfit.fitting.restarts.misfit`) at the truth-started answer is below
 :data:`COST_RATIO` times the misfit at the chain's answer -- the cost itself tells them apart, so
 a better search would have found it -- and *ambiguous* otherwise (the views cannot tell them
 apart, or the chain's answer even fits them better). Prints a Markdown table; times are CPU
@@ -36,8 +36,8 @@ import numpy as np  # noqa: E402
 
 import sqfit  # noqa: E402
 from sqfit.metrics import IOU_GRID_CELLS, iou_3d, iou_3d_mesh  # noqa: E402
-from sqfit.multistart import misfit  # noqa: E402
-from sqfit.rays import contour_rays  # noqa: E402
+from sqfit.fitting.restarts import misfit  # noqa: E402
+from sqfit.views.rays import contour_rays  # noqa: E402
 
 #: IoU margin below the truth-started bound from which a trial counts as lost.
 LOST_MARGIN = 0.05
@@ -59,9 +59,9 @@ def truth_superquadric(obj):
 
 
 def main(argv=None):
-    from sqsim.render import get_renderer
-    from sqsim.scene import load_scene
-    from sqsim.trial import observations, simulate_trial
+    from sqsim.imaging.render import get_renderer
+    from sqsim.world.scene import load_scene
+    from sqsim.imaging.trial import observations, simulate_trial
 
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("scene")

@@ -13,7 +13,7 @@ Usage::
 
 ``truncation`` prints, per cut fraction, chain and labels used or ignored (``FitOptions.occlusion_aware``), the
 median 3D IoU over the trials; ``--stage12 drop|weight|all`` sets how stages 1 and 2 treat cut views
-(``sqfit.stages.CUT_VIEWS``). ``occlusion`` takes an object's visible fraction as the mean over views
+(``sqfit.fitting.stages.CUT_VIEWS``). ``occlusion`` takes an object's visible fraction as the mean over views
 of ``visible_fraction`` in trials.jsonl (pixels seen / pixels rendered alone) and prints the median IoU
 per visible-fraction bin, the unoccluded objects (every view >= 0.999) and the 80-95 % visible ones.
 """
@@ -35,7 +35,7 @@ BINS = [(0.0, 0.5), (0.5, 0.7), (0.7, 0.8), (0.8, 0.9), (0.9, 0.95), (0.95, 0.99
 
 def truncation(args):
     import sqfit
-    from sqfit import stages
+    from sqfit.fitting import stages
     from sqfit.metrics import iou_3d
     from sqfit.testing import truncated_trial
 

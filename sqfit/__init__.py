@@ -8,16 +8,16 @@ Quick start::
     cams = [sqfit.Camera(intrinsics, T_world_camera) for T_world_camera in poses]
     obs = [sqfit.Observation.from_mask(cam, mask, rng=0) for cam, mask in zip(cams, masks)]
     result = sqfit.fit(obs, chain="1-2-3D-3A")   # result.superquadric, result.stages, ...
+
+Layers, each importing only from those before it (README, "Development"): :mod:`sqfit.geometry`,
+:mod:`sqfit.formats`, :mod:`sqfit.views`, :mod:`sqfit.fitting`, then :mod:`sqfit.metrics`,
+:mod:`sqfit.recording`, :mod:`sqfit.testing`, :mod:`sqfit.graph` (needs gtsam) and
+:mod:`sqfit.cli`.
 """
 
-from .camera import Camera, Intrinsics, back_project, look_at, project
-from .observation import Observation
-from .pipeline import DEFAULT_CHAIN, PAPER_CHAINS, FitOptions, FitResult, StageRecord, fit
-from .stages import STAGES
-from . import stage3g  # noqa: F401  (registers stage 3G)
-from . import multistart  # noqa: F401  (registers stage 3S)
-from . import axis_search  # noqa: F401  (registers stage 3H)
-from .superquadric import Superquadric
+from .fitting import DEFAULT_CHAIN, PAPER_CHAINS, STAGES, FitOptions, FitResult, StageRecord, fit
+from .geometry import Camera, Intrinsics, Superquadric, back_project, look_at, project
+from .views import Observation
 
 __version__ = "0.1.0"
 

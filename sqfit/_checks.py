@@ -56,6 +56,29 @@ def check_choice(value, choices, name):
     return value
 
 
+def check_fields(obj, integers=None, positive=(), nonnegative=()):
+    """Check numeric fields of an options object; the first bad one raises ``ValueError`` naming it.
+
+    Parameters
+    ----------
+    obj : object
+        An options dataclass (its fields are read with ``getattr``).
+    integers : dict, optional
+        ``field name -> lowest allowed integer``.
+    positive, nonnegative : sequence of str
+        Fields that must be finite numbers > 0, resp. >= 0.
+    """
+    for name, lo in (integers or {}).items():
+        v = getattr(obj, name)
+        if int(v) != v or v < lo:
+            raise ValueError(f"{name} must be an integer >= {lo}, got {v}")
+    for names, ok, bound in ((positive, np.greater, "> 0"), (nonnegative, np.greater_equal, ">= 0")):
+        for name in names:
+            v = getattr(obj, name)
+            if not (np.isfinite(v) and ok(v, 0)):
+                raise ValueError(f"{name} must be a finite number {bound}, got {v}")
+
+
 def _fmt(shape):
     return "(" + ", ".join("n" if s is None else str(s) for s in shape) + ("," if len(shape) == 1 else "") + ")"
 
@@ -77,3 +100,17 @@ def coerce_options(cls, options, what):
             raise ValueError(f"unknown {what} option(s) {unknown}; valid options: {sorted(known)}")
         return cls(**options)
     raise TypeError(f"options must be None, a dict or a {cls.__name__}, got {type(options).__name__}")
+
+
+class Options:
+    """Base of the options dataclasses: :meth:`coerce` turns what a caller passes into options.
+
+    A subclass sets ``WHAT``, the name of its options in messages (``"fit"``, ``"graph"``).
+    """
+
+    WHAT = "options"
+
+    @classmethod
+    def coerce(cls, options):
+        """``None`` -> defaults, a dict -> options (unknown keys raise ValueError naming them)."""
+        return coerce_options(cls, options, cls.WHAT)

@@ -6,7 +6,7 @@ N_PARAMS = 11
 SIZE = slice(0, 3)  #: half-axis lengths a, metres
 SHAPE = slice(3, 5)  #: shape exponents e1 (latitude), e2 (longitude), unitless
 POSITION = slice(5, 8)  #: centre in the world frame, metres
-ROTATION = slice(8, 11)  #: Euler angles, radians (convention in ``sqfit.superquadric``)
+ROTATION = slice(8, 11)  #: Euler angles, radians (convention in ``sqfit.geometry.superquadric``)
 
 #: Shape exponents a ``Superquadric`` accepts at all: convex shapes only (e <= 2); below the
 #: lower end, powers of 2/e overflow float64 even in log space handling of the mesh.
@@ -33,5 +33,5 @@ MIN_VIEWS = 2
 #: A fit whose R-IOU-M (its silhouettes against the visible part of the masks) is below this gets
 #: a warning in ``FitResult.warnings``: its silhouettes barely overlap the masks, so the superquadric
 #: is very likely wrong. Good fits score 0.75-0.95 on clean and noisy masks (README, "Beyond the
-#: paper"); stage 3H re-fits such a result once (``sqfit.axis_search.RESCUE_R_IOU_M``).
+#: paper"); stage 3H re-fits such a result once (``sqfit.fitting.axis_screen.RESCUE_R_IOU_M``).
 POOR_FIT_R_IOU_M = 0.5

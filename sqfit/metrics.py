@@ -13,7 +13,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .superquadric import Superquadric, contains, log_implicit_unit, to_local, volume
+from .geometry.superquadric import Superquadric, contains, log_implicit_unit, to_local, volume
 
 __all__ = ["IOU_GRID_CELLS", "METRIC_SILHOUETTE_DIRECTIONS", "bounding_box", "iou_3d", "iou_3d_mesh", "r_iou", "success"]
 
@@ -123,13 +123,13 @@ def iou_3d_mesh(sq, mesh, resolution=48):
     mesh : trimesh.Trimesh
         Watertight, world coordinates.
     resolution : int
-        Mesh resolution of the superquadric (see ``sqfit.superquadric.to_mesh``).
+        Mesh resolution of the superquadric (see ``sqfit.geometry.superquadric.to_mesh``).
 
     Returns
     -------
     iou : float
     """
-    from .superquadric import to_mesh
+    from .geometry.superquadric import to_mesh
 
     if not mesh.is_watertight:
         raise ValueError("mesh must be watertight to compute a 3D IoU")
@@ -156,8 +156,8 @@ def r_iou(sq, cameras, polygons):
     -------
     r_iou : float
     """
-    from .polygon import polygon_iou
-    from .silhouette import silhouette
+    from .geometry.polygon import polygon_iou
+    from .geometry.silhouette import silhouette
 
     if len(cameras) != len(polygons) or len(cameras) == 0:
         raise ValueError(f"need one polygon per camera, got {len(polygons)} polygons for {len(cameras)} cameras")

@@ -48,7 +48,7 @@ _CHAIN_COLORS = [(230, 80, 60, 200), (60, 120, 230, 200), (230, 170, 40, 200), (
 
 
 def _superquadric_mesh(sq):
-    from .superquadric import to_mesh
+    from .geometry.superquadric import to_mesh
 
     mesh = to_mesh(sq, MESH_RESOLUTION)
     return np.asarray(mesh.vertices, dtype=np.float32), np.asarray(mesh.faces, dtype=np.uint32)
@@ -206,7 +206,7 @@ class Recorder:
         return True
 
     def log_loaded_trial(self, trial):
-        """Record a :class:`sqfit.io.Trial` (cameras, masks, true cameras, ``gt.json`` objects)."""
+        """Record a :class:`sqfit.views.dataset.Trial` (cameras, masks, true cameras, ``gt.json`` objects)."""
         return self.log_trial(trial.name, trial.cameras, trial.images, trial.true_cameras, trial.objects)
 
     def _log_camera(self, entity, cam):
@@ -218,7 +218,7 @@ class Recorder:
                                     camera_xyz=rr.ViewCoordinates.RDF), static=True)
 
     def _log_ground_truth(self, entity, obj):
-        from .superquadric import Superquadric, euler_to_matrix
+        from .geometry.superquadric import Superquadric, euler_to_matrix
 
         rr = self._rr
         if obj.get("params") is not None:
@@ -241,7 +241,7 @@ class Recorder:
         trial : str
         object_id : int
         chain : str
-        stages : list of sqfit.pipeline.StageRecord or dict
+        stages : list of sqfit.fitting.pipeline.StageRecord or dict
             Each with ``name``, ``status`` and ``superquadric`` (a record) or ``params``
             (``(11,)`` list or None, a ``trials.jsonl`` stage dict).
         cameras : list of Camera
@@ -255,8 +255,8 @@ class Recorder:
         """
         if not self._admit(trial):
             return False
-        from .silhouette import silhouette
-        from .superquadric import Superquadric
+        from .geometry.silhouette import silhouette
+        from .geometry.superquadric import Superquadric
 
         rr, stream = self._rr, self._stream
         color = _CHAIN_COLORS[self._chains.setdefault(chain, len(self._chains)) % len(_CHAIN_COLORS)]

@@ -4,7 +4,7 @@
 with ``a`` in [0.1, 5] m, ``p`` in [-5, 5] m, Euler angles in [-pi, pi], ``e`` in [0.1, 1.9]; three
 cameras on a horizontal circle of radius 10 m at height 0 looking at the origin, 640 x 480 px,
 ``fx = 400``, ``fy = 300``, ``cx = 320``, ``cy = 240``. Masks are the exact silhouette polygon
-(:func:`sqfit.silhouette.silhouette` with 256 vertices) rasterised by pixel centre: pixel
+(:func:`sqfit.geometry.silhouette.silhouette` with 256 vertices) rasterised by pixel centre: pixel
 ``(i, j)`` is inside iff ``(j + 0.5, i + 0.5)`` is in the polygon. Draws whose mask touches the
 border, that are behind or around a camera, or smaller than ``min_area_px`` are re-sampled.
 
@@ -20,12 +20,12 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from .camera import Camera, Intrinsics, look_at
-from .observation import Observation
-from .raster import fill_convex_polygon
-from .polygon import polygon_area
-from .silhouette import silhouette
-from .superquadric import Superquadric
+from .geometry.camera import Camera, Intrinsics, look_at
+from .views.observation import Observation
+from .geometry.raster import fill_convex_polygon
+from .geometry.polygon import polygon_area
+from .geometry.silhouette import silhouette
+from .geometry.superquadric import Superquadric
 
 __all__ = ["PAPER_INTRINSICS", "paper_cameras", "random_superquadric", "polygon_mask", "Trial", "paper_trial",
            "truncated_trial"]

@@ -9,16 +9,16 @@ import sys
 # Set before numpy is first imported (importing sqfit imports numpy).
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
-from sqfit._cli import dispatch  # noqa: E402
+from sqfit.cli.dispatch import dispatch  # noqa: E402
 
 #: name -> (module with add_arguments/run, one-line help)
 COMMANDS = {
     "demo": ("sqsim.demo", "sample a superquadric, project it into three cameras, print a summary"),
-    "experiment": ("sqsim.experiment", "run the permutation experiment: simulate, fit chains, evaluate, report"),
-    "sweep": ("sqsim.sweep", "run the experiment over a grid of scene values; degradation curves"),
-    "generate": ("sqsim.dataset", "render a scene's trials to a mask dataset (resumable, COCO annotations)"),
-    "sequence": ("sqsim.sequence_report", "simulate one image sequence: visibility, odometry drift, top-down figure"),
-    "slam": ("sqsim.slam", "run sequences through the factor graph and its baselines: trajectories, objects, ATE/RPE, IoU"),
+    "experiment": ("sqsim.runs.experiment", "run the permutation experiment: simulate, fit chains, evaluate, report"),
+    "sweep": ("sqsim.runs.sweep", "run the experiment over a grid of scene values; degradation curves"),
+    "generate": ("sqsim.runs.generate", "render a scene's trials to a mask dataset (resumable, COCO annotations)"),
+    "sequence": ("sqsim.reports.sequence", "simulate one image sequence: visibility, odometry drift, top-down figure"),
+    "slam": ("sqsim.runs.slam", "run sequences through the factor graph and its baselines: trajectories, objects, ATE/RPE, IoU"),
 }
 
 

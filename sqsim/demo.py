@@ -5,9 +5,9 @@ from __future__ import annotations
 import numpy as np
 
 import sqfit
-from sqfit.observation import convex_hull
-from sqfit.polygon import polygon_area
-from sqfit.superquadric import sample_surface_uniform, volume
+from sqfit.views.observation import convex_hull
+from sqfit.geometry.polygon import polygon_area
+from sqfit.geometry.superquadric import sample_surface_uniform, volume
 
 
 def add_arguments(parser):

@@ -3,10 +3,10 @@ import pytest
 
 import sqfit
 from sqfit import constants as C
-from sqfit.axis_search import CANDIDATES, axis_candidates, batch_levenberg_marquardt
+from sqfit.fitting.axis_screen import CANDIDATES, axis_candidates, batch_levenberg_marquardt
 from sqfit.metrics import iou_3d
-from sqfit.raycost import batch_log_gauge_jacobian, batch_ray_residuals, log_gauge_jacobian, ray_residuals
-from sqfit.rays import INSIDE, RaySet, contour_rays
+from sqfit.fitting.raycost import batch_log_gauge_jacobian, batch_ray_residuals, log_gauge_jacobian, ray_residuals
+from sqfit.views.rays import INSIDE, RaySet, contour_rays
 from sqfit.testing import paper_trial
 
 
@@ -66,7 +66,7 @@ def test_batch_residuals_validation(trial):
     rays = contour_rays(trial.observations, 16)
     with pytest.raises(ValueError, match=r"X must have shape \(n, 11\)"):
         batch_ray_residuals(np.ones(11), rays)
-    with pytest.raises(TypeError, match="rays must be a sqfit.rays.RaySet"):
+    with pytest.raises(TypeError, match="rays must be a sqfit.views.rays.RaySet"):
         batch_ray_residuals(np.ones((2, 11)), "rays")
 
 
@@ -138,14 +138,14 @@ def test_batch_residuals_keep_hinges_and_one_sided_rays(trial, start):
 def test_rescue_refits_a_result_that_misses_the_masks(monkeypatch):
     # paper_trial(80): the screen and 3G end in 3G's "far, huge" minimum (R-IOU-M 0.28, IoU 0.03);
     # the rescue through 3D-3A and the screen recovers the object.
-    from sqfit import axis_search
+    from sqfit.fitting import axis_screen
 
     trial = paper_trial(80)
-    monkeypatch.setattr(axis_search, "RESCUE_R_IOU_M", 0.0)
+    monkeypatch.setattr(axis_screen, "RESCUE_R_IOU_M", 0.0)
     first = sqfit.fit(trial.observations, "1-2-3H")
     assert first.r_iou_m < 0.5 and iou_3d(first.superquadric, trial.gt) < 0.1
     assert any(w.startswith("poor fit") for w in first.warnings)
-    monkeypatch.setattr(axis_search, "RESCUE_R_IOU_M", 0.5)
+    monkeypatch.setattr(axis_screen, "RESCUE_R_IOU_M", 0.5)
     rescued = sqfit.fit(trial.observations, "1-2-3H")
     assert rescued.r_iou_m > 0.8 and iou_3d(rescued.superquadric, trial.gt) > 0.7
     assert rescued.stages[-1].message.startswith("rescue: R-IOU-M 0.282 < 0.5, re-fitted through 3D-3A-3H")
@@ -155,7 +155,7 @@ def test_rescue_refits_a_result_that_misses_the_masks(monkeypatch):
 
 
 def test_rescue_keeps_the_first_fit_when_a_stage_fails(monkeypatch):
-    from sqfit import axis_search
+    from sqfit.fitting import axis_screen
 
     def broken(state, obs, options):
         raise np.linalg.LinAlgError("Singular matrix")
@@ -165,7 +165,7 @@ def test_rescue_keeps_the_first_fit_when_a_stage_fails(monkeypatch):
     result = sqfit.fit(trial.observations, "1-2-3H")
     assert result.status == "ok"
     assert "rescue (3D-3A-3H) failed: Singular matrix" in result.stages[-1].message
-    monkeypatch.setattr(axis_search, "RESCUE_R_IOU_M", 0.0)
+    monkeypatch.setattr(axis_screen, "RESCUE_R_IOU_M", 0.0)
     assert result.superquadric == sqfit.fit(trial.observations, "1-2-3H").superquadric
 
 
@@ -176,7 +176,7 @@ def test_ray_minimiser_budget_is_honoured():
     rays = contour_rays(trial.observations, 16)
     box = trial.gt.to_vector().copy()
     box[3:5] = 0.05
-    from sqfit.raycost import batch_ray_minima
+    from sqfit.fitting.raycost import batch_ray_minima
 
     d_full, m_full = batch_ray_minima(box[None], rays.origins, rays.directions)
     d_one, m_one = batch_ray_minima(box[None], rays.origins, rays.directions, max_newton=1)

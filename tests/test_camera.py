@@ -4,7 +4,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from sqfit import Camera, Intrinsics, back_project, look_at, project
-from sqfit.camera import pixel_centers
+from sqfit.geometry.camera import pixel_centers
 
 INTR = Intrinsics(640, 480, 400.0, 300.0, 320.0, 240.0)
 

@@ -2,9 +2,9 @@ import numpy as np
 import pytest
 
 from sqfit import Superquadric
-from sqfit.costs import (ObservationSet, g5_residuals, penalty, penalty_jacobian, radial_terms, riou_residuals,
+from sqfit.fitting.costs import (ObservationSet, g5_residuals, penalty, penalty_jacobian, radial_terms, riou_residuals,
                          rotation_and_derivatives, sample_points)
-from sqfit.superquadric import euler_derivatives, euler_to_matrix, radial_distance
+from sqfit.geometry.superquadric import euler_derivatives, euler_to_matrix, radial_distance
 from sqfit.testing import paper_trial
 from _numeric import central_difference
 

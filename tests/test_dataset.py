@@ -5,48 +5,24 @@ import signal
 import subprocess
 import sys
 import time
-from pathlib import Path
 
 import numpy as np
 import pytest
 
 import sqfit
-from sqfit.io import iter_trials, load_trial, observations, read_mask_png, trial_dirs, write_mask_png
-from sqsim.dataset import generate
-from sqsim.scene import load_scene
+from sqfit.views.dataset import iter_trials, load_trial, observations, read_mask_png, trial_dirs, write_mask_png
+from sqsim.runs.generate import generate
+from sqsim.world.scene import load_scene
 
-SCENE = """
-[experiment]
-seed = 5
-trials = 4
-[camera]
-width = 160
-height = 120
-fx = 100.0
-fy = 75.0
-cx = 80.0
-cy = 60.0
-[objects]
-count = 2
-size = [0.3, 1.5]
-position = [-1.5, 1.5]
-[masks]
-min_area_px = 20
-[noise]
-erosion_px = 1
-pose_rotation_deg = 0.5
-"""
+from _datasets import files, kill_generate_midway, small_scene  # noqa: E402
 
+SCENE = small_scene(5, 4, {"erosion_px": 1, "pose_rotation_deg": 0.5})
 
 @pytest.fixture
 def scene_file(tmp_path):
     path = tmp_path / "scene.toml"
     path.write_text(SCENE)
     return path
-
-
-def files(root):
-    return {str(p.relative_to(root)): p.read_bytes() for p in sorted(Path(root).rglob("*")) if p.is_file()}
 
 
 def test_generate_writes_the_format_and_coco(scene_file, tmp_path):
@@ -98,20 +74,12 @@ def test_same_bytes_for_any_worker_count_and_resume(scene_file, tmp_path):
 def test_killed_run_resumes_to_identical_dataset(scene_file, tmp_path):
     scene_file.write_text(SCENE.replace("trials = 4", "trials = 40"))
     generate(load_scene(scene_file), tmp_path / "full", progress=False)
-    env = dict(os.environ, OPENBLAS_NUM_THREADS="1")
-    cmd = [sys.executable, "-m", "sqsim.cli", "generate", str(scene_file), "-o", str(tmp_path / "cut"), "--no-progress"]
-    proc = subprocess.Popen(cmd, env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    cmd, done = kill_generate_midway(scene_file, tmp_path / "cut", 5)
     trials = tmp_path / "cut" / "trials"
-    deadline = time.time() + 60
-    while time.time() < deadline and not (trials.is_dir() and len(list(trials.glob("0*"))) >= 5):
-        time.sleep(0.02)
-    proc.send_signal(signal.SIGKILL)
-    proc.wait()
-    done = len(list(trials.glob("0*")))
     assert 5 <= done < 40
     for d in trials.glob("0*"):  # every finished trial is complete
         assert {p.name for p in d.iterdir()} == {"cameras.json", "gt.json", "masks"}
-    assert subprocess.run(cmd, env=env, capture_output=True).returncode == 0
+    assert subprocess.run(cmd, capture_output=True).returncode == 0
     assert files(tmp_path / "full") == files(tmp_path / "cut")
 
 
@@ -206,7 +174,7 @@ def test_encoded_png_decodes_the_same_in_pillow_and_opencv(tmp_path, dtype, top)
     import cv2
     from PIL import Image
 
-    from sqfit.io import encode_png
+    from sqfit.views.dataset import encode_png
 
     image = np.random.default_rng(1).integers(0, top + 1, (37, 53)).astype(dtype)
     image[5:30] = 0  # long runs, as in masks
@@ -300,8 +268,8 @@ def test_dask_local_cluster_writes_the_same_bytes(scene_file, tmp_path):
 
 def test_generate_unreachable_scheduler(scene_file, tmp_path, monkeypatch):
     pytest.importorskip("distributed")
-    import sqsim.parallel
+    import sqsim.runs.parallel
 
-    monkeypatch.setattr(sqsim.parallel, "CONNECT_TIMEOUT_S", 2)
+    monkeypatch.setattr(sqsim.runs.parallel, "CONNECT_TIMEOUT_S", 2)
     with pytest.raises(OSError, match="cannot connect to the Dask scheduler 'tcp://127.0.0.1:9'"):
         generate(load_scene(scene_file), tmp_path / "d", scheduler="tcp://127.0.0.1:9", progress=False)

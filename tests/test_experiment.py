@@ -7,8 +7,10 @@ import time
 import pytest
 
 import sqfit
-from sqsim.experiment import parse_chains, run_experiment
-from sqsim.scene import parse_scene
+from sqsim.runs.experiment import parse_chains, run_experiment
+from sqsim.world.scene import parse_scene
+
+from _helpers import run_command  # noqa: E402
 
 CHAINS = ["1-2-3D", "1-2-3D-3A"]
 STAT_KEYS = {"median", "mean", "std"}
@@ -129,8 +131,7 @@ def test_chain_arguments(tmp_path):
 def test_cli_reports_bad_scene_cleanly(tmp_path):
     bad = tmp_path / "bad.toml"
     bad.write_text("[experiment\nname=")
-    out = subprocess.run([sys.executable, "-m", "sqsim.cli", "experiment", str(bad), "-o", str(tmp_path / "o")],
-                         capture_output=True, text=True)
+    out = run_command("sqsim", "experiment", bad, "-o", tmp_path / "o")
     assert out.returncode == 2
     assert "bad.toml" in out.stderr and "Traceback" not in out.stderr
 
@@ -147,7 +148,7 @@ def test_mesh_ground_truths_are_scored_by_mesh_boolean(tmp_path):
 
 
 def test_best_chain_prefers_reliability():
-    from sqsim.report import best_chain
+    from sqsim.reports.experiment import best_chain
 
     entry = lambda success, iou: {"success_rate": success, "iou": {"median": iou}, "time_s": {"median": 0.1}}  # noqa: E731
     assert best_chain({"chains": {"a": entry(0.99, 0.93), "b": entry(1.0, 0.91), "c": entry(1.0, 0.80)}}) == "b"

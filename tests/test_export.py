@@ -8,34 +8,14 @@ import pytest
 from sqfit.cli import main as sqfit_main
 from sqfit.formats import (read_coco, read_colmap, read_pose_json, write_image_times, write_intrinsics,
                            write_tum)
-from sqfit.io import load_trial, trial_dirs
+from sqfit.views.dataset import load_trial, trial_dirs
 from sqsim.cli import main as sqsim_main
 
 pytest.importorskip("pycolmap")
 
-SCENE = """
-[experiment]
-seed = 11
-trials = 3
-[camera]
-width = 160
-height = 120
-fx = 100.0
-fy = 75.0
-cx = 80.0
-cy = 60.0
-[objects]
-count = 2
-size = [0.3, 1.5]
-position = [-1.5, 1.5]
-[masks]
-min_area_px = 20
-[noise]
-boundary_jitter_px = 0.5
-pose_rotation_deg = 0.5
-pose_translation_m = 0.05
-"""
+from _datasets import small_scene  # noqa: E402
 
+SCENE = small_scene(11, 3, {"boundary_jitter_px": 0.5, "pose_rotation_deg": 0.5, "pose_translation_m": 0.05})
 
 @pytest.fixture(scope="module")
 def dataset(tmp_path_factory):
@@ -97,16 +77,14 @@ def test_model_is_rebuilt_deterministically_on_resume(dataset, tmp_path):
 
 
 def test_imported_observations_are_the_native_ones(dataset):
-    from sqfit.fitcli import _rng
-    from sqfit.formats import load_import, observe_track
-    from sqfit.formats.importer import _track_rng
-    from sqfit.io import observe_views
+    from sqfit.views.imported import load_import, observe_track, track_rng
+    from sqfit.views.dataset import object_rng, observe_views
 
     scene = load_import(dataset / "annotations.json", dataset / "sparse" / "0")
     trial = load_trial(dataset / "trials" / "000001")
     for oid in (1, 2):
-        imported = observe_track(scene, f"000001/{oid}", 30, rng=_track_rng(7, f"000001/{oid}"))
-        native = observe_views(trial.cameras, trial.images, oid, 30, rng=_rng(7, "000001", oid))
+        imported = observe_track(scene, f"000001/{oid}", 30, rng=track_rng(7, f"000001/{oid}"))
+        native = observe_views(trial.cameras, trial.images, oid, 30, rng=object_rng(7, "000001", oid))
         assert imported.views == native.views and imported.names[0] == "trials/000001/masks/view_00.png"
         for a, b in zip(imported.observations, native.observations):
             np.testing.assert_array_equal(a.samples, b.samples)  # same masks, same seed: same samples

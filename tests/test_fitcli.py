@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from sqfit.cli import main
-from sqfit.io import write_mask_png
+from sqfit.views.dataset import write_mask_png
 from sqfit.testing import paper_trial
 
 
@@ -109,8 +109,8 @@ def test_rerun_with_coco_is_refused(tmp_path):
 
 def test_observe_views_names_views_and_keeps_samples():
     from sqfit import Observation
-    from sqfit.io import observations_from_images, observe_views
-    from sqfit.pipeline import FitResult
+    from sqfit.views.dataset import observations_from_images, observe_views
+    from sqfit.fitting.pipeline import FitResult
 
     trial = paper_trial(3)
     images = np.stack([m.astype(np.uint16) * 3 for m in trial.masks])

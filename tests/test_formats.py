@@ -9,17 +9,26 @@ import pytest
 
 import sqfit
 from sqfit.cli import main
-from sqfit.formats import (decode_segmentation, encode_mask, load_import, read_coco, read_colmap, read_pose_json,
-                           read_poses, write_colmap, write_pose_json)
-from sqfit.formats.importer import _track_rng, detect_pose_format
-from sqfit.io import observe_views
-from sqfit.raster import fill_convex_polygon
+from sqfit.formats import decode_segmentation, encode_mask, read_coco, read_colmap, read_pose_json, write_colmap, write_pose_json
+from sqfit.views.imported import load_import, read_poses
+from sqfit.views.imported import detect_pose_format, track_rng
+from sqfit.views.dataset import observe_views
+from sqfit.geometry.raster import fill_convex_polygon
 from sqfit.testing import paper_trial
 
 pycolmap = pytest.importorskip("pycolmap")
 pytest.importorskip("pycocotools")
 
 NAMES = ["view_00.png", "view_01.png", "view_02.png"]
+
+
+def text_model(directory, cameras, images):
+    """A COLMAP text model directory with these ``cameras.txt`` and ``images.txt`` lines, no points."""
+    directory.mkdir()
+    (directory / "cameras.txt").write_text(cameras)
+    (directory / "images.txt").write_text(images)
+    (directory / "points3D.txt").write_text("")
+    return directory
 
 
 @pytest.fixture(scope="module")
@@ -121,13 +130,8 @@ def test_colmap_rejects_distortion_naming_model_and_camera(tmp_path):
     (tmp_path / "empty").mkdir()
     with pytest.raises(OSError, match="no images.bin or images.txt"):
         read_colmap(tmp_path / "empty")
-    bad = tmp_path / "bad"
-    bad.mkdir()
-    (bad / "cameras.txt").write_text("1 PINHOLE 64 48 oops\n")
-    (bad / "images.txt").write_text("")
-    (bad / "points3D.txt").write_text("")
     with pytest.raises(ValueError, match="pycolmap cannot read this COLMAP model"):
-        read_colmap(bad)
+        read_colmap(text_model(tmp_path / "bad", "1 PINHOLE 64 48 oops\n", ""))
 
 
 def test_json_poses_both_conventions(tmp_path, trial):
@@ -265,7 +269,7 @@ def test_fit_user_scene_matches_native_fit(tmp_path, trial, polygons):
     assert rec["images"] == NAMES and rec["views"] == [0, 1, 2] and rec["dropped_views"] == []
     # The same masks and cameras fitted natively, with the importer's seed, give the same parameters.
     masks = [decode_segmentation(a["segmentation"], 480, 640) for a in json.loads(coco.read_text())["annotations"]]
-    native = observe_views(trial.cameras, [m.astype(np.uint16) for m in masks], 1, rng=_track_rng(4, 7))
+    native = observe_views(trial.cameras, [m.astype(np.uint16) for m in masks], 1, rng=track_rng(4, 7))
     ref = sqfit.fit(native.observations, "1-2-3D")
     np.testing.assert_allclose(rec["params"], ref.superquadric.to_vector(), rtol=1e-9, atol=1e-9)
     if polygons:  # polygon masks of the contour reproduce the rendered mask up to boundary pixels
@@ -366,13 +370,8 @@ def test_more_reader_errors(tmp_path, trial):
         read_pose_json(tmp_path / "dup.json")
     with pytest.raises(ValueError, match=r"cameras\['x'\] must be a sqfit.Camera"):
         write_colmap(tmp_path / "m", {"x": "not a camera"})
-    zero = tmp_path / "zero"
-    zero.mkdir()
-    (zero / "cameras.txt").write_text("4 PINHOLE 64 48 0 50 32 24\n")
-    (zero / "images.txt").write_text("1 1 0 0 0 0 0 0 4 img.png\n\n")
-    (zero / "points3D.txt").write_text("")
     with pytest.raises(ValueError, match="camera 4: fx must be a finite number > 0"):
-        read_colmap(zero)
+        read_colmap(text_model(tmp_path / "zero", "4 PINHOLE 64 48 0 50 32 24\n", "1 1 0 0 0 0 0 0 4 img.png\n\n"))
     write_pose_json(tmp_path / "one.json", {NAMES[1]: trial.cameras[1]})
     with pytest.raises(ValueError, match="only 1 image of .* can be used .*; fitting needs >= 2 views"):
         load_import(write_user_scene(tmp_path, trial)[0], tmp_path / "one.json")

@@ -9,14 +9,16 @@ import pytest
 
 import sqfit
 from sqfit.cli import main
-from sqfit.formats import (encode_mask, load_import, match_trajectory, read_image_times, read_intrinsics, read_poses,
-                           write_image_times, write_intrinsics, write_pose_json,
-                           write_tum)
+from sqfit.formats import (encode_mask, match_trajectory, read_image_times, read_intrinsics, write_image_times,
+                           write_intrinsics, write_pose_json, write_tum)
+from sqfit.views.imported import load_import, read_poses
 from sqfit.formats.coco import CocoImage
-from sqfit.formats.importer import _track_rng
+from sqfit.views.imported import track_rng
 from sqfit.formats.trajectory import associate, image_timestamps
-from sqfit.io import observe_views
+from sqfit.views.dataset import observe_views
 from sqfit.testing import paper_trial
+
+from _helpers import assert_bad_file  # noqa: E402
 
 pytest.importorskip("pycocotools")
 
@@ -128,9 +130,7 @@ def test_image_times_list_like_tum_rgb_txt(tmp_path):
     ("# nothing\n", r"rgb.txt: no entries"),
 ])
 def test_bad_image_time_lists(tmp_path, text, match):
-    (tmp_path / "rgb.txt").write_text(text)
-    with pytest.raises(ValueError, match=match):
-        read_image_times(tmp_path / "rgb.txt")
+    assert_bad_file(tmp_path / "rgb.txt", text, read_image_times, match)
 
 
 def test_image_time_list_errors(tmp_path):
@@ -229,7 +229,7 @@ def test_fit_user_scene_with_tum_poses_matches_native_fit(tmp_path, trial):
                  "--chain", "1-2-3D", "--seed", "4", "--no-progress"]) == 0
     (rec,) = records(out)
     assert rec["status"] == "ok" and rec["track_id"] == 7 and rec["views"] == [0, 1, 2] and rec["dropped_views"] == []
-    native = observe_views(trial.cameras, [m.astype(np.uint16) for m in trial.masks], 1, rng=_track_rng(4, 7))
+    native = observe_views(trial.cameras, [m.astype(np.uint16) for m in trial.masks], 1, rng=track_rng(4, 7))
     ref = sqfit.fit(native.observations, "1-2-3D")
     np.testing.assert_allclose(rec["params"], ref.superquadric.to_vector(), rtol=1e-9, atol=1e-9)
     scene = load_import(coco, traj, intrinsics=camera)

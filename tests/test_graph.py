@@ -463,7 +463,7 @@ def test_observations_from_instance_images_match_the_masks():
 
 
 def test_observations_from_instances_are_labelled():
-    from sqfit.visibility import BACKGROUND, BORDER, INSTANCE
+    from sqfit.views.visibility import BACKGROUND, BORDER, INSTANCE
 
     k = sqfit.Intrinsics(160, 120, 100.0, 100.0, 80.0, 60.0)
     images = np.zeros((2, 120, 160), np.uint16)

@@ -4,7 +4,7 @@ import sys
 
 def test_sqfit_does_not_import_opengl_or_sqsim():
     code = ("import sys, sqfit, sqfit.cli; "
-            "import sqfit.recording, sqfit.fitcli; "
+            "import sqfit.recording, sqfit.cli.fit; "
             "bad = [m for m in ('OpenGL', 'pyrender', 'sqsim', 'pycolmap', 'pycocotools', 'rerun', 'distributed') "
             "if m in sys.modules]; "
             "assert not bad, bad")
@@ -18,13 +18,13 @@ def test_cli_help_works():
 
 
 def test_formats_import_no_optional_library():
-    code = ("import sys, sqfit.formats, sqfit.fitcli; "
+    code = ("import sys, sqfit.formats, sqfit.cli.fit; "
             "bad = [m for m in ('pycolmap', 'pycocotools', 'sqsim') if m in sys.modules]; assert not bad, bad")
     subprocess.run([sys.executable, "-c", code], check=True)
 
 
 def test_sequence_readers_import_no_optional_library():
-    code = ("import sys, sqfit.io, sqfit.formats.tum; "
+    code = ("import sys, sqfit.views.dataset, sqfit.formats.tum; "
             "bad = [m for m in ('OpenGL', 'pyrender', 'sqsim', 'evo', 'gtsam') if m in sys.modules]; "
             "assert not bad, bad")
     subprocess.run([sys.executable, "-c", code], check=True)

@@ -2,7 +2,7 @@ import numpy as np
 import pytest
 from scipy.optimize import least_squares
 
-from sqfit.lm import STATUS, DenseJacobian, SchurJacobian, levenberg_marquardt
+from sqfit.fitting.lm import STATUS, DenseJacobian, SchurJacobian, levenberg_marquardt
 
 
 def rosenbrock(x):

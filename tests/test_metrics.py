@@ -4,7 +4,7 @@ import trimesh
 
 from sqfit import Superquadric
 from sqfit.metrics import bounding_box, iou_3d, iou_3d_mesh, success
-from sqfit.superquadric import contains, sample_surface_uniform, to_mesh
+from sqfit.geometry.superquadric import contains, sample_surface_uniform, to_mesh
 
 
 def random_pair(rng):
@@ -66,7 +66,7 @@ def test_bounding_box_contains_the_surface():
 
 def test_r_iou_of_the_truth_is_one_and_drops_with_error():
     from sqfit.metrics import r_iou
-    from sqfit.silhouette import silhouette
+    from sqfit.geometry.silhouette import silhouette
     from sqfit.testing import paper_trial
 
     trial = paper_trial(5)

@@ -2,12 +2,13 @@ import numpy as np
 import pytest
 
 import sqfit
-from sqfit import multistart as M
-from sqfit.costs import ObservationSet
+from sqfit.fitting import restarts as M
+from sqfit.fitting.costs import ObservationSet
 from sqfit.metrics import iou_3d
-from sqfit.pipeline import FitOptions, to_superquadric
-from sqfit.stages import STAGES, FitState
-from sqfit.superquadric import Superquadric, contains, euler_to_matrix, implicit
+from sqfit.fitting.pipeline import FitOptions
+from sqfit.fitting.stages import to_superquadric
+from sqfit.fitting.stages import STAGES, FitState
+from sqfit.geometry.superquadric import Superquadric, contains, euler_to_matrix, implicit
 from sqfit.testing import paper_cameras, paper_trial, polygon_mask
 
 OPT = FitOptions()
@@ -111,7 +112,7 @@ def test_stage_recovers_from_a_symmetric_local_minimum(size, shape, rotation, st
     out = STAGES["3S"](stuck, obs, OPT)
     assert iou_3d(to_superquadric(out.xi), gt) > 0.97
     assert f"from {recovered_by};" in out.message
-    assert M.misfit(out.xi, M._screen_rays(obs)) < M.TRIGGER_MISFIT < M.misfit(stuck.xi, M._screen_rays(obs))
+    assert M.misfit(out.xi, M.screen_rays(obs)) < M.TRIGGER_MISFIT < M.misfit(stuck.xi, M.screen_rays(obs))
 
 
 def test_gate_keeps_a_fit_below_the_trigger(monkeypatch):

@@ -3,9 +3,9 @@ import pytest
 from scipy import ndimage
 
 import sqfit
-from sqsim.noise import (add_false_blobs, corrupt_image, dilate, drop_out, erode, jitter_boundary,
+from sqsim.imaging.noise import (add_false_blobs, corrupt_image, dilate, drop_out, erode, jitter_boundary,
                          perturb_cameras, perturb_pose)
-from sqsim.scene import NoiseConfig
+from sqsim.world.scene import NoiseConfig
 
 
 def square(h=120, w=160, r0=30, r1=90, c0=40, c1=120):

@@ -1,17 +1,10 @@
 import numpy as np
 import pytest
 
-from sqfit import Camera, Intrinsics, Observation, look_at
-from sqfit.observation import convex_hull, outer_contour
+from sqfit import Observation
+from sqfit.views.observation import convex_hull, outer_contour
 
-INTR = Intrinsics(64, 48, 40.0, 30.0, 32.0, 24.0)
-CAM = Camera(INTR, look_at([10.0, 0, 0], [0, 0, 0]))
-
-
-def rect_mask(r0=10, r1=20, c0=5, c1=30):
-    mask = np.zeros((48, 64), bool)
-    mask[r0:r1, c0:c1] = True
-    return mask
+from _helpers import CAM, rect_mask  # noqa: E402
 
 
 def test_contour_runs_along_pixel_edges():
@@ -86,7 +79,7 @@ def test_bad_arguments_are_reported():
 
 
 def test_cleanup_keeps_the_largest_component_and_fills_holes():
-    from sqfit.observation import clean_mask
+    from sqfit.views.observation import clean_mask
 
     mask = rect_mask()
     mask[14:16, 15:18] = False  # a hole (a missed part)
@@ -102,7 +95,7 @@ def test_cleanup_keeps_the_largest_component_and_fills_holes():
 
 
 def test_dataset_reader_passes_cleanup_through():
-    from sqfit.io import observations_from_images
+    from sqfit.views.dataset import observations_from_images
 
     image = rect_mask().astype(np.uint16)
     image[40:43, 50:53] = 1  # a false-positive blob with the object's id

@@ -1,6 +1,6 @@
 import pytest
 
-from sqsim.parallel import map_unordered
+from sqsim.runs.parallel import map_unordered
 
 
 def _square(x):
@@ -37,7 +37,7 @@ def test_map_unordered_errors():
 
 
 def test_cluster_slots_follow_workers_joining(monkeypatch):
-    import sqsim.parallel as parallel
+    import sqsim.runs.parallel as parallel
 
     class FakeClient:
         threads = {}

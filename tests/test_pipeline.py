@@ -161,7 +161,7 @@ def test_poor_fit_is_flagged():
 def test_initial_starts_the_first_stage_at_the_given_superquadric(trial):
     result = fit(trial.observations, initial=trial.gt)
     assert result.status == "ok", result.message
-    assert result.chain == sqfit.pipeline.INITIAL_CHAIN
+    assert result.chain == sqfit.fitting.pipeline.INITIAL_CHAIN
     assert iou_3d(result.superquadric, trial.gt) > 0.95  # the truth is (nearly) a 3G minimum
     # A vector is accepted too; a chain of G5 stages gets depths on the initial quadric.
     same = fit(trial.observations, "3G", initial=trial.gt.to_vector())

@@ -5,7 +5,7 @@ from pathlib import Path
 import pytest
 
 import sqfit
-from sqsim.scene import load_scene
+from sqsim.world.scene import load_scene
 
 PAPER = Path(__file__).resolve().parents[1] / "scenes" / "paper.toml"
 

@@ -4,8 +4,8 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from skimage.draw import polygon as skimage_polygon
 
-from sqfit.observation import convex_hull
-from sqfit.raster import fill_convex_polygon
+from sqfit.views.observation import convex_hull
+from sqfit.geometry.raster import fill_convex_polygon
 
 
 def test_pixel_centre_convention():

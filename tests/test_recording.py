@@ -11,12 +11,12 @@ import pytest
 rr = pytest.importorskip("rerun")
 
 import sqfit  # noqa: E402
-import sqfit.superquadric  # noqa: E402
-from sqfit.fitcli import fit_dataset  # noqa: E402
+import sqfit.geometry.superquadric  # noqa: E402
+from sqfit.cli.fit import fit_dataset  # noqa: E402
 from sqfit.recording import Recorder  # noqa: E402
-from sqsim.dataset import generate  # noqa: E402
-from sqsim.experiment import run_experiment  # noqa: E402
-from sqsim.scene import parse_scene  # noqa: E402
+from sqsim.runs.generate import generate  # noqa: E402
+from sqsim.runs.experiment import run_experiment  # noqa: E402
+from sqsim.world.scene import parse_scene  # noqa: E402
 
 SCENE = {"experiment": {"name": "rec", "seed": 2, "trials": 2, "chains": ["1-2-3D"]},
          "camera": {"width": 160, "height": 120, "fx": 100.0, "fy": 75.0, "cx": 80.0, "cy": 60.0},
@@ -71,7 +71,7 @@ def test_generate_records_cameras_masks_and_ground_truth(dataset):
             gt = got[f"/trials/{t}/ground_truth/object_{k}"]
             assert {"Mesh3D:vertex_positions", "Mesh3D:triangle_indices"} <= gt["components"]
     # the camera's image is the instance mask, pixel for pixel
-    from sqfit.io import load_trial
+    from sqfit.views.dataset import load_trial
 
     trial = load_trial(dataset / "data" / "trials" / "000001")
     buffer = column(got["/trials/000001/cameras/view_02/mask"], "SegmentationImage:buffer")[0][0]
@@ -99,7 +99,7 @@ def test_fit_records_every_stage_on_the_stage_timeline(dataset, tmp_path):
         # the mesh after the last stage is the fitted superquadric's surface
         sq = sqfit.Superquadric.from_vector(np.asarray(stages[t, k][-1]["superquadric"]))
         last = np.asarray(column(got[e], "Mesh3D:vertex_positions")[-1], dtype=np.float64)
-        assert len(last) == 6 * 24**2 + 2 and np.allclose(sqfit.superquadric.implicit(sq, last), 1.0, atol=1e-2)
+        assert len(last) == 6 * 24**2 + 2 and np.allclose(sqfit.geometry.superquadric.implicit(sq, last), 1.0, atol=1e-2)
         assert "Mesh3D:vertex_positions" in got[e]["components"]
     from rerun.chunk import RrdReader  # the default blueprint: one 3D view per trial
 
@@ -179,7 +179,7 @@ def test_mesh_kinds_are_recorded_as_oriented_boxes(tmp_path):
                          "experiment": {**SCENE["experiment"], "trials": 1}}, source="<test>")
     generate(scene, tmp_path / "d", progress=False, rerun=tmp_path / "d.rrd")
     gt = read(tmp_path / "d.rrd")["/trials/000000/ground_truth/object_1"]
-    from sqfit.io import load_trial
+    from sqfit.views.dataset import load_trial
 
     obj = load_trial(tmp_path / "d" / "trials" / "000000").objects[0]
     assert np.allclose(column(gt, "Boxes3D:half_sizes")[0][0], obj["size"])

@@ -7,8 +7,8 @@ import pytest
 import trimesh
 
 import sqfit
-from sqfit.superquadric import to_mesh
-from sqsim.render import get_renderer, polygon_mask, projection_matrix
+from sqfit.geometry.superquadric import to_mesh
+from sqsim.imaging.render import get_renderer, polygon_mask, projection_matrix
 
 INTR = sqfit.Intrinsics(160, 120, 100.0, 75.0, 80.0, 60.0)
 
@@ -131,8 +131,8 @@ def test_egl_backend_in_its_own_process():
     # One OpenGL platform per process: EGL runs in a fresh interpreter (Mesa llvmpipe on a CPU).
     code = """
 import os, numpy as np, sqfit
-from sqfit.superquadric import to_mesh
-from sqsim.render import get_renderer
+from sqfit.geometry.superquadric import to_mesh
+from sqsim.imaging.render import get_renderer
 intr = sqfit.Intrinsics(160, 120, 100.0, 75.0, 80.0, 60.0)
 sq = sqfit.Superquadric((1.0, 2.0, 0.5), (0.5, 1.2), (0.5, 0.2, 0.1), (0.3, 0.2, 0.1))
 cam = sqfit.Camera(intr, sqfit.look_at([10.0, 1.0, 2.0], [0, 0, 0]))

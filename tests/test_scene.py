@@ -6,20 +6,15 @@ import pytest
 import trimesh
 
 import sqfit
-from sqsim.objects import geometry_visible, make_object, sample_objects
-from sqsim.scene import OBJECT_KINDS, Scene, camera_poses, load_scene, parse_scene, trial_seed
-from sqsim.trial import observations, sample_trial, simulate_trial
+from sqsim.world.objects import geometry_visible, make_object, sample_objects
+from sqsim.world.scene import OBJECT_KINDS, Scene, camera_poses, load_scene, parse_scene, trial_seed
+from sqsim.imaging.trial import observations, sample_trial, simulate_trial
+
+from _helpers import assert_bad_file  # noqa: E402
+from _datasets import small_parsed_scene  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
-SMALL = {"camera": {"width": 160, "height": 120, "fx": 100.0, "fy": 75.0, "cx": 80.0, "cy": 60.0},
-         "objects": {"size": [0.3, 1.5], "position": [-1.5, 1.5]}, "masks": {"min_area_px": 20}}
-
-
-def small(**sections):
-    data = {k: dict(v) for k, v in SMALL.items()}
-    for name, values in sections.items():
-        data.setdefault(name, {}).update(values)
-    return parse_scene(data)
+small = small_parsed_scene
 
 
 def test_paper_scene_matches_table_1():
@@ -84,12 +79,12 @@ def test_with_overrides_validates():
     ("[noise]\nboundary_jitter_px = -0.5\n", "noise.boundary_jitter_px must be >= 0"),
     ("[fit]\npolygon = \"box\"\n", "fit.polygon must be one of"),
     ("[fit]\npenalty_riou = 0.0\n", "fit.penalty_riou must be > 0"),
+    ("[masks]\nmax_cut_fraction = 1.0\n", "masks.max_cut_fraction must be < 1"),
+    ("[masks]\nmax_cut_fraction = -0.1\n", "masks.max_cut_fraction must be >= 0"),
+    ("[fit]\nocclusion_aware = 1\n", "fit.occlusion_aware must be"),
 ])
 def test_bad_scene_files(tmp_path, text, match):
-    path = tmp_path / "scene.toml"
-    path.write_text(text)
-    with pytest.raises(ValueError, match=match):
-        load_scene(path)
+    assert_bad_file(tmp_path / "scene.toml", text, load_scene, match)
 
 
 def test_missing_file_and_bad_mapping(tmp_path):
@@ -226,7 +221,7 @@ def test_scene_is_immutable():
 
 
 def test_early_rejection_agrees_with_the_full_visibility_test():
-    from sqsim.objects import draw_objects, geometry_visible, make_objects, surely_not_visible
+    from sqsim.world.objects import draw_objects, geometry_visible, make_objects, surely_not_visible
 
     scene = load_scene(ROOT / "scenes" / "paper.toml")
     cameras = scene.cameras()

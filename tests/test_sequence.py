@@ -8,11 +8,11 @@ from scipy.spatial.transform import Rotation
 
 import sqfit
 from sqfit.formats.tum import write_tum
-from sqsim.layout import LAYOUT_GAP_M, footprint_radius, ground_layout
-from sqsim.odometry import compose_steps, integrate_odometry, noisy_steps, relative_poses
-from sqsim.scene import parse_scene
-from sqsim.sequence import MIN_OBSERVATIONS, observed_objects, simulate_sequence
-from sqsim.trajectory import orbit_poses, sequence_poses, waypoint_poses
+from sqsim.world.layout import LAYOUT_GAP_M, footprint_radius, ground_layout
+from sqsim.world.odometry import compose_steps, integrate_odometry, noisy_steps, relative_poses
+from sqsim.world.scene import parse_scene
+from sqsim.imaging.sequence import MIN_OBSERVATIONS, observed_objects, simulate_sequence
+from sqsim.world.trajectory import orbit_poses, sequence_poses, waypoint_poses
 
 SMALL = {
     "camera": {"width": 160, "height": 120, "fx": 100.0, "fy": 75.0, "cx": 80.0, "cy": 60.0},
@@ -79,7 +79,7 @@ def test_waypoints_interpolate_linearly_and_slerp(tmp_path):
     write_tum(tmp_path / "path.tum", [r[0] for r in rows], wp)
     text = ('[trajectory]\nkind = "waypoints"\nframes = 7\nwaypoints_file = "path.tum"\n')
     (tmp_path / "s.toml").write_text(text)
-    from sqsim.scene import load_scene
+    from sqsim.world.scene import load_scene
     s2 = load_scene(tmp_path / "s.toml")
     np.testing.assert_allclose(sequence_poses(s2.trajectory)[1], poses, atol=1e-12)
     np.testing.assert_allclose(waypoint_poses([r[0] for r in rows], wp, 7)[1], poses, atol=1e-12)
@@ -265,7 +265,7 @@ def test_simulated_sequence_fields_and_visibility(simulated):
                 border += bool(mask[0].any() or mask[-1].any() or mask[:, 0].any() or mask[:, -1].any())
                 # hidden in part: the object's own projection is larger than its visible mask
                 alone = seq.scene_objects[i]
-                from sqsim.render import get_renderer
+                from sqsim.imaging.render import get_renderer
                 full = get_renderer(s.masks.renderer, s.intrinsics).render([alone], [seq.cameras("true")[k]])[0]
                 hidden += bool((full != 0).sum() > mask.sum())
     # frames cut by the border or hidden by others are kept, and some frames miss some objects
@@ -291,7 +291,7 @@ def test_impossible_or_wrong_scenes():
 
 
 def test_multi_view_trials_refuse_a_sequence_scene():
-    from sqsim.trial import sample_trial
+    from sqsim.imaging.trial import sample_trial
 
     with pytest.raises(ValueError, match=r"trajectory\.kind = 'orbit' is an image sequence"):
         sample_trial(scene(), 0)
@@ -300,7 +300,7 @@ def test_multi_view_trials_refuse_a_sequence_scene():
 
 def test_sequence_command_prints_drift_and_draws(tmp_path, capsys, simulated):
     from sqsim.cli import main
-    from sqsim.sequence_report import drift
+    from sqsim.reports.sequence import drift
 
     _, seqs = simulated
     translation, rotation = drift(seqs[0].true_poses, seqs[0].odometry_poses)
@@ -320,7 +320,7 @@ def test_sequence_command_prints_drift_and_draws(tmp_path, capsys, simulated):
 def test_shipped_sequence_scenes(name):
     from pathlib import Path
 
-    from sqsim.scene import load_scene
+    from sqsim.world.scene import load_scene
 
     s = load_scene(Path(__file__).resolve().parents[1] / "scenes" / name)
     t, poses = sequence_poses(s.trajectory)

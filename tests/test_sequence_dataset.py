@@ -1,35 +1,26 @@
-"""Sequence datasets: sqsim generate -> files (TUM, COCO with track ids) -> sqfit.io.load_sequence."""
+"""Sequence datasets: sqsim generate -> files (TUM, COCO with track ids) -> sqfit.views.load_sequence."""
 
 import json
-import os
-import signal
 import subprocess
-import sys
-import time
-from pathlib import Path
 
 import numpy as np
 import pytest
 
 from sqfit.formats.tum import read_tum
-from sqfit.io import LazyImages, load_sequence, load_trial
-from sqsim.dataset import generate
-from sqsim.scene import load_scene
-from sqsim.sequence import simulate_sequence
+from sqfit.views.dataset import load_trial
+from sqfit.views.sequence import LazyImages, load_sequence
+from sqsim.runs.generate import generate
+from sqsim.world.scene import load_scene
+from sqsim.imaging.sequence import simulate_sequence
+
+from _datasets import SMALL_CAMERA, files, kill_generate_midway  # noqa: E402
 
 SCENE = """
 [experiment]
 name = "seq-test"
 seed = 3
 trials = 1
-[camera]
-width = 160
-height = 120
-fx = 100.0
-fy = 75.0
-cx = 80.0
-cy = 60.0
-[trajectory]
+""" + SMALL_CAMERA + """[trajectory]
 kind = "orbit"
 frames = 16
 radius = 5.0
@@ -51,10 +42,6 @@ erosion_px = 1
 odometry_rotation_deg = 0.5
 odometry_translation_m = 0.02
 """
-
-
-def files(root):
-    return {str(p.relative_to(root)): p.read_bytes() for p in sorted(Path(root).rglob("*")) if p.is_file()}
 
 
 @pytest.fixture(scope="module")
@@ -144,9 +131,9 @@ def test_evo_drift_grows_with_frame_count_over_seeds(tmp_path):
     from evo.core import metrics
     from evo.core.trajectory import PoseTrajectory3D
 
-    from sqsim.odometry import integrate_odometry
-    from sqsim.scene import parse_scene
-    from sqsim.trajectory import sequence_poses
+    from sqsim.world.odometry import integrate_odometry
+    from sqsim.world.scene import parse_scene
+    from sqsim.world.trajectory import sequence_poses
 
     s = parse_scene({"trajectory": {"kind": "orbit", "frames": 33, "radius": 5.0}})
     t, true = sequence_poses(s.trajectory)
@@ -167,21 +154,13 @@ def test_killed_run_resumes_to_identical_bytes(tmp_path):
     scene_file.write_text(SCENE.replace("trials = 1", "trials = 8").replace("frames = 16", "frames = 10"))
     generate(load_scene(scene_file), tmp_path / "full", progress=False)
     assert not (tmp_path / "full" / "true.tum").exists()  # several sequences: TUM files per sequence only
-    env = dict(os.environ, OPENBLAS_NUM_THREADS="1")
-    cmd = [sys.executable, "-m", "sqsim.cli", "generate", str(scene_file), "-o", str(tmp_path / "cut"), "--no-progress"]
-    proc = subprocess.Popen(cmd, env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    cmd, done = kill_generate_midway(scene_file, tmp_path / "cut", 2, timeout_s=120)
     trials = tmp_path / "cut" / "trials"
-    deadline = time.time() + 120
-    while time.time() < deadline and not (trials.is_dir() and len(list(trials.glob("0*"))) >= 2):
-        time.sleep(0.01)
-    proc.send_signal(signal.SIGKILL)
-    proc.wait()
-    done = len(list(trials.glob("0*")))
     assert 2 <= done < 8
     for d in trials.glob("0*"):  # every finished sequence is complete
         assert {p.name for p in d.iterdir()} == {"cameras.json", "gt.json", "masks", "true.tum", "odometry.tum"}
         assert len(list((d / "masks").iterdir())) == 10
-    assert subprocess.run(cmd, env=env, capture_output=True).returncode == 0
+    assert subprocess.run(cmd, capture_output=True).returncode == 0
     assert files(tmp_path / "full") == files(tmp_path / "cut")
 
 
@@ -207,7 +186,7 @@ def test_reader_errors(dataset, tmp_path):
     meta = json.loads((bad / "cameras.json").read_text())
     del meta["sequence"]
     (bad / "cameras.json").write_text(json.dumps(meta))
-    with pytest.raises(ValueError, match=r"is not a sequence .* sqfit.io.load_trial"):
+    with pytest.raises(ValueError, match=r"is not a sequence .* sqfit.views.dataset.load_trial"):
         load_sequence(bad)
     (bad / "odometry.tum").unlink()
     meta["sequence"] = {"frames": 16}

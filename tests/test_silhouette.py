@@ -3,10 +3,10 @@ import pytest
 from scipy.spatial import ConvexHull
 
 from sqfit import Camera, Intrinsics, Superquadric, look_at, project
-from sqfit.polygon import convex_iou, convex_iou_jacobian, polygon_area, polygon_iou
-from sqfit.silhouette import (ZNEAR, batch_silhouettes, camera_arrays, silhouette, silhouette_gradient,
+from sqfit.geometry.polygon import convex_iou, convex_iou_jacobian, polygon_area, polygon_iou
+from sqfit.geometry.silhouette import (ZNEAR, batch_silhouettes, camera_arrays, silhouette, silhouette_gradient,
                               vertex_velocities)
-from sqfit.superquadric import to_mesh
+from sqfit.geometry.superquadric import to_mesh
 
 CAM = Camera(Intrinsics(640, 480, 400.0, 300.0, 320.0, 240.0), look_at([10.0, 0, 0], [0, 0, 0]))
 SHAPES = [(0.1, 0.1), (0.1, 1.9), (1.9, 0.1), (1.9, 1.9), (1.0, 1.0), (0.5, 1.4)]

@@ -5,34 +5,17 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from sqsim.objects import ZNEAR, geometry_visible, make_object
-from sqsim.scene import load_scene, parse_scene
-from sqsim.trial import observations, sample_trial, simulate_trial
-from sqsim.visibility import cut_fractions
+from sqsim.world.objects import ZNEAR, geometry_visible, make_object
+from sqsim.world.scene import load_scene, parse_scene
+from sqsim.imaging.trial import observations, sample_trial, simulate_trial
+from sqsim.world.objects import cut_fractions
+
+from _datasets import small_parsed_scene  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
-SMALL = {"camera": {"width": 160, "height": 120, "fx": 100.0, "fy": 75.0, "cx": 80.0, "cy": 60.0},
-         "objects": {"size": [0.3, 1.5], "position": [-1.5, 1.5]},
-         "masks": {"min_area_px": 20, "renderer": "polygon"}}
-
-
 def small(**sections):
-    data = {k: dict(v) for k, v in SMALL.items()}
-    for name, values in sections.items():
-        data.setdefault(name, {}).update(values)
-    return parse_scene(data)
-
-
-@pytest.mark.parametrize("text, match", [
-    ("[masks]\nmax_cut_fraction = 1.0\n", "masks.max_cut_fraction must be < 1"),
-    ("[masks]\nmax_cut_fraction = -0.1\n", "masks.max_cut_fraction must be >= 0"),
-    ("[fit]\nocclusion_aware = 1\n", "fit.occlusion_aware must be"),
-])
-def test_bad_visibility_keys(tmp_path, text, match):
-    path = tmp_path / "scene.toml"
-    path.write_text(text)
-    with pytest.raises(ValueError, match=match):
-        load_scene(path)
+    """A small scene rendered with polygons (no OpenGL)."""
+    return small_parsed_scene(**{**sections, "masks": {"renderer": "polygon", **sections.get("masks", {})}})
 
 
 def test_cut_fractions_and_geometry_with_truncation():
@@ -81,7 +64,7 @@ def test_simulated_visibility_records():
 def test_experiment_records_visibility(tmp_path):
     import json
 
-    from sqsim.experiment import run_experiment
+    from sqsim.runs.experiment import run_experiment
 
     s = small(objects={"count": 2}, experiment={"trials": 1, "chains": ["1-2-3G"]})
     run_experiment(s, tmp_path / "run", progress=False)
@@ -94,7 +77,7 @@ def test_experiment_records_visibility(tmp_path):
 @pytest.mark.parametrize("name", ["occlusion", "occlusion-single", "truncation", "occlusion-sweep",
                                   "truncation-sweep"])
 def test_issue_scenes_load(name):
-    from sqsim.sweep import load_sweep
+    from sqsim.runs.sweep import load_sweep
 
     if name.endswith("sweep"):
         scene, axes = load_sweep(ROOT / "scenes" / f"{name}.toml")

@@ -9,12 +9,12 @@ pytest.importorskip("gtsam")
 pytest.importorskip("evo")
 
 from sqfit.metrics import iou_3d  # noqa: E402
-from sqfit.sequence import Sequence  # noqa: E402
-from sqfit.superquadric import Superquadric  # noqa: E402
+from sqfit.views.sequence import Sequence  # noqa: E402
+from sqfit.geometry.superquadric import Superquadric  # noqa: E402
 from sqsim.cli import main  # noqa: E402
-from sqsim.scene import parse_scene  # noqa: E402
-from sqsim.sequence import simulate_sequence  # noqa: E402
-from sqsim.slam import evaluate_sequence, run_slam, trajectory_errors  # noqa: E402
+from sqsim.world.scene import parse_scene  # noqa: E402
+from sqsim.imaging.sequence import simulate_sequence  # noqa: E402
+from sqsim.runs.slam import evaluate_sequence, run_slam, trajectory_errors  # noqa: E402
 
 TINY = {
     "experiment": {"name": "tiny", "seed": 0, "trials": 1},
@@ -196,7 +196,7 @@ def test_slam_over_worker_processes_matches_in_process(run_dir, tmp_path):
 @pytest.mark.slow
 def test_slam_acceptance_on_the_sequence_scene(tmp_path):
     """Issue 14's acceptance on one sequence of scenes/sequence.toml (the README gives five)."""
-    from sqsim.scene import load_scene
+    from sqsim.world.scene import load_scene
 
     summary = run_slam(load_scene("scenes/sequence.toml"), tmp_path, sequences=1, progress=False, figures=False)
     m = summary["methods"]

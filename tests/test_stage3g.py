@@ -3,9 +3,9 @@ import pytest
 
 import sqfit
 from sqfit.metrics import iou_3d
-from sqfit.raycost import posed_ray_residuals, ray_minima, ray_residuals
-from sqfit.rays import CONTOUR, INSIDE, OUTSIDE, RaySet, contour_rays, outward_normals
-from sqfit.superquadric import Superquadric, implicit
+from sqfit.fitting.raycost import posed_ray_residuals, ray_minima, ray_residuals
+from sqfit.views.rays import CONTOUR, INSIDE, OUTSIDE, RaySet, contour_rays, outward_normals
+from sqfit.geometry.superquadric import Superquadric, implicit
 from sqfit.testing import paper_trial
 from _numeric import central_difference
 
@@ -181,8 +181,8 @@ def test_posed_residuals_at_zero_correction_are_the_plain_ones(trial):
 
 def test_posed_correction_turns_rays_like_the_camera_rotation(trial):
     """A correction ``w`` equals the first-order camera rotation ``R' = exp([w]x) R``, camera frame
-    ``delta = R^T w`` (the model of ``sqsim.noise.perturb_pose``)."""
-    from sqfit.stage3g import camera_corrections
+    ``delta = R^T w`` (the model of ``sqsim.imaging.noise.perturb_pose``)."""
+    from sqfit.fitting.grazing import camera_corrections
 
     delta = np.array([[0.01, -0.02, 0.005], [0.0, 0.0, 0.0], [-0.01, 0.01, 0.02]])
     rotated = [sqfit.Observation(sqfit.Camera(o.camera.intrinsics, _turned(o.camera.pose, dv)), o.samples,

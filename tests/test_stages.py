@@ -2,11 +2,11 @@ import numpy as np
 import pytest
 
 from sqfit import FitOptions, Observation, Superquadric
-from sqfit import stages as S
-from sqfit.costs import ObservationSet, sample_points
-from sqfit.lm import CONVERGED
-from sqfit.pipeline import r_iou_m, to_superquadric
-from sqfit.superquadric import radial_distance
+from sqfit.fitting import stages as S
+from sqfit.fitting.costs import ObservationSet, sample_points
+from sqfit.fitting.lm import CONVERGED
+from sqfit.fitting.stages import r_iou_m, to_superquadric
+from sqfit.geometry.superquadric import radial_distance
 from sqfit.testing import paper_cameras, paper_trial, polygon_mask
 
 OPT = FitOptions()

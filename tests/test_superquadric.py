@@ -5,7 +5,7 @@ from hypothesis import strategies as st
 from scipy.spatial.transform import Rotation
 
 from sqfit import Superquadric
-from sqfit import superquadric as sqm
+from sqfit.geometry import superquadric as sqm
 
 EDGE_SHAPES = [(0.1, 0.1), (0.1, 1.9), (1.9, 0.1), (1.9, 1.9), (1.0, 1.0), (0.5, 1.5)]
 
@@ -189,7 +189,7 @@ def test_pose_maps_local_to_world():
 
 @pytest.mark.parametrize("resolution, count", [(32, 26), (7, 8), (2, 26)])
 def test_mesh_anchors_are_vertices_of_the_mesh(resolution, count):
-    from sqfit.superquadric import mesh_anchors, to_mesh
+    from sqfit.geometry.superquadric import mesh_anchors, to_mesh
 
     sq = Superquadric([0.4, 1.2, 2.0], [0.15, 1.7], [1.0, -2.0, 0.5], [0.3, -1.1, 2.5])
     anchors = mesh_anchors(sq, resolution)

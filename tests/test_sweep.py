@@ -1,11 +1,11 @@
 import json
-import subprocess
-import sys
 
 import pytest
 
-from sqsim.scene import parse_scene
-from sqsim.sweep import load_sweep, parse_axes, parse_value, point_name, run_sweep
+from sqsim.world.scene import parse_scene
+from sqsim.runs.sweep import load_sweep, parse_axes, parse_value, point_name, run_sweep
+
+from _helpers import run_command  # noqa: E402
 
 
 def tiny_scene():
@@ -89,8 +89,7 @@ def test_unknown_key_fails_before_running(tmp_path):
 def test_cli_needs_something_to_sweep(tmp_path):
     scene = tmp_path / "plain.toml"
     scene.write_text("[experiment]\ntrials = 1\n")
-    out = subprocess.run([sys.executable, "-m", "sqsim.cli", "sweep", str(scene), "-o", str(tmp_path / "o")],
-                         capture_output=True, text=True)
+    out = run_command("sqsim", "sweep", scene, "-o", tmp_path / "o")
     assert out.returncode == 2 and "nothing to sweep" in out.stderr
 
 

@@ -4,6 +4,8 @@ from scipy.spatial.transform import Rotation
 
 from sqfit.formats.tum import poses_to_rows, read_tum, rows_to_poses, write_tum
 
+from _helpers import assert_bad_file  # noqa: E402
+
 
 def random_poses(n, seed=0):
     rng = np.random.default_rng(seed)
@@ -68,9 +70,7 @@ def test_rows_helpers_round_trip():
     ("# only a comment\n", r"x\.tum: no poses"),
 ])
 def test_bad_files_name_file_and_line(tmp_path, text, match):
-    (tmp_path / "x.tum").write_text(text)
-    with pytest.raises(ValueError, match=match):
-        read_tum(tmp_path / "x.tum")
+    assert_bad_file(tmp_path / "x.tum", text, read_tum, match)
 
 
 def test_bad_inputs(tmp_path):

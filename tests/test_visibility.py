@@ -1,29 +1,22 @@
-"""Boundary labels (sqfit.visibility) and the costs and stages that read them."""
+"""Boundary labels (sqfit.views.visibility) and the costs and stages that read them."""
 
 import numpy as np
 import pytest
 
 import sqfit
-from sqfit import Camera, Intrinsics, Observation, look_at
-from sqfit.io import observations_from_images
+from sqfit import Observation
+from sqfit.views.dataset import observations_from_images
 from sqfit.metrics import iou_3d
-from sqfit.raycost import ray_residuals
-from sqfit.rays import CONTOUR, OUTSIDE, RaySet, contour_rays
+from sqfit.fitting.raycost import ray_residuals
+from sqfit.views.rays import CONTOUR, OUTSIDE, RaySet, contour_rays
 from sqfit.testing import paper_trial, truncated_trial
-from sqfit.visibility import (BACKGROUND, BORDER, INSTANCE, INTERIOR, OCCLUDER_REACH_PX, hiding_pixels,
+from sqfit.views.visibility import (BACKGROUND, BORDER, INSTANCE, INTERIOR, OCCLUDER_REACH_PX, hiding_pixels,
                               outline_labels, point_labels, silhouette_fraction)
-from sqfit.polygon import polygon_iou
-from sqfit.visible_iou import clipped_convex_iou, clipped_convex_iou_jacobian, image_rectangles, points_in_convex
+from sqfit.geometry.polygon import polygon_iou
+from sqfit.geometry.visible_iou import clipped_convex_iou, clipped_convex_iou_jacobian, image_rectangles, points_in_convex
 from _numeric import central_difference
 
-INTR = Intrinsics(64, 48, 40.0, 30.0, 32.0, 24.0)
-CAM = Camera(INTR, look_at([10.0, 0, 0], [0, 0, 0]))
-
-
-def rect(r0=10, r1=20, c0=5, c1=30):
-    mask = np.zeros((48, 64), bool)
-    mask[r0:r1, c0:c1] = True
-    return mask
+from _helpers import CAM, rect_mask as rect  # noqa: E402
 
 
 def side_labels(obs):
@@ -248,7 +241,7 @@ def test_clipped_iou_gradient_matches_central_differences():
 
 
 def test_riou_counts_only_the_image_in_cut_views():
-    from sqfit.costs import ObservationSet, riou_residuals
+    from sqfit.fitting.costs import ObservationSet, riou_residuals
 
     t = truncated_trial(2, 0.3)
     obs = ObservationSet(t.observations)
@@ -301,8 +294,8 @@ def test_occluded_iou_leaves_hidden_pixels_out_and_its_gradient_is_analytic():
 
 
 def test_riou_m_of_the_truth_is_higher_with_occlusion_labels():
-    from sqfit.pipeline import r_iou_m
-    from sqfit.costs import ObservationSet
+    from sqfit.fitting.stages import r_iou_m
+    from sqfit.fitting.costs import ObservationSet
 
     t = paper_trial(4)
     images = instance_images(t)
@@ -350,7 +343,7 @@ def test_warnings_name_image_views_when_one_is_skipped():
 
 
 def test_frozen_hidden_counts_reproduce_the_residuals_at_their_point():
-    from sqfit.costs import ObservationSet, hidden_at, riou_residuals
+    from sqfit.fitting.costs import ObservationSet, hidden_at, riou_residuals
 
     t = paper_trial(4)
     obs = ObservationSet(observations_from_images(t.cameras, instance_images(t), 1, rng=0))

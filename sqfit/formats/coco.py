@@ -5,7 +5,7 @@ Masks are decoded and encoded with pycocotools (imported here only). Conventions
 - An annotation's ``segmentation`` is compressed RLE (``counts`` a string), uncompressed RLE
   (``counts`` a list of run lengths, column-major) or polygons (a list of flat ``[x0, y0, x1,
   y1, ...]`` lists). pycocotools rasterises a polygon with pixel ``(i, j)`` covering
-  ``[j, j + 1) x [i, i + 1)``, the same pixel grid as :mod:`sqfit.camera` (pinned by
+  ``[j, j + 1) x [i, i + 1)``, the same pixel grid as :mod:`sqfit.geometry.camera` (pinned by
   ``tests/test_formats.py``), so polygon coordinates are image coordinates of the fitter.
 - Objects across views are grouped by the ``track_id`` field of each annotation
   (:data:`TRACK_KEY`; an int or a string, unique per object in the file). Associating instances
@@ -15,11 +15,12 @@ Masks are decoded and encoded with pycocotools (imported here only). Conventions
 
 from __future__ import annotations
 
-import json
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
+
+from .jsonfile import read_json
 
 __all__ = ["TRACK_KEY", "CocoImage", "CocoInstances", "read_coco", "decode_segmentation", "encode_mask"]
 
@@ -92,12 +93,7 @@ def read_coco(path):
         annotation and the field).
     """
     path = Path(path)
-    try:
-        data = json.loads(path.read_text(encoding="utf-8"))
-    except FileNotFoundError:
-        raise OSError(f"COCO file not found: {path}") from None
-    except (json.JSONDecodeError, UnicodeDecodeError) as exc:
-        raise ValueError(f"{path} is not valid JSON: {exc}") from None
+    data = read_json(path, "COCO file")
     if not isinstance(data, dict) or not isinstance(data.get("images"), list) \
             or not isinstance(data.get("annotations"), list):
         raise ValueError(f"{path}: a COCO instance file needs lists 'images' and 'annotations'")

@@ -6,7 +6,7 @@ Conventions, converted here and nowhere else (pinned by ``tests/test_formats.py`
   ``T_world_camera`` (camera -> world), its inverse. Both use the OpenCV camera frame
   (x right, y down, z forward), so only the inversion is needed.
 - COLMAP's image coordinates put the centre of the top-left pixel at ``(0.5, 0.5)``, as
-  :mod:`sqfit.camera` does, so ``cx, cy`` carry over unchanged.
+  :mod:`sqfit.geometry.camera` does, so ``cx, cy`` carry over unchanged.
 - Only distortion-free pinhole models are accepted: ``PINHOLE`` (fx, fy, cx, cy) and
   ``SIMPLE_PINHOLE`` (f, cx, cy). Undistort other models first (``colmap image_undistorter``
   writes a PINHOLE model) - the fitter's projection has no distortion term.
@@ -20,7 +20,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..camera import Camera, Intrinsics
+from ..geometry.camera import Camera, Intrinsics
 from ._rigid import invert
 
 __all__ = ["PINHOLE_MODELS", "read_colmap", "write_colmap"]

@@ -11,7 +11,7 @@
 A record gives exactly one of ``T_world_camera`` (camera -> world, the fitter's convention,
 used as is) or ``T_camera_world`` (world -> camera, as COLMAP and OpenCV's ``solvePnP`` give
 it; inverted here, once). Camera frame, pixel grid and intrinsics are those of
-:mod:`sqfit.camera` (OpenCV frame, top-left pixel centred at ``(0.5, 0.5)``); no distortion.
+:mod:`sqfit.geometry.camera` (OpenCV frame, top-left pixel centred at ``(0.5, 0.5)``); no distortion.
 """
 
 from __future__ import annotations
@@ -22,8 +22,9 @@ from pathlib import Path
 import numpy as np
 
 from .._checks import check_shape
-from ..camera import Camera, Intrinsics
+from ..geometry.camera import Camera, Intrinsics
 from ._rigid import invert
+from .jsonfile import read_json
 
 __all__ = ["POSE_KEYS", "read_pose_json", "write_pose_json"]
 
@@ -53,12 +54,7 @@ def read_pose_json(path):
         message names the file and the record).
     """
     path = Path(path)
-    try:
-        data = json.loads(path.read_text(encoding="utf-8"))
-    except FileNotFoundError:
-        raise OSError(f"pose file not found: {path}") from None
-    except (json.JSONDecodeError, UnicodeDecodeError) as exc:
-        raise ValueError(f"{path} is not valid JSON: {exc}") from None
+    data = read_json(path, "pose file")
     records = data.get("images") if isinstance(data, dict) else None
     if not isinstance(records, list):
         raise ValueError(f"{path}: a pose file needs a list 'images' of {{file_name, intrinsics, T_world_camera}}")

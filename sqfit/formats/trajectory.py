@@ -22,7 +22,7 @@ neither intrinsics nor image names. The user gives them, and each COCO image is 
 Conventions, converted here once (pinned by ``tests/test_formats_tum.py``):
 
 - A TUM line is ``T_world_camera`` of the optical frame (x right, y down, z forward), as the TUM
-  RGB-D benchmark defines it and :mod:`sqfit.camera` uses: :func:`.tum.read_tum` turns the
+  RGB-D benchmark defines it and :mod:`sqfit.geometry.camera` uses: :func:`.tum.read_tum` turns the
   quaternion into the rotation and nothing else changes.
 - The principal point: ``convention="opencv"`` (the default) reads ``cx, cy`` as OpenCV
   calibration, ROS ``CameraInfo`` and the TUM RGB-D camera parameters give them, with the centre
@@ -40,7 +40,7 @@ from pathlib import Path, PurePosixPath
 import numpy as np
 
 from .._checks import check_shape
-from ..camera import Camera, Intrinsics
+from ..geometry.camera import Camera, Intrinsics
 from ._names import NameIndex, base_name
 from .tum import data_lines, read_tum
 

@@ -4,7 +4,7 @@ Conventions (pinned by ``tests/test_tum.py``):
 
 - ``t`` is a timestamp in seconds; ``tx ty tz`` the camera centre in the world frame (metres);
   ``qx qy qz qw`` the unit quaternion (scalar last) of the camera -> world rotation. A line is
-  thus the pose ``T_world_camera`` of the ``sqfit.camera`` convention, as evo and the TUM
+  thus the pose ``T_world_camera`` of the ``sqfit.geometry.camera`` convention, as evo and the TUM
   benchmark tools read it.
 - Lines starting with ``#`` and blank lines are ignored; fields are separated by spaces (tabs and
   commas are accepted on reading, as the TUM tools do).
@@ -13,7 +13,7 @@ Conventions (pinned by ``tests/test_tum.py``):
   the same bytes. Quaternions are written with ``qw >= 0``.
 
 Why not evo's ``file_interface``: evo is an optional extra (``slam``), but these functions are used
-by the dataset writer (``sqsim generate``) and the dataset reader (``sqfit.io``), which must work
+by the dataset writer (``sqsim generate``) and the dataset reader (``sqfit.views.dataset``), which must work
 with the core install; evo's reader reports a malformed file without naming the line, and its
 writer (``numpy.savetxt``, ``%.18e``) is no more precise than ``repr``. The files are checked to
 read back identically through evo in both directions (``tests/test_tum.py``).

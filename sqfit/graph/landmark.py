@@ -13,10 +13,10 @@ Conventions (stated once, pinned by ``tests/test_graph.py``):
 - Rays are fixed in the camera frame (pixel bearings with unit depth, ``[(u - cx) / fx,
   (v - cy) / fy, 1]``): a silhouette residual is a function of (camera pose, landmark) only.
 
-The residual of a view is :func:`sqfit.raycost.ray_residuals` evaluated in the landmark's own frame
+The residual of a view is :func:`sqfit.fitting.raycost.ray_residuals` evaluated in the landmark's own frame
 (rays moved there by ``T_sq_camera``, the superquadric at the identity pose): it is the 3G residual
 of the same rays, with the same modes, weights and any per-ray flags the ray set carries (the
-function is taken from :mod:`sqfit.raycost`, not re-derived). By the envelope theorem the residual
+function is taken from :mod:`sqfit.fitting.raycost`, not re-derived). By the envelope theorem the residual
 depends on a pose only through the point ``y* = o + d* b`` where the ray comes closest to the
 superquadric (in gauge), so with ``g = d r / d y`` at that point (landmark frame):
 
@@ -33,12 +33,12 @@ import numpy as np
 
 from .. import constants as C
 from .._checks import check_shape
-from ..costs import LOWER_BOUNDS, UPPER_BOUNDS
-from ..observation import Observation
-from ..pipeline import to_superquadric
-from ..raycost import _gauge_minima, _phi, batch_log_gauge_jacobian, ray_residuals
-from ..rays import contour_rays
-from ..superquadric import Superquadric
+from ..fitting.costs import LOWER_BOUNDS, UPPER_BOUNDS
+from ..views.observation import Observation
+from ..fitting.stages import to_superquadric
+from ..fitting.raycost import gauge_minima, gauge_phi, batch_log_gauge_jacobian, ray_residuals
+from ..views.rays import contour_rays
+from ..geometry.superquadric import Superquadric
 
 __all__ = ["N_SHAPE", "camera_rays", "silhouette_residuals", "StackedRays", "stack_rays",
            "batch_silhouette_residuals", "bounds_residuals", "landmark_to_superquadric", "superquadric_to_landmark",
@@ -69,7 +69,7 @@ def camera_rays(observation, n_contour):
     -------
     rays : RaySet
         ``origins`` all zero, ``directions`` the pixel bearings ``(n, 3)`` with unit depth (camera
-        frame); modes, weights and any other per-ray arrays as :func:`sqfit.rays.contour_rays`
+        frame); modes, weights and any other per-ray arrays as :func:`sqfit.views.rays.contour_rays`
         gives them.
     """
     if not isinstance(observation, Observation):
@@ -109,7 +109,7 @@ def silhouette_residuals(T_world_camera, T_world_sq, shape, rays, d0=None):
     Returns
     -------
     r : (n,) float
-        Weighted ray residuals (:func:`sqfit.raycost.ray_residuals`).
+        Weighted ray residuals (:func:`sqfit.fitting.raycost.ray_residuals`).
     J_camera : (n, 6) float
         ``d r / d delta`` of the camera pose (module convention).
     J_landmark : (n, 6) float
@@ -164,7 +164,7 @@ class StackedRays:
 
 
 def stack_rays(ray_sets):
-    """Stack the :class:`sqfit.rays.RaySet` of ``k`` factors (each from :func:`camera_rays`, all of
+    """Stack the :class:`sqfit.views.rays.RaySet` of ``k`` factors (each from :func:`camera_rays`, all of
     the same length) into a :class:`StackedRays`."""
     ray_sets = list(ray_sets)
     if not ray_sets:
@@ -222,7 +222,7 @@ def batch_silhouette_residuals(T_world_camera, T_world_sq, shape, rays, d0=None)
     e1, e2 = np.repeat(clipped[:, 3], n), np.repeat(clipped[:, 4], n)
     # the landmark sits at the identity pose in its own frame: ray_minima's solver on the unit-size
     # coordinates directly, each ray with its own factor's size and powers
-    d, _ = _gauge_minima(np.ascontiguousarray((rel0 / a).T), np.ascontiguousarray((ul_flat / a).T), rel0, ul_flat,
+    d, _ = gauge_minima(np.ascontiguousarray((rel0 / a).T), np.ascontiguousarray((ul_flat / a).T), rel0, ul_flat,
                          ratio, e1, e2, None if d0 is None else np.reshape(d0, k * n))
     d = d.reshape(k, n)
     y = origins + d[..., None] * ul
@@ -235,7 +235,7 @@ def batch_silhouette_residuals(T_world_camera, T_world_sq, shape, rays, d0=None)
         xi[0, :N_SHAPE] = sj
         lm, dlm = batch_log_gauge_jacobian(xi, y[rows].reshape(1, -1, 3))
         log_m[rows], d_log_m[rows] = lm.reshape(len(rows), n), dlm.reshape(len(rows), n, C.N_PARAMS)
-    phi, dphi = _phi(log_m)
+    phi, dphi = gauge_phi(log_m)
     active = np.where(rays.hinge_in, phi > 0, np.where(rays.hinge_out, (phi < 0) & rays.two_sided, True))
     scale = rays.weights * active
     r = scale * phi
@@ -287,7 +287,7 @@ def bounds_residuals(shape, weight=C.PENALTY_ANALYTIC):
 
 def landmark_to_superquadric(T_world_sq, shape):
     """A :class:`sqfit.Superquadric` from a landmark (``|a|``, ``e`` clipped to the valid domain)."""
-    from ..superquadric import matrix_to_euler
+    from ..geometry.superquadric import matrix_to_euler
 
     T = check_shape(T_world_sq, (4, 4), "T_world_sq")
     shape = check_shape(shape, (N_SHAPE,), "shape")

@@ -16,7 +16,7 @@ poses do not cover, other intrinsics, or a key that is not ``(int, int)`` raise 
 ``TypeError`` naming the frame or key. An object seen in fewer than 2 frames cannot be fitted and is
 skipped with a warning in the result (:attr:`SlamResult.skipped`). A mask touching the image border
 is used, with a warning (as :func:`sqfit.fit` does): its outline is not all silhouette; outline points
-labelled ``border`` or ``instance`` (:mod:`sqfit.visibility`, as :func:`observations_from_instances`
+labelled ``border`` or ``instance`` (:mod:`sqfit.views.visibility`, as :func:`observations_from_instances`
 makes them) give one-sided ray residuals.
 """
 
@@ -27,10 +27,10 @@ from dataclasses import asdict, dataclass, field, replace
 import numpy as np
 
 from .. import constants as C
-from .._checks import check_shape, coerce_options
-from ..camera import Camera, Intrinsics
-from ..observation import Observation
-from ..pipeline import DEFAULT_CHAIN
+from .._checks import Options, check_fields, check_shape
+from ..geometry.camera import Camera, Intrinsics
+from ..views.observation import Observation
+from ..fitting.pipeline import DEFAULT_CHAIN
 
 __all__ = ["GraphOptions", "SlamResult", "Problem", "check_inputs", "observations_from_instances", "observation_at",
            "parallax_deg",
@@ -41,7 +41,7 @@ MIN_FRAMES = 2
 
 
 @dataclass(frozen=True)
-class GraphOptions:
+class GraphOptions(Options):
     """Options of the graph methods (:mod:`sqfit.graph.solve`).
 
     Attributes
@@ -124,26 +124,15 @@ class GraphOptions:
     max_iterations: int = 50
     relative_tolerance: float = 1e-3
 
-    def __post_init__(self):
-        for name in ("n_contour", "init_frames", "max_iterations", "batch_window"):
-            v, lo = getattr(self, name), {"n_contour": 3, "init_frames": MIN_FRAMES, "batch_window": 0}.get(name, 1)
-            if int(v) != v or v < lo:
-                raise ValueError(f"{name} must be an integer >= {lo}, got {v}")
-        for name in ("silhouette_sigma", "huber_k", "odometry_sigma_deg", "odometry_sigma_m",
-                     "prior_sigma_deg", "prior_sigma_m", "landmark_prior_sigma_deg", "init_parallax_deg", "isam2_relinearize_threshold",
-                     "window_relative_tolerance",
-                     "landmark_prior_sigma_m", "shape_prior_sigma", "box_sigma_px", "relative_tolerance"):
-            v = getattr(self, name)
-            if not (np.isfinite(v) and v > 0):
-                raise ValueError(f"{name} must be a finite number > 0, got {v}")
-        for name in ("bounds_weight", "refit_misfit"):
-            if not (np.isfinite(getattr(self, name)) and getattr(self, name) >= 0):
-                raise ValueError(f"{name} must be a finite number >= 0, got {getattr(self, name)}")
+    WHAT = "graph"
 
-    @classmethod
-    def coerce(cls, options):
-        """``None`` -> defaults, a dict -> GraphOptions (unknown keys raise ValueError naming them)."""
-        return coerce_options(cls, options, "graph")
+    def __post_init__(self):
+        check_fields(self, integers={"n_contour": 3, "init_frames": MIN_FRAMES, "max_iterations": 1, "batch_window": 0},
+                     positive=("silhouette_sigma", "huber_k", "odometry_sigma_deg", "odometry_sigma_m", "prior_sigma_deg",
+                               "prior_sigma_m", "landmark_prior_sigma_deg", "init_parallax_deg",
+                               "isam2_relinearize_threshold", "window_relative_tolerance", "landmark_prior_sigma_m",
+                               "shape_prior_sigma", "box_sigma_px", "relative_tolerance"),
+                     nonnegative=("bounds_weight", "refit_misfit"))
 
 
 @dataclass
@@ -289,7 +278,7 @@ def parallax_deg(first, last, T_first, T_last):
     T_first, T_last : (4, 4) float
         The frames' ``T_world_camera``.
     """
-    from ..camera import bearings
+    from ..geometry.camera import bearings
 
     c = np.stack([T_first[:3, 3], T_last[:3, 3]])
     d = np.stack([T[:3, :3] @ bearings(o.camera, o.centroid[None])[0] for o, T in ((first, T_first), (last, T_last))])
@@ -338,9 +327,9 @@ def observations_from_instances(intrinsics, poses, instance_images, min_area_px=
     -------
     observations : dict of (int, int) -> Observation
         ``(frame, object_id) ->`` that instance's labelled observation
-        (:func:`sqfit.io.observations_from_images`: outline points next to another instance are
+        (:func:`sqfit.views.dataset.observations_from_images`: outline points next to another instance are
         labelled ``instance``, those on the image border ``border``; the silhouette factors treat
-        them as one-sided, :mod:`sqfit.raycost`).
+        them as one-sided, :mod:`sqfit.fitting.raycost`).
     """
     if not isinstance(intrinsics, Intrinsics):
         raise TypeError(f"intrinsics must be a sqfit.Intrinsics, got {type(intrinsics).__name__}")
@@ -349,7 +338,7 @@ def observations_from_instances(intrinsics, poses, instance_images, min_area_px=
         raise ValueError(f"instance_images has {len(instance_images)} frames, poses {len(poses)}")
     if int(min_area_px) != min_area_px or min_area_px < 1:
         raise ValueError(f"min_area_px must be an integer >= 1, got {min_area_px}")
-    from ..io import observations_from_images
+    from ..views.dataset import observations_from_images
 
     rng = np.random.default_rng(rng)
     shape = (intrinsics.height, intrinsics.width)
@@ -367,7 +356,7 @@ def observations_from_instances(intrinsics, poses, instance_images, min_area_px=
     for oid in sorted(frames_of):
         frames = frames_of[oid]
         cameras = [Camera(intrinsics, poses[f]) for f in frames]
-        # labelled: the other instances may hide the object, the image border cuts it (sqfit.visibility)
+        # labelled: the other instances may hide the object, the image border cuts it (sqfit.views.visibility)
         found = observations_from_images(cameras, np.stack([checked[f] for f in frames]), oid, n_samples, rng=rng)
         for view, o in zip(found.views, found):
             observations[frames[view], oid] = o

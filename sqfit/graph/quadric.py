@@ -25,7 +25,7 @@ from __future__ import annotations
 import numpy as np
 
 from .. import constants as C
-from ..superquadric import Superquadric, matrix_to_euler
+from ..geometry.superquadric import Superquadric, matrix_to_euler
 
 __all__ = ["dual_quadric", "projected_conic", "conic_box", "box_residuals", "initialise_quadric",
            "quadric_to_superquadric", "observation_box"]

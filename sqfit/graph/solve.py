@@ -33,7 +33,8 @@ import numpy as np
 from gtsam.symbol_shorthand import L, Q, S, X
 
 from .. import constants as C
-from .. import pipeline
+from ..fitting import pipeline
+from ..fitting.stages import r_iou_m
 from .factors import SilhouetteFactors, bounds_factor, box_factor, silhouette_factor
 from .landmark import camera_rays, landmark_to_superquadric, superquadric_to_landmark
 from .problem import GraphOptions, SlamResult, check_inputs, observation_at, ready_to_initialise
@@ -304,13 +305,13 @@ def _object_misfit(problem, values, oid, options, rays_cache=None):
 
 def _object_overlap(problem, values, oid, poses):
     """R-IOU-M of object ``oid``'s landmark against its observations at ``poses``: how much its
-    silhouettes overlap its masks (``sqfit.pipeline.r_iou_m``; 3G's "far, huge" minimum has a low
+    silhouettes overlap its masks (``sqfit.fitting.stages.r_iou_m``; 3G's "far, huge" minimum has a low
     misfit but almost no overlap)."""
-    from ..costs import ObservationSet
+    from ..fitting.costs import ObservationSet
 
     obs = ObservationSet([observation_at(problem.observations[f, oid], poses[f]) for f in problem.frames[oid]])
     sq = landmark_to_superquadric(values.atPose3(L(oid)).matrix(), values.atVector(S(oid)))
-    return float(pipeline.r_iou_m([sq], obs)[0])
+    return float(r_iou_m([sq], obs)[0])
 
 
 def _refit(problem, values, oids, options, result, rays_cache=None):

@@ -20,10 +20,10 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from ..camera import Camera, Intrinsics, look_at
+from ..geometry.camera import Camera, Intrinsics, look_at
 from ..metrics import iou_3d
-from ..observation import Observation
-from ..superquadric import Superquadric
+from ..views.observation import Observation
+from ..geometry.superquadric import Superquadric
 from ..testing import polygon_mask
 
 __all__ = ["SEQUENCE_INTRINSICS", "Sequence", "synthetic_sequence", "position_rmse", "object_ious"]

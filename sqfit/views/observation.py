@@ -1,0 +1,377 @@
+"""One view of one object: a camera and a binary instance mask, reduced to what the fitter uses.
+
+From the mask, :meth:`Observation.from_mask` extracts
+
+- the outer contour, sub-pixel, with scikit-image ``find_contours`` at level 0.5, converted to
+  image coordinates (pixel ``(i, j)`` has its centre at ``(j + 0.5, i + 0.5)``, see
+  ``sqfit.geometry.camera``), so the contour runs along pixel edges and cuts convex pixel corners;
+- the centroid of the mask area (mean of pixel centres);
+- ``n`` seeded samples: ``uniform`` (paper) draws points uniformly inside the mask area,
+  ``contour`` spaces points evenly along the outer contour with a random phase, ``mixed`` takes
+  half of each.
+
+Clean-up (``cleanup=True``, the default; see :func:`clean_mask`) keeps only the largest connected
+component and fills its holes before anything is extracted: spurious false-positive blobs and
+holes from missed parts then no longer reach the contour or the samples. It is the identity on
+a clean single-region mask; on the paper scene one false blob per mask drops the default chain's
+median 3D IoU from 0.88 to 0.32 without it and leaves it at 0.88 with it (README, "Robustness").
+
+Boundary labels (partial visibility, :mod:`sqfit.views.visibility` states the rules): every contour
+vertex and every sample carries what lies across the outline there -- ``background`` (a true
+silhouette edge), ``instance`` (a pixel of the optional ``occluder`` mask, "may hide the object")
+or ``border`` (outside the image); area samples are ``interior``. ``from_mask(camera, mask)``
+without ``occluder`` labels only the border; :func:`sqfit.views.dataset.observations_from_images` takes the
+other instances of an instance-id image as occluders, and is the one public way to get fully
+labelled observations from an instance image.
+
+Bad masks are reported clearly:
+
+- an empty mask or a mask covering the whole image raises ``ValueError`` (nothing to fit);
+- a mask touching the image border is accepted, flagged with ``touches_border = True`` and its
+  touching part labelled ``border``; ``sqfit.fit`` records a warning for it.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, replace
+from functools import cached_property
+
+import numpy as np
+
+from .. import constants as C
+from .._checks import check_choice
+from ..geometry.camera import Camera, pixel_centers
+from ..geometry.polygon import polygon_area
+from .visibility import BACKGROUND, INTERIOR, hiding_pixels, outline_labels, point_labels, silhouette_fraction
+
+__all__ = ["Observation", "ObservationList", "SAMPLING_METHODS", "POLYGON_KINDS"]
+
+SAMPLING_METHODS = ("uniform", "contour", "mixed")
+POLYGON_KINDS = ("hull", "contour")
+
+
+@dataclass(frozen=True, eq=False)
+class Observation:
+    """A camera and what its mask says about one object.
+
+    Attributes
+    ----------
+    camera : Camera
+    samples : (n, 2) float
+        Image coordinates ``(u, v)`` sampled from the mask.
+    contour : (m, 2) float
+        Outer boundary of the mask, image coordinates, counter-clockwise in the image
+        (not repeated at the end).
+    centroid : (2,) float
+        Area centroid of the mask, image coordinates.
+    area_px : int
+        Number of mask pixels.
+    touches_border : bool
+        True if the mask reaches the first or last row or column (truncated silhouette).
+    contour_labels : (m,) int8
+        Per contour vertex, what lies across the outline (:mod:`sqfit.views.visibility`:
+        ``BACKGROUND``, ``INSTANCE`` or ``BORDER``). Default (None when constructing): all
+        ``BACKGROUND``.
+    sample_labels : (n,) int8
+        Per sample: ``INTERIOR`` for area samples, the outline label for contour samples.
+        Default (None when constructing): ``INTERIOR`` for all.
+    hidden : (k, 2) float
+        Centres of the pixels that may hide the object (:func:`sqfit.views.visibility.hiding_pixels`);
+        the R-IOU costs leave them out of the union. Default (None when constructing): none.
+    """
+
+    camera: Camera
+    samples: np.ndarray
+    contour: np.ndarray
+    centroid: np.ndarray
+    area_px: int
+    touches_border: bool
+    contour_labels: np.ndarray | None = None
+    sample_labels: np.ndarray | None = None
+    hidden: np.ndarray | None = None
+
+    def __post_init__(self):
+        for name, n, fill in (("contour_labels", len(self.contour), BACKGROUND),
+                              ("sample_labels", len(self.samples), INTERIOR)):
+            value = getattr(self, name)
+            value = np.full(n, fill, dtype=np.int8) if value is None else np.asarray(value, dtype=np.int8)
+            if value.shape != (n,):
+                raise ValueError(f"{name} must have shape ({n},), got {value.shape}")
+            value = value.copy() if value.flags.writeable else value
+            value.flags.writeable = False
+            object.__setattr__(self, name, value)
+        hidden = np.zeros((0, 2)) if self.hidden is None else np.asarray(self.hidden, dtype=np.float64)
+        if hidden.ndim != 2 or hidden.shape[1] != 2:
+            raise ValueError(f"hidden must have shape (k, 2), got {hidden.shape}")
+        object.__setattr__(self, "hidden", _readonly(hidden))
+
+    @classmethod
+    def from_mask(cls, camera, mask, n_samples=C.DEFAULT_SAMPLES, sampling="uniform", rng=None, cleanup=True,
+                  occluder=None):
+        """Build an observation from a binary mask.
+
+        Parameters
+        ----------
+        camera : Camera
+        mask : (height, width) bool or int
+            Non-zero pixels belong to the object; the shape must match the intrinsics.
+        n_samples : int
+            Number of samples, >= 3.
+        sampling : {"uniform", "contour", "mixed"}
+        rng : None, int or numpy.random.Generator
+        cleanup : bool
+            Keep the largest connected component and fill its holes first (:func:`clean_mask`);
+            False uses the mask as given.
+        occluder : (height, width) bool or int, optional
+            Pixels that may hide the object (other instances; non-zero = may hide). Outline
+            points next to them are labelled ``instance`` (:mod:`sqfit.views.visibility`). None: only
+            the image border is labelled.
+
+        Returns
+        -------
+        observation : Observation
+
+        Raises
+        ------
+        ValueError
+            If the mask or occluder has the wrong shape, the mask is empty or covers the whole image.
+        """
+        if not isinstance(camera, Camera):
+            raise ValueError(f"camera must be a sqfit.Camera, got {type(camera).__name__}")
+        check_choice(sampling, SAMPLING_METHODS, "sampling")
+        if int(n_samples) != n_samples or n_samples < 3:
+            raise ValueError(f"n_samples must be an integer >= 3, got {n_samples}")
+        mask = np.asarray(mask)
+        expected = (camera.intrinsics.height, camera.intrinsics.width)
+        if mask.shape != expected:
+            raise ValueError(f"mask must have shape (height, width) = {expected}, got {mask.shape}")
+        if mask.dtype.kind not in "biuf":
+            raise ValueError(f"mask must be boolean or numeric, got dtype {mask.dtype}")
+        mask = mask != 0
+        if occluder is not None:
+            occluder = np.asarray(occluder)
+            if occluder.shape != expected:
+                raise ValueError(f"occluder must have shape (height, width) = {expected}, got {occluder.shape}")
+            if occluder.dtype.kind not in "biuf":
+                raise ValueError(f"occluder must be boolean or numeric, got dtype {occluder.dtype}")
+            occluder = occluder != 0
+        if cleanup:
+            mask = clean_mask(mask)
+        rows, cols = np.nonzero(mask)
+        if len(rows) == 0:
+            raise ValueError("mask is empty: the object is not visible in this view")
+        if len(rows) == mask.size:
+            raise ValueError("mask covers the whole image: the object's silhouette is unknown")
+        rng = np.random.default_rng(rng)
+        contour = outer_contour(mask, rows, cols)
+        touches = bool(rows.min() == 0 or cols.min() == 0 or rows.max() == expected[0] - 1
+                       or cols.max() == expected[1] - 1)
+        samples, sample_edges = _sample(rows, cols, contour, int(n_samples), sampling, rng)
+        if occluder is not None:
+            occluder = occluder & ~mask
+        labels = outline_labels(contour, mask, occluder)
+        sample_labels = np.full(len(samples), INTERIOR, dtype=np.int8)
+        on_outline = sample_edges >= 0
+        sample_labels[on_outline] = point_labels(labels, sample_edges[on_outline])
+        return cls(
+            camera=camera,
+            samples=_readonly(samples),
+            contour=_readonly(contour),
+            centroid=_readonly(pixel_centers(rows, cols).mean(axis=0)),
+            area_px=int(len(rows)),
+            touches_border=touches,
+            contour_labels=labels,
+            sample_labels=sample_labels,
+            hidden=hiding_pixels(mask, occluder),
+        )
+
+    @cached_property
+    def silhouette_fraction(self):
+        """``float``: fraction of the outline's length that is true silhouette (``background``
+        at both ends); 1 for an object seen whole, 0 when all of it is occluded or truncated."""
+        return silhouette_fraction(self.contour, self.contour_labels)
+
+    @property
+    def partial(self):
+        """``bool``: some of the outline is labelled ``instance`` or ``border``."""
+        return bool(np.any(self.contour_labels != BACKGROUND))
+
+    def without_labels(self):
+        """This observation with every outline label ``background`` (occlusion-unaware fitting)."""
+        if not self.partial and not len(self.hidden):
+            return self
+        return replace(self, contour_labels=None, sample_labels=None, hidden=None)
+
+    @cached_property
+    def hull(self):
+        """``(k, 2) float``: convex hull of the samples, counter-clockwise (paper's observation).
+
+        Falls back to the hull of the contour when the samples are degenerate (collinear).
+        """
+        return convex_hull(self.samples) if _has_area(self.samples) else convex_hull(self.contour)
+
+    def polygon(self, kind="hull"):
+        """The observation polygon the R-IOU costs compare against.
+
+        Parameters
+        ----------
+        kind : {"hull", "contour"}
+            ``hull`` of the samples (paper) or the full mask ``contour``.
+
+        Returns
+        -------
+        polygon : (k, 2) float
+        """
+        check_choice(kind, POLYGON_KINDS, "polygon kind")
+        return self.hull if kind == "hull" else self.contour
+
+
+class ObservationList(list):
+    """A list of :class:`Observation` with ``warnings`` (list of str) about views left out and
+    ``views`` (list of int, the image view of each observation), e.g. from
+    :func:`sqfit.views.dataset.observations_from_images`; :func:`sqfit.fit` copies the warnings into its
+    result and names views by ``views`` in its own."""
+
+    def __init__(self, observations=(), warnings=(), views=None):
+        super().__init__(observations)
+        self.warnings = list(warnings)
+        self.views = list(range(len(self))) if views is None else list(views)
+
+
+def clean_mask(mask):
+    """The largest 8-connected component of a mask, with its holes filled.
+
+    Parameters
+    ----------
+    mask : (h, w) bool
+
+    Returns
+    -------
+    cleaned : (h, w) bool
+        A copy; an empty mask stays empty.
+    """
+    from scipy import ndimage
+
+    mask = np.asarray(mask, dtype=bool)
+    labels, n = ndimage.label(mask, structure=np.ones((3, 3), dtype=bool))
+    if n == 0:
+        return mask.copy()
+    largest = np.argmax(np.bincount(labels.ravel())[1:]) + 1
+    return ndimage.binary_fill_holes(labels == largest)
+
+
+def outer_contour(mask, rows=None, cols=None):
+    """The outer boundary of a binary mask, sub-pixel, in image coordinates.
+
+    Parameters
+    ----------
+    mask : (h, w) bool
+    rows, cols : (n,) int, optional
+        ``np.nonzero(mask)``, if already computed.
+
+    Returns
+    -------
+    contour : (m, 2) float
+        ``(u, v)`` points of the longest closed iso-line at level 0.5, counter-clockwise in
+        image coordinates (positive shoelace area with v pointing down), not repeated at the end.
+    """
+    from skimage.measure import find_contours
+
+    if rows is None:
+        rows, cols = np.nonzero(mask)
+    r0, c0 = rows.min(), cols.min()
+    # Crop to the object and pad with background so every contour closes inside the crop.
+    crop = np.zeros((rows.max() - r0 + 3, cols.max() - c0 + 3), dtype=np.float64)
+    crop[rows - r0 + 1, cols - c0 + 1] = 1.0
+    lines = find_contours(crop, 0.5)
+    best = max(lines, key=lambda line: abs(polygon_area(line[:, ::-1])))
+    uv = best[:-1, ::-1] + np.array([c0 - 1 + 0.5, r0 - 1 + 0.5])
+    return uv if polygon_area(uv) > 0 else uv[::-1]
+
+
+def convex_hull(points):
+    """Convex hull by Andrew's monotone chain.
+
+    Parameters
+    ----------
+    points : (n, 2) float
+
+    Returns
+    -------
+    hull : (k, 2) float
+        Counter-clockwise in a right-handed frame (positive shoelace area), no repeated point.
+    """
+    pts = np.unique(np.asarray(points, dtype=np.float64), axis=0)
+    if len(pts) < 3:
+        return pts
+
+    def chain(seq):
+        out = []
+        for p in seq:
+            while len(out) >= 2 and _cross(out[-2], out[-1], p) <= 0:
+                out.pop()
+            out.append(p)
+        return out
+
+    lower, upper = chain(pts), chain(pts[::-1])
+    return np.array(lower[:-1] + upper[:-1])
+
+
+def _cross(o, a, b):
+    return (a[0] - o[0]) * (b[1] - o[1]) - (a[1] - o[1]) * (b[0] - o[0])
+
+
+def _has_area(points):
+    centred = points - points.mean(axis=0)
+    return len(points) >= 3 and np.linalg.svd(centred, compute_uv=False)[-1] > 1e-9
+
+
+def _sample(rows, cols, contour, n, sampling, rng):
+    """Samples and, per sample, the contour edge it lies on (-1 for area samples)."""
+    if sampling == "uniform":
+        return _sample_area(rows, cols, n, rng), np.full(n, -1)
+    if sampling == "contour":
+        return sample_polyline(contour, n, rng, return_index=True)
+    n_contour = n // 2
+    area = _sample_area(rows, cols, n - n_contour, rng)
+    on, edges = sample_polyline(contour, n_contour, rng, return_index=True)
+    return np.concatenate([area, on]), np.concatenate([np.full(len(area), -1), edges])
+
+
+def _sample_area(rows, cols, n, rng):
+    """Uniform points in the union of the mask pixels' squares."""
+    pick = rng.integers(0, len(rows), n)
+    return np.stack([cols[pick], rows[pick]], axis=1) + rng.random((n, 2))
+
+
+def sample_polyline(polygon, n, rng, return_index=False):
+    """``n`` points evenly spaced by arc length around a closed polygon, with a random phase.
+
+    Parameters
+    ----------
+    polygon : (m, 2) float
+    n : int
+    rng : numpy.random.Generator
+    return_index : bool
+        Also return the edge of each point (edge ``k`` runs from vertex ``k`` to ``k + 1``).
+
+    Returns
+    -------
+    points : (n, 2) float
+    index : (n,) int
+        Only with ``return_index``.
+    """
+    closed = np.vstack([polygon, polygon[:1]])
+    seg = np.linalg.norm(np.diff(closed, axis=0), axis=1)
+    cum = np.concatenate([[0.0], np.cumsum(seg)])
+    s = (rng.random() + np.arange(n)) / n * cum[-1]
+    idx = np.clip(np.searchsorted(cum, s, side="right") - 1, 0, len(seg) - 1)
+    frac = (s - cum[idx]) / np.where(seg[idx] > 0, seg[idx], 1.0)
+    points = closed[idx] + frac[:, None] * (closed[idx + 1] - closed[idx])
+    return (points, idx) if return_index else points
+
+
+def _readonly(a):
+    a = np.ascontiguousarray(a, dtype=np.float64)
+    a.flags.writeable = False
+    return a

@@ -1,0 +1,386 @@
+"""Scene files: a validated, immutable description of a simulation, and seeded trial sampling.
+
+A scene is a TOML file with the sections ``[experiment]``, ``[camera]``, ``[trajectory]``,
+``[objects]``, ``[masks]``, ``[noise]`` and ``[fit]`` (keys and defaults: README, "Scene files"; example: scenes/paper.toml).
+Every section and key is optional (defaults are the paper's values, Table I); an unknown section
+or key, a malformed file or a bad value raises ``ValueError`` naming the file, the key and the
+problem.
+
+Objects of a trial (meshes, sampling, the observability tests): :mod:`sqsim.world.objects`.
+"""
+
+from __future__ import annotations
+
+import math
+import tomllib
+from dataclasses import asdict, dataclass, replace
+from pathlib import Path
+
+import numpy as np
+
+import sqfit
+from sqfit.views.observation import POLYGON_KINDS, SAMPLING_METHODS
+
+from .values import (boolean, choice, integer, interval, nonempty_string, nonempty_strings, number,
+                     optional_path, vector, waypoint_rows)
+
+__all__ = ["Scene", "ExperimentConfig", "CameraConfig", "TrajectoryConfig", "ObjectsConfig",
+           "MasksConfig", "NoiseConfig", "FitConfig", "OBJECT_KINDS", "load_scene", "parse_scene", "trial_seed",
+           "child_seed", "camera_poses"]
+
+OBJECT_KINDS = ("superquadric", "box", "cylinder", "capsule", "cone", "mesh")
+RENDERERS = ("osmesa", "egl", "polygon")
+TRAJECTORIES = ("circle", "orbit", "waypoints")  # orbit, waypoints: sequences (sqsim.world.trajectory)
+LAYOUTS = ("free", "ground")  # sqsim.world.layout
+MIN_VIEWS = sqfit.constants.MIN_VIEWS
+_PAPER_CHAINS = ("3A", "3B", "1-3A", "1-2-3A", "1-2-3B", "3E", "1-3E", "1-2-3C", "1-2-3D", "1-2-3E",
+                 "1-2-3D-3E", "1-2-3D-3A", "1-2-3D-3F")
+
+
+# --- sections: frozen dataclasses with per-field checkers in field metadata -----------------------
+
+@dataclass(frozen=True)
+class ExperimentConfig:
+    name: str = "paper"
+    seed: int = 0
+    trials: int = 100
+    chains: tuple = _PAPER_CHAINS
+
+
+@dataclass(frozen=True)
+class CameraConfig:
+    width: int = 640
+    height: int = 480
+    fx: float = 400.0
+    fy: float = 300.0
+    cx: float = 320.0
+    cy: float = 240.0
+
+
+@dataclass(frozen=True)
+class TrajectoryConfig:
+    kind: str = "circle"
+    radius: float = 10.0
+    views: int = 3
+    height: float = 0.0
+    arc_deg: float = 360.0
+    look_at: tuple = (0.0, 0.0, 0.0)
+    start_deg: float = 0.0  # angle of the first camera on the circle, from +x towards +y
+    # Sequences only (kind "orbit" or "waypoints"; sqsim.world.trajectory): None = not given.
+    frames: int | None = None
+    frame_rate_hz: float | None = None
+    radius_amplitude: float | None = None
+    height_amplitude: float | None = None
+    look_at_wander: float | None = None
+    waypoints: tuple | None = None
+    waypoints_file: str | None = None
+
+
+@dataclass(frozen=True)
+class ObjectsConfig:
+    count: int = 1
+    kind: str = "superquadric"
+    size: tuple = (0.1, 5.0)
+    position: tuple = (-5.0, 5.0)
+    rotation: tuple = (-math.pi, math.pi)
+    shape: tuple = (0.1, 1.9)
+    path: str | None = None
+    mesh_resolution: int = 32  # cube-sphere subdivisions of a superquadric mesh
+    max_attempts: int = 10000  # draws per trial before giving up on an unobservable scene
+    layout: str = "free"  # "free": positions uniform in a cube; "ground": on the floor (sqsim.world.layout)
+    upright: bool = False  # ground layout: only the yaw (rz) is drawn, rx = ry = 0
+
+
+@dataclass(frozen=True)
+class MasksConfig:
+    renderer: str = "osmesa"
+    samples: int = 100
+    sampling: str = "uniform"
+    min_area_px: int = 200
+    cleanup: bool = True
+    max_cut_fraction: float = 0.0  # projected area an object may have outside an image (0: none)
+
+
+@dataclass(frozen=True)
+class NoiseConfig:
+    erosion_px: int = 0
+    dilation_px: int = 0
+    boundary_jitter_px: float = 0.0
+    dropout: float = 0.0
+    false_blobs: int = 0
+    pose_rotation_deg: float = 0.0
+    pose_translation_m: float = 0.0
+    odometry_rotation_deg: float = 0.0  # sequences: per-step noise of the relative poses
+    odometry_translation_m: float = 0.0
+
+
+@dataclass(frozen=True)
+class FitConfig:
+    polygon: str = "hull"
+    penalty_riou: float = 1.0
+    penalty_analytic: float = 100.0
+    pose_sigma_deg: float = sqfit.FitOptions.pose_sigma_deg
+    occlusion_aware: bool = sqfit.FitOptions.occlusion_aware
+
+
+_CHECKS = {
+    "experiment": {"name": nonempty_string, "seed": integer(0), "trials": integer(1), "chains": nonempty_strings},
+    "camera": {"width": integer(1), "height": integer(1), "fx": number(0, lo_open=True),
+               "fy": number(0, lo_open=True), "cx": number(), "cy": number()},
+    "trajectory": {"kind": choice(TRAJECTORIES), "radius": number(0, lo_open=True), "views": integer(1),
+                   "height": number(), "arc_deg": number(0, 360, lo_open=True), "look_at": vector(3),
+                   "start_deg": number(), "frames": integer(2), "frame_rate_hz": number(0, lo_open=True),
+                   "radius_amplitude": number(0), "height_amplitude": number(0), "look_at_wander": number(0),
+                   "waypoints": waypoint_rows, "waypoints_file": optional_path},
+    "objects": {"count": integer(1), "kind": choice(OBJECT_KINDS), "size": interval(0, lo_open=True),
+                "position": interval(), "rotation": interval(), "shape": interval(lo=sqfit.constants.SHAPE_DOMAIN[0], hi=sqfit.constants.SHAPE_DOMAIN[1]),
+                "path": optional_path, "mesh_resolution": integer(2), "max_attempts": integer(1),
+                "layout": choice(LAYOUTS), "upright": boolean},
+    "masks": {"renderer": choice(RENDERERS), "samples": integer(3), "sampling": choice(SAMPLING_METHODS),
+              "min_area_px": integer(0), "cleanup": boolean, "max_cut_fraction": number(0, 1, hi_open=True)},
+    "noise": {"erosion_px": integer(0), "dilation_px": integer(0), "boundary_jitter_px": number(0),
+              "dropout": number(0, 1, hi_open=True), "false_blobs": integer(0),
+              "pose_rotation_deg": number(0), "pose_translation_m": number(0),
+              "odometry_rotation_deg": number(0), "odometry_translation_m": number(0)},
+    "fit": {"polygon": choice(POLYGON_KINDS), "penalty_riou": number(0, lo_open=True),
+            "penalty_analytic": number(0, lo_open=True), "pose_sigma_deg": number(0),
+            "occlusion_aware": boolean},
+}
+_SECTIONS = {"experiment": ExperimentConfig, "camera": CameraConfig, "trajectory": TrajectoryConfig,
+             "objects": ObjectsConfig, "masks": MasksConfig, "noise": NoiseConfig, "fit": FitConfig}
+
+
+@dataclass(frozen=True)
+class Scene:
+    """An immutable, validated scene: one attribute per TOML section.
+
+    Attributes
+    ----------
+    experiment, camera, trajectory, objects, masks, noise, fit
+        Frozen section records whose fields are the TOML keys.
+    source : str
+        Where the scene came from (a file path or ``"<string>"``), for error messages.
+    """
+
+    experiment: ExperimentConfig = ExperimentConfig()
+    camera: CameraConfig = CameraConfig()
+    trajectory: TrajectoryConfig = TrajectoryConfig()
+    objects: ObjectsConfig = ObjectsConfig()
+    masks: MasksConfig = MasksConfig()
+    noise: NoiseConfig = NoiseConfig()
+    fit: FitConfig = FitConfig()
+    source: str = "<string>"
+
+    @property
+    def intrinsics(self):
+        """``sqfit.Intrinsics`` of every camera."""
+        return sqfit.Intrinsics(**asdict(self.camera))
+
+    @property
+    def noise_free(self):
+        """True when every noise parameter is zero."""
+        return not any(asdict(self.noise).values())
+
+    def to_dict(self):
+        """Plain, TOML/JSON-friendly mapping (lists, not tuples); :func:`parse_scene` round-trips it."""
+        out = {}
+        for name in _SECTIONS:
+            section = {}
+            for key, value in asdict(getattr(self, name)).items():
+                if value is None:
+                    continue
+                section[key] = list(value) if isinstance(value, tuple) else value
+            out[name] = section
+        return out
+
+    def with_overrides(self, overrides):
+        """A validated copy with some keys replaced.
+
+        Parameters
+        ----------
+        overrides : dict
+            ``"section.key" -> value``, e.g. ``{"noise.boundary_jitter_px": 2.0}``.
+
+        Returns
+        -------
+        scene : Scene
+        """
+        data = self.to_dict()
+        for dotted, value in dict(overrides).items():
+            section, _, key = str(dotted).partition(".")
+            if section not in _SECTIONS or key not in _CHECKS[section]:
+                raise ValueError(f"{self.source}: unknown override key {dotted!r} "
+                                 f"(use 'section.key', e.g. 'noise.dropout')")
+            data[section][key] = list(value) if isinstance(value, tuple) else value
+        return parse_scene(data, source=self.source)
+
+    def cameras(self):
+        """The true cameras of every trial: ``list[sqfit.Camera]`` on the trajectory."""
+        # Built once per scene (cameras are immutable): every trial and re-draw asks for them.
+        cached = self.__dict__.get("_cameras")
+        if cached is None:
+            intr = self.intrinsics
+            cached = tuple(sqfit.Camera(intr, T) for T in camera_poses(self.trajectory))
+            object.__setattr__(self, "_cameras", cached)
+        return list(cached)
+
+
+def load_scene(path):
+    """Read and validate a scene TOML file.
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+
+    Returns
+    -------
+    scene : Scene
+
+    Raises
+    ------
+    OSError
+        The file cannot be read.
+    ValueError
+        Malformed TOML, unknown section or key, or a bad value (message names file and key).
+    """
+    return parse_scene(read_toml(path), source=str(path))
+
+
+def read_toml(path):
+    """The parsed TOML mapping of a scene (or sweep) file, with clear errors.
+
+    Raises
+    ------
+    OSError
+        The file does not exist.
+    ValueError
+        Malformed TOML (the message names the file).
+    """
+    path = Path(path)
+    try:
+        text = path.read_text(encoding="utf-8")
+    except FileNotFoundError:
+        raise OSError(f"scene file not found: {path}") from None
+    try:
+        return tomllib.loads(text)
+    except tomllib.TOMLDecodeError as exc:
+        raise ValueError(f"{path}: malformed TOML: {exc}") from None
+
+
+def parse_scene(mapping, source="<string>"):
+    """Validate a scene mapping (the parsed TOML) into a :class:`Scene`.
+
+    Parameters
+    ----------
+    mapping : dict
+        ``section -> {key -> value}``; missing sections and keys take their defaults.
+    source : str
+        File name used in error messages and to resolve a relative ``objects.path``.
+
+    Returns
+    -------
+    scene : Scene
+    """
+    if not isinstance(mapping, dict):
+        raise ValueError(f"{source}: a scene must be a mapping of sections, got {type(mapping).__name__}")
+    sections = {}
+    for name, values in mapping.items():
+        if name not in _SECTIONS:
+            raise ValueError(f"{source}: unknown section [{name}] (known: {', '.join(_SECTIONS)})")
+        if not isinstance(values, dict):
+            raise ValueError(f"{source}: [{name}] must be a table of keys, got {values!r}")
+        clean = {}
+        for key, value in values.items():
+            check = _CHECKS[name].get(key)
+            if check is None:
+                raise ValueError(f"{source}: unknown key '{key}' in [{name}] "
+                                 f"(known: {', '.join(_CHECKS[name])})")
+            try:
+                clean[key] = check(value)
+            except ValueError as exc:
+                raise ValueError(f"{source}: {name}.{key} {exc}") from None
+        sections[name] = _SECTIONS[name](**clean)
+    scene = Scene(**sections, source=str(source))
+    return _check_scene(scene)
+
+
+def _check_scene(scene):
+    src, obj = scene.source, scene.objects
+    if scene.trajectory.views < MIN_VIEWS:
+        raise ValueError(f"{src}: trajectory.views = {scene.trajectory.views}: fitting needs >= {MIN_VIEWS} views "
+                         f"of each object (set trajectory.views >= {MIN_VIEWS})")
+    if obj.kind == "mesh":
+        if obj.path is None:
+            raise ValueError(f"{src}: objects.path is required when objects.kind = \"mesh\"")
+        path = Path(obj.path)
+        if not path.is_absolute() and Path(src).is_file():
+            path = Path(src).resolve().parent / path
+        if not path.is_file():
+            raise ValueError(f"{src}: objects.path: mesh file not found: {path}")
+        scene = replace(scene, objects=replace(obj, path=str(path)))
+    elif obj.path is not None:
+        raise ValueError(f"{src}: objects.path is only used with objects.kind = \"mesh\", "
+                         f"not {obj.kind!r}")
+    if obj.count > np.iinfo(np.uint16).max:
+        raise ValueError(f"{src}: objects.count must be <= 65535 (uint16 instance ids)")
+    from .layout import check_layout
+    from .trajectory import check_sequence_keys
+
+    return check_sequence_keys(check_layout(scene))
+
+
+# --- seeds ----------------------------------------------------------------------------------------
+
+def trial_seed(seed, index):
+    """Seed of one trial: ``np.random.SeedSequence(seed).spawn(n)[index]`` for any ``n > index``.
+
+    Parameters
+    ----------
+    seed : int
+        Experiment seed, >= 0.
+    index : int
+        Trial index, >= 0.
+
+    Returns
+    -------
+    seed_sequence : numpy.random.SeedSequence
+    """
+    if int(index) != index or index < 0:
+        raise ValueError(f"trial index must be an integer >= 0, got {index}")
+    return np.random.SeedSequence(int(seed), spawn_key=(int(index),))
+
+
+def child_seed(seed_sequence, k):
+    """The ``k``-th child of a seed sequence (``seed_sequence.spawn(n)[k]``), without mutating it."""
+    return np.random.SeedSequence(seed_sequence.entropy, spawn_key=tuple(seed_sequence.spawn_key) + (int(k),))
+
+
+# --- cameras --------------------------------------------------------------------------------------
+
+def camera_poses(trajectory):
+    """``T_world_camera`` of every view of a trajectory.
+
+    Views on a ``circle`` of ``radius`` around ``look_at`` at height ``height`` (world z), at
+    angles ``start_deg + arc_deg * k / views`` for a full circle (``arc_deg = 360``) and spread
+    from ``start_deg`` to ``start_deg + arc_deg`` inclusive otherwise, each looking at
+    ``look_at`` with world +z up in the image. A sequence kind (``orbit``, ``waypoints``) gives
+    its frames (``sqsim.world.trajectory.sequence_poses``).
+
+    Returns
+    -------
+    poses : (views, 4, 4) float
+    """
+    t = trajectory
+    if t.kind != "circle":
+        from .trajectory import sequence_poses
+
+        return sequence_poses(t)[1]
+    if t.arc_deg >= 360.0 or t.views == 1:
+        angles = t.start_deg + t.arc_deg * np.arange(t.views) / t.views
+    else:
+        angles = t.start_deg + np.linspace(0.0, t.arc_deg, t.views)
+    theta = np.radians(angles)
+    target = np.asarray(t.look_at, dtype=np.float64)
+    eyes = np.stack([target[0] + t.radius * np.cos(theta), target[1] + t.radius * np.sin(theta),
+                     np.full(len(theta), t.height)], axis=1)
+    return np.stack([sqfit.look_at(eye, target) for eye in eyes])
