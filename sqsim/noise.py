@@ -13,8 +13,9 @@ Mask models act on one binary mask ``(h, w) bool`` and take a ``numpy.random.Gen
 - :func:`add_false_blobs` ``n``: adds ``n`` filled discs of radius ``BLOB_RADIUS_FRACTION *
   sqrt(area)`` (clipped to ``BLOB_RADIUS_PX``) on background pixels away from the object.
 
-:func:`corrupt_image` applies them to every instance of an id image in the fixed order erosion,
-dilation, jitter, dropout, false blobs; pixels claimed by several corrupted masks keep their
+:func:`corrupt_image` applies them to every instance of an id image in the fixed order
+segmenter-like models (:mod:`sqsim.mask_models`: thin-part loss, smooth error, boundary bias,
+holes), erosion, dilation, jitter, dropout, false blobs; pixels claimed by several corrupted masks keep their
 original id if it is one of the claimants, else the lowest id. :func:`perturb_pose` models pose
 noise: a rotation by an isotropic Gaussian rotation vector (per-axis std ``rotation_deg``),
 applied in the camera frame, and a Gaussian shift of the camera centre (per-axis std
@@ -31,7 +32,7 @@ import sqfit
 from sqfit._checks import check_shape
 
 __all__ = ["erode", "dilate", "jitter_boundary", "drop_out", "add_false_blobs", "corrupt_image",
-           "perturb_pose", "perturb_cameras", "JITTER_SCALE_PX", "DROPOUT_SCALE_PX"]
+           "corrupts_masks", "perturb_pose", "perturb_cameras", "JITTER_SCALE_PX", "DROPOUT_SCALE_PX"]
 
 #: Correlation length (Gaussian sigma, px) of the boundary-jitter field.
 JITTER_SCALE_PX = 8.0
@@ -260,11 +261,14 @@ def corrupt_image(image, noise, rng=None):
     image = np.asarray(image)
     if image.ndim != 2:
         raise ValueError(f"image must have shape (h, w), got {image.shape}")
+    from .mask_models import apply_mask_models
+
     rng = np.random.default_rng(rng)
     ids = [int(i) for i in np.unique(image) if i != 0]
     claimed = {}
     for oid in ids:
         m = image == oid
+        m = apply_mask_models(m, noise, rng)
         m = erode(m, noise.erosion_px)
         m = dilate(m, noise.dilation_px)
         m = jitter_boundary(m, noise.boundary_jitter_px, rng)
@@ -278,6 +282,14 @@ def corrupt_image(image, noise, rng=None):
         keep = claimed[oid] & (image == oid)
         out[keep] = oid
     return out
+
+
+def corrupts_masks(noise):
+    """True when a scene's ``[noise]`` (``sqsim.scene.NoiseConfig``) changes instance masks."""
+    from .mask_models import mask_models_active
+
+    return bool(any((noise.erosion_px, noise.dilation_px, noise.boundary_jitter_px, noise.dropout,
+                     noise.false_blobs)) or mask_models_active(noise))
 
 
 def perturb_pose(pose, rotation_deg, translation_m, rng=None):
