@@ -6,8 +6,8 @@ half-written trial; stale ``.tmp-*`` directories are removed on the next start, 
 trials are skipped, so re-running resumes. Files are byte-deterministic: a trial's bytes depend
 only on the scene, the seed and its index (no timestamps; JSON with sorted keys and Python's
 shortest round-trip float repr; PNGs through Pillow with a fixed compression level).
-``annotations.json`` (COCO instances, RLE masks from pycocotools, a ``track_id`` per object) is
-rebuilt from all finished trials at the end of every run, and so is the COLMAP model
+``annotations.json`` (COCO instances, RLE masks from pycocotools, or polygons with
+``--coco-polygons``, a ``track_id`` per object) is rebuilt from all finished trials at the end of every run, and so is the COLMAP model
 ``sparse/0`` with ``--colmap`` (:mod:`sqsim.export`).
 """
 
@@ -158,7 +158,7 @@ def _prepare(root, scene):
 
 
 def generate(scene, output, trials=None, seed=None, workers=1, progress=True, scheduler=None, rerun=None,
-             rerun_trials=None, colmap=False):
+             rerun_trials=None, colmap=False, coco_polygons=None):
     """Write (or complete) a dataset.
 
     Parameters
@@ -182,6 +182,9 @@ def generate(scene, output, trials=None, seed=None, workers=1, progress=True, sc
         Record only the first ``rerun_trials`` trials (default: all).
     colmap : bool
         Also write the cameras as a COLMAP text model ``DIR/sparse/0`` (:mod:`sqsim.export`).
+    coco_polygons : str, optional
+        Write the masks in ``annotations.json`` as polygons traced the way ``"opencv"``
+        (detectron2) or ``"skimage"`` does (:mod:`sqfit.formats.coco_polygons`); default RLE.
 
     Returns
     -------
@@ -200,6 +203,14 @@ def generate(scene, output, trials=None, seed=None, workers=1, progress=True, sc
     if colmap and is_sequence(scene):
         raise ValueError("--colmap exports trial datasets; a sequence scene (trajectory.kind = "
                          f"{scene.trajectory.kind!r}) writes its poses as TUM trajectories (true.tum, odometry.tum)")
+    if coco_polygons is not None:
+        from sqfit.formats.coco_polygons import POLYGON_CONVENTIONS
+
+        if coco_polygons not in POLYGON_CONVENTIONS:
+            raise ValueError(f"--coco-polygons must be one of {list(POLYGON_CONVENTIONS)}, got {coco_polygons!r}")
+        if is_sequence(scene):
+            raise ValueError("--coco-polygons writes trial datasets; a sequence scene (trajectory.kind = "
+                             f"{scene.trajectory.kind!r}) writes its COCO masks as RLE")
     if rerun is not None and is_sequence(scene):
         raise ValueError("--rerun records trial datasets; recording a sequence scene (trajectory.kind = "
                          f"{scene.trajectory.kind!r}) is not supported yet")
@@ -216,7 +227,8 @@ def generate(scene, output, trials=None, seed=None, workers=1, progress=True, sc
     if is_sequence(scene):
         finish_sequence_dataset(root)
     else:
-        atomic_write_text(root / "annotations.json", json.dumps(build_annotations(root), sort_keys=True) + "\n")
+        atomic_write_text(root / "annotations.json",
+                          json.dumps(build_annotations(root, coco_polygons), sort_keys=True) + "\n")
     if colmap:
         from .export import write_colmap_model
 
@@ -261,12 +273,15 @@ def _run(scene, todo, root, workers, scheduler, progress):
         bar.close()
 
 
-def build_annotations(root):
+def build_annotations(root, polygons=None):
     """COCO instances of every finished trial of a dataset.
 
     ``images`` carry ``file_name`` (relative to the dataset), ``width``, ``height``, ``trial``,
     ``view``, ``intrinsics``, ``T_world_camera`` (the fitter's pose) and ``T_world_camera_true``;
-    ``annotations`` carry an RLE ``segmentation`` (pycocotools, counts as ASCII), ``area``,
+    ``annotations`` carry an RLE ``segmentation`` (pycocotools, counts as ASCII) or, with
+    ``polygons``, a list of polygons traced in that convention (``"opencv"`` or ``"skimage"``,
+    :mod:`sqfit.formats.coco_polygons`; ``area`` and ``bbox`` then of the polygons as
+    pycocotools rasterises them; ``info["mask_encoding"]`` names the choice), ``area``,
     ``bbox`` ``[x, y, w, h]``, ``category_id`` (the object kind), ``instance_id`` (the pixel
     value in the PNG) and ``track_id`` ``"NNNNNN/ID"`` (trial and instance id: unique across the
     dataset's trials, :func:`sqsim.export.track_id`), which groups views into objects for
@@ -277,8 +292,12 @@ def build_annotations(root):
     coco : dict
     """
     from sqfit.formats.coco import encode_mask
+    from sqfit.formats.coco_polygons import encode_polygons
 
     from .export import track_id, view_file_name
+
+    def encode(mask):
+        return encode_mask(mask) if polygons is None else encode_polygons(mask, polygons)
 
     root = Path(root)
     images, annotations = [], []
@@ -293,13 +312,15 @@ def build_annotations(root):
                            "trial": path.name, "view": v, "intrinsics": cam.intrinsics.to_dict(),
                            "T_world_camera": cam.pose.tolist(), "T_world_camera_true": true.pose.tolist()})
             for oid in [int(i) for i in np.unique(image) if i != 0]:
-                segmentation, area, bbox = encode_mask(image == oid)
+                segmentation, area, bbox = encode(image == oid)
                 annotations.append({
                     "id": len(annotations) + 1, "image_id": image_id, "instance_id": oid, "iscrowd": 0,
                     "track_id": track_id(path.name, oid),
                     "category_id": OBJECT_KINDS.index(kinds.get(oid, "superquadric")) + 1,
                     "segmentation": segmentation, "area": area, "bbox": bbox})
-    return {"info": {"description": "sqkit simulated instance masks", "version": str(FORMAT_VERSION)},
+    encoding = "rle" if polygons is None else f"polygons-{polygons}"
+    return {"info": {"description": "sqkit simulated instance masks", "version": str(FORMAT_VERSION),
+                     "mask_encoding": encoding},
             "images": images, "annotations": annotations, "categories": CATEGORIES}
 
 
@@ -320,13 +341,17 @@ def add_arguments(parser):
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
     parser.add_argument("--colmap", action="store_true",
                         help="also write the cameras as a COLMAP text model DIR/sparse/0 (for sqfit fit --coco)")
+    parser.add_argument("--coco-polygons", choices=["opencv", "skimage"], default=None,
+                        help="write the masks in annotations.json as polygons, traced as detectron2 does "
+                             "(opencv: contours through the boundary pixels' centres, +0.5) or as "
+                             "skimage.measure.find_contours at 0.5 (the exact outline); default RLE")
 
 
 def run(args):
     scene = load_scene(args.scene)
     summary = generate(scene, args.output, trials=args.trials, seed=args.seed, workers=args.workers,
                        progress=not args.no_progress, scheduler=args.scheduler, rerun=args.rerun,
-                       rerun_trials=args.rerun_trials, colmap=args.colmap)
+                       rerun_trials=args.rerun_trials, colmap=args.colmap, coco_polygons=args.coco_polygons)
     print(f"{args.output}: {summary['written']} trial(s) written, {summary['skipped']} already there, "
           f"{summary['resampled']} unobservable draw(s) re-sampled")
     return 0
