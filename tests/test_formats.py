@@ -3,6 +3,7 @@
 import json
 import subprocess
 import sys
+import warnings
 
 import numpy as np
 import pytest
@@ -250,6 +251,21 @@ def test_coco_file_errors_and_grouping(tmp_path):
     coco = read_coco(_coco(tmp_path, images, anns))
     assert list(coco.tracks) == [2, 5, "car"]  # ints in order, then strings; crowd skipped
     assert list(coco.tracks[5]) == [1, 2]  # images in file order
+
+
+def test_duplicate_annotation_ids_are_named_in_a_warning(tmp_path):
+    anns = [{"id": 7, "image_id": 1, "track_id": 1}, {"id": 7, "image_id": 1, "track_id": 2},
+            {"id": "a", "image_id": 1, "track_id": 3}, {"id": "a", "image_id": 1, "track_id": 4},
+            {"id": 8, "image_id": 1, "track_id": 5}]
+    with pytest.warns(UserWarning, match=r"c.json: 2 annotation id\(s\) occur more than once: 7, 'a' \("):
+        coco = read_coco(_coco(tmp_path, [IMG], anns))
+    assert list(coco.tracks) == [1, 2, 3, 4, 5]  # read as it is
+    many = [{"id": k // 2, "image_id": 1, "track_id": k} for k in range(30)]
+    with pytest.warns(UserWarning, match=r"15 annotation id\(s\) .*: 0, 1, 2, 3, 4, 5, 6, 7, 8, 9 and 5 more"):
+        read_coco(_coco(tmp_path, [IMG], many))
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        read_coco(_coco(tmp_path, [IMG], anns[:1] + anns[2:3]))  # unique ids: no warning
 
 
 # --- import and fit -------------------------------------------------------------------------------
