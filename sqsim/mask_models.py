@@ -5,8 +5,8 @@ outline sits a fraction of a pixel to a few pixels off, biased in or out per obj
 smoothly, loses thin parts and has holes. Each model acts on one binary mask ``(h, w) bool``:
 
 - :func:`bias_boundary` by ``delta`` px: the outline moved along its normal by ``delta``
-  (> 0 grows the mask, < 0 shrinks it); sub-pixel amounts work (a signed distance, not integer
-  dilation). :func:`draw_bias` draws ``delta`` per object and view from ``N(mean, std)``.
+  (> 0 grows the mask, < 0 shrinks it); sub-pixel amounts work (the mask's area follows the
+  offset outline's, not integer dilation). :func:`draw_bias` draws ``delta`` per object and view from ``N(mean, std)``.
 - :func:`smooth_boundary_error` of ``amplitude`` px RMS and ``wavelength`` px: the outline
   displaced along its normal by a smooth random field made of :data:`SMOOTH_WAVES` plane waves
   of that wavelength (random directions and phases), the low-frequency, blobby outline error of
@@ -22,8 +22,9 @@ The outline of a binary mask is its marching-squares contour at level 0.5
 centres; the image border counts as background), low-passed along each contour
 (:func:`smooth_outline`), so that a digitised curve stands for the curve, not for its staircase.
 Models move that outline (a buffer in shapely, or a displacement of the signed distance
-:func:`signed_distance`) and read the result back at the pixel centres; a pixel changes only if
-its centre lies strictly beyond the moved outline, so a zero amount leaves the mask unchanged.
+:func:`signed_distance`) and read the result back at the pixel centres; a zero amount leaves the
+mask unchanged. An object cut by the image border goes on beyond it (the border is not part of
+its outline: no model moves it); holes keep away from the border.
 
 :func:`apply_mask_models` applies them in the order thin-part loss, smooth error, bias, holes
 (:func:`sqsim.noise.corrupt_image` calls it per instance before the classic corruptions).
@@ -33,6 +34,8 @@ from __future__ import annotations
 
 import numpy as np
 from scipy import ndimage
+
+from .noise import _check_mask, _crop
 
 __all__ = ["signed_distance", "outline_contours", "smooth_outline", "bias_boundary", "draw_bias", "smooth_boundary_error",
            "remove_thin_parts", "punch_holes", "apply_mask_models", "mask_models_active",
@@ -54,13 +57,6 @@ HOLE_RIM_PX = 1.0
 
 # --- checks and the outline ------------------------------------------------------------------------
 
-def _check_mask(mask):
-    mask = np.asarray(mask)
-    if mask.ndim != 2:
-        raise ValueError(f"mask must have shape (h, w), got {mask.shape}")
-    return mask != 0
-
-
 def _check_number(x, name, lo=None, lo_open=False):
     try:
         x = float(x)
@@ -70,14 +66,6 @@ def _check_number(x, name, lo=None, lo_open=False):
         bound = "" if lo is None else f" {'>' if lo_open else '>='} {lo}"
         raise ValueError(f"{name} must be a finite number{bound}, got {x}")
     return x
-
-
-def _box(mask, margin):
-    """Slices of the mask's bounding box grown by ``margin`` px, clipped to the image."""
-    rows, cols = np.nonzero(mask)
-    h, w = mask.shape
-    return (slice(max(rows.min() - margin, 0), min(rows.max() + margin + 1, h)),
-            slice(max(cols.min() - margin, 0), min(cols.max() + margin + 1, w)))
 
 
 def outline_contours(mask):
@@ -175,6 +163,18 @@ def signed_distance(mask, band=np.inf):
     return sd
 
 
+def _on_crop(mask, margin, model):
+    """Run ``model`` ((H, W) bool -> (H, W) bool) on the mask's box grown by ``margin`` px.
+
+    Beyond the image border the box is extended by repeating its edge pixels (``margin`` px), so
+    an object cut by the border goes on past it: no model moves an outline along the border.
+    """
+    box = _crop(mask, margin)
+    out = mask.copy()
+    out[box] = model(np.pad(mask[box], margin, mode="edge"))[margin:-margin, margin:-margin]
+    return out
+
+
 def _moved(mask, level):
     """Pixels inside the zero set of ``level`` (h, w) float; a pixel on it keeps its state."""
     return np.where(mask, level >= 0, level > 0)
@@ -210,8 +210,10 @@ def bias_boundary(mask, delta):
     delta = _check_number(delta, "boundary bias")
     if delta == 0 or not mask.any():
         return mask.copy()
-    box = _box(mask, int(np.ceil(abs(delta))) + 2)
-    sub = mask[box]
+    return _on_crop(mask, int(np.ceil(abs(delta))) + 2, lambda sub: _offset(sub, delta))
+
+
+def _offset(sub, delta):
     region = smooth_outline(sub)
     moved = region.buffer(delta, quad_segs=32)
     pool = (~sub if delta > 0 else sub) & _band(sub, abs(delta))
@@ -221,8 +223,8 @@ def bias_boundary(mask, delta):
     n = int(min(max(round(abs(moved.area - region.area)), beyond), len(rows)))
     # Gain the outside pixels deepest in the moved outline; lose the inside ones least deep in it.
     order = np.argsort(-depth if delta > 0 else depth, kind="stable")[:n]
-    out = mask.copy()
-    out[box][rows[order], cols[order]] = delta > 0
+    out = sub.copy()
+    out[rows[order], cols[order]] = delta > 0
     return out
 
 
@@ -284,12 +286,12 @@ def smooth_boundary_error(mask, amplitude, wavelength, rng=None):
     if amplitude == 0 or not mask.any():
         return mask.copy()
     reach = amplitude * np.sqrt(2.0 * SMOOTH_WAVES)  # bound of |field|
-    box = _box(mask, int(np.ceil(reach)) + 2)
-    sub = mask[box]
-    field = amplitude * _wave_field(sub.shape, wavelength, rng)
-    out = np.zeros_like(mask)
-    out[box] = _moved(sub, signed_distance(sub, band=float(np.abs(field).max())) + field)
-    return out
+
+    def displace(sub):
+        field = amplitude * _wave_field(sub.shape, wavelength, rng)
+        return _moved(sub, signed_distance(sub, band=float(np.abs(field).max())) + field)
+
+    return _on_crop(mask, int(np.ceil(reach)) + 2, displace)
 
 
 def remove_thin_parts(mask, width):
@@ -316,15 +318,16 @@ def remove_thin_parts(mask, width):
     width = _check_number(width, "thin-part width", lo=0)
     if width == 0 or not mask.any():
         return mask.copy()
-    box = _box(mask, 1)
-    sub = mask[box]
     radius = 0.5 * width
-    opened = smooth_outline(sub).buffer(-radius, quad_segs=32).buffer(radius, quad_segs=32)
-    check = sub & _band(sub, radius)  # deeper pixels are centres of discs that fit
-    rows, cols = np.nonzero(check)
-    out = mask.copy()
-    out[box][rows, cols] = shapely.contains_xy(opened, rows.astype(np.float64), cols.astype(np.float64))
-    return out
+
+    def open_(sub):
+        opened = smooth_outline(sub).buffer(-radius, quad_segs=32).buffer(radius, quad_segs=32)
+        rows, cols = np.nonzero(sub & _band(sub, radius))  # deeper pixels are centres of discs that fit
+        out = sub.copy()
+        out[rows, cols] = shapely.contains_xy(opened, rows.astype(np.float64), cols.astype(np.float64))
+        return out
+
+    return _on_crop(mask, int(np.ceil(radius)) + 2, open_)
 
 
 def punch_holes(mask, rate, radius, rng=None):

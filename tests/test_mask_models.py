@@ -268,3 +268,14 @@ def test_scene_rejects_bad_values(key, value, match):
 def test_bad_input(call, match):
     with pytest.raises(ValueError, match=match):
         call()
+
+
+@pytest.mark.parametrize("model", [lambda m: bias_boundary(m, -1.5), lambda m: bias_boundary(m, 1.5),
+                                   lambda m: smooth_boundary_error(m, 1.0, 32.0, rng=0),
+                                   lambda m: remove_thin_parts(m, 6.0)])
+def test_an_object_cut_by_the_image_border_goes_on_beyond_it(model):
+    m = np.zeros((60, 80), bool)
+    m[20:40, :30] = True  # cut by the left border
+    out = model(m)
+    np.testing.assert_array_equal(out[25:35, 0], m[25:35, 0])  # its cut edge stays on the border
+    assert out[:, 0].sum() == pytest.approx(m[:, 0].sum(), abs=4)  # the border-side column stays whole, give or take its ends
