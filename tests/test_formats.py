@@ -289,6 +289,19 @@ def test_fit_user_scene_matches_native_fit(tmp_path, trial, polygons):
         assert min(iou) > 0.97
 
 
+def test_fit_coco_warns_about_duplicate_annotation_ids(tmp_path, trial):
+    coco, model = write_user_scene(tmp_path, trial)
+    data = json.loads(coco.read_text())
+    data["annotations"][2]["id"] = data["annotations"][0]["id"]
+    coco.write_text(json.dumps(data))
+    with warnings.catch_warnings(), pytest.warns(UserWarning, match=r"annotations.json: 1 annotation id\(s\) "
+                                                                 r"occur more than once: 1 \("):
+        warnings.simplefilter("ignore", DeprecationWarning)  # pycocotools' own, under numpy 2
+        assert main(["fit", "--coco", str(coco), "--poses", str(model), "-o", str(tmp_path / "fits.jsonl"),
+                     "--chain", "1-2-3D", "--no-progress"]) == 0
+    assert records(tmp_path / "fits.jsonl")[0]["status"] == "ok"
+
+
 def test_json_pose_source(tmp_path, trial):
     coco, _ = write_user_scene(tmp_path, trial)
     write_pose_json(tmp_path / "poses.json", dict(zip(NAMES, trial.cameras)))
