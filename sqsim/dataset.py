@@ -7,8 +7,8 @@ trials are skipped, so re-running resumes. Files are byte-deterministic: a trial
 only on the scene, the seed and its index (no timestamps; JSON with sorted keys and Python's
 shortest round-trip float repr; PNGs through Pillow with a fixed compression level).
 ``annotations.json`` (COCO instances, RLE masks from pycocotools, or polygons with
-``--coco-polygons``, a ``track_id`` per object) is rebuilt from all finished trials at the end of every run, and so is the COLMAP model
-``sparse/0`` with ``--colmap`` (:mod:`sqsim.export`).
+``--coco-polygons``, a ``track_id`` per object) is rebuilt from all finished trials at the end
+of every run, and so is the COLMAP model ``sparse/0`` with ``--colmap`` (:mod:`sqsim.export`).
 """
 
 from __future__ import annotations

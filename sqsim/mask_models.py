@@ -37,9 +37,10 @@ from scipy import ndimage
 
 from .noise import _check_mask, _crop
 
-__all__ = ["signed_distance", "outline_contours", "smooth_outline", "bias_boundary", "draw_bias", "smooth_boundary_error",
-           "remove_thin_parts", "punch_holes", "apply_mask_models", "mask_models_active",
-           "OUTLINE_SPACING_PX", "OUTLINE_SMOOTHING_VERTICES", "SMOOTH_WAVES", "HOLE_AREA_UNIT_PX", "HOLE_RIM_PX"]
+__all__ = ["outline_contours", "smooth_outline", "signed_distance", "bias_boundary", "draw_bias",
+           "smooth_boundary_error", "remove_thin_parts", "punch_holes", "apply_mask_models", "mask_models_active",
+           "OUTLINE_SPACING_PX", "OUTLINE_SMOOTHING_VERTICES", "SMOOTH_WAVES", "HALF_PIXEL", "HOLE_AREA_UNIT_PX",
+           "HOLE_RIM_PX"]
 
 #: Spacing of the points sampled along the outline for distances (px): error <= spacing**2 / 8 / d.
 OUTLINE_SPACING_PX = 0.1

@@ -15,8 +15,8 @@ Mask models act on one binary mask ``(h, w) bool`` and take a ``numpy.random.Gen
 
 :func:`corrupt_image` applies them to every instance of an id image in the fixed order
 segmenter-like models (:mod:`sqsim.mask_models`: thin-part loss, smooth error, boundary bias,
-holes), erosion, dilation, jitter, dropout, false blobs; pixels claimed by several corrupted masks keep their
-original id if it is one of the claimants, else the lowest id. :func:`perturb_pose` models pose
+holes), erosion, dilation, jitter, dropout, false blobs; pixels claimed by several corrupted
+masks keep their original id if it is one of the claimants, else the lowest id. :func:`perturb_pose` models pose
 noise: a rotation by an isotropic Gaussian rotation vector (per-axis std ``rotation_deg``),
 applied in the camera frame, and a Gaussian shift of the camera centre (per-axis std
 ``translation_m``, world frame). Masks stay rendered from the true poses; the fitter sees the
