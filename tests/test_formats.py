@@ -3,6 +3,7 @@
 import json
 import subprocess
 import sys
+import warnings
 
 import numpy as np
 import pytest
@@ -256,6 +257,21 @@ def test_coco_file_errors_and_grouping(tmp_path):
     assert list(coco.tracks[5]) == [1, 2]  # images in file order
 
 
+def test_duplicate_annotation_ids_are_named_in_a_warning(tmp_path):
+    anns = [{"id": 7, "image_id": 1, "track_id": 1}, {"id": 7, "image_id": 1, "track_id": 2},
+            {"id": "a", "image_id": 1, "track_id": 3}, {"id": "a", "image_id": 1, "track_id": 4},
+            {"id": 8, "image_id": 1, "track_id": 5}]
+    with pytest.warns(UserWarning, match=r"c.json: 2 annotation id\(s\) occur more than once: 7, 'a' \("):
+        coco = read_coco(_coco(tmp_path, [IMG], anns))
+    assert list(coco.tracks) == [1, 2, 3, 4, 5]  # read as it is
+    many = [{"id": k // 2, "image_id": 1, "track_id": k} for k in range(30)]
+    with pytest.warns(UserWarning, match=r"15 annotation id\(s\) .*: 0, 1, 2, 3, 4, 5, 6, 7, 8, 9 and 5 more"):
+        read_coco(_coco(tmp_path, [IMG], many))
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        read_coco(_coco(tmp_path, [IMG], anns[:1] + anns[2:3]))  # unique ids: no warning
+
+
 # --- import and fit -------------------------------------------------------------------------------
 
 @pytest.mark.parametrize("polygons", [False, True])
@@ -275,6 +291,19 @@ def test_fit_user_scene_matches_native_fit(tmp_path, trial, polygons):
     if polygons:  # polygon masks of the contour reproduce the rendered mask up to boundary pixels
         iou = [np.logical_and(m, t).sum() / np.logical_or(m, t).sum() for m, t in zip(masks, trial.masks)]
         assert min(iou) > 0.97
+
+
+def test_fit_coco_warns_about_duplicate_annotation_ids(tmp_path, trial):
+    coco, model = write_user_scene(tmp_path, trial)
+    data = json.loads(coco.read_text())
+    data["annotations"][2]["id"] = data["annotations"][0]["id"]
+    coco.write_text(json.dumps(data))
+    with warnings.catch_warnings(), pytest.warns(UserWarning, match=r"annotations.json: 1 annotation id\(s\) "
+                                                                 r"occur more than once: 1 \("):
+        warnings.simplefilter("ignore", DeprecationWarning)  # pycocotools' own, under numpy 2
+        assert main(["fit", "--coco", str(coco), "--poses", str(model), "-o", str(tmp_path / "fits.jsonl"),
+                     "--chain", "1-2-3D", "--no-progress"]) == 0
+    assert records(tmp_path / "fits.jsonl")[0]["status"] == "ok"
 
 
 def test_json_pose_source(tmp_path, trial):

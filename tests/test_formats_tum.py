@@ -18,7 +18,6 @@ from sqfit.formats.trajectory import associate, image_timestamps
 from sqfit.views.dataset import observe_views
 from sqfit.testing import paper_trial
 
-from _helpers import assert_bad_file  # noqa: E402
 
 pytest.importorskip("pycocotools")
 
@@ -120,17 +119,6 @@ def test_image_times_list_like_tum_rgb_txt(tmp_path):
                                                       "rgb/1305031102.211214.png": 1305031102.211214}
     write_image_times(tmp_path / "out.txt", {"a/b.png": 0.1, "c.png": 1e9 + 1 / 3})
     assert read_image_times(tmp_path / "out.txt") == {"a/b.png": 0.1, "c.png": 1e9 + 1 / 3}
-
-
-@pytest.mark.parametrize("text, match", [
-    ("1.0 a.png\n2.0\n", r"rgb.txt:2: expected 'timestamp filename'"),
-    ("# c\nabc a.png\n", r"rgb.txt:2: expected 'timestamp filename' .*got 'abc a.png'"),
-    ("inf a.png\n", r"rgb.txt:1: expected"),
-    ("1.0 a.png\n2.0 b.png\n3.0 a.png\n", r"rgb.txt:3: 'a.png' is listed twice \(also line 1\)"),
-    ("# nothing\n", r"rgb.txt: no entries"),
-])
-def test_bad_image_time_lists(tmp_path, text, match):
-    assert_bad_file(tmp_path / "rgb.txt", text, read_image_times, match)
 
 
 def test_image_time_list_errors(tmp_path):

@@ -46,10 +46,10 @@ def test_shipped_sweep_scenes_are_valid():
     import glob
 
     files = sorted(glob.glob("scenes/sweep-*.toml"))
-    assert len(files) == 9
+    assert len(files) == 14
     for f in files:
         scene, axes = load_sweep(f)
-        assert len(axes) == 1 and scene.experiment.trials == 30
+        assert 1 <= len(axes) <= 2 and scene.experiment.trials == 30
         for key, values in axes:
             for v in values:
                 scene.with_overrides({key: v})

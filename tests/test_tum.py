@@ -2,6 +2,7 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
+from sqfit.formats.trajectory import read_image_times
 from sqfit.formats.tum import poses_to_rows, read_tum, rows_to_poses, write_tum
 
 from _helpers import assert_bad_file  # noqa: E402
@@ -62,15 +63,22 @@ def test_rows_helpers_round_trip():
     np.testing.assert_allclose(poses2, poses, atol=1e-14)
 
 
-@pytest.mark.parametrize("text, match", [
-    ("0 0 0 0 0 0 0 1\n1 0 0 0 0 0 0\n", r"x\.tum:2: expected 8 finite numbers"),
-    ("0 0 0 0 0 0 0 1\n1 0 0 nan 0 0 0 1\n", r"x\.tum:2: expected 8 finite"),
-    ("# c\n0 0 0 0 0 0 0 2\n", r"x\.tum:2: quaternion .* has norm 2, not a rotation"),
-    ("0 0 0 0 0 0 0 1\n0 0 0 0 0 0 0 1\n", r"x\.tum:2: timestamps must be strictly increasing"),
-    ("# only a comment\n", r"x\.tum: no poses"),
+@pytest.mark.parametrize("name, text, match", [
+    ("x.tum", "0 0 0 0 0 0 0 1\n1 0 0 0 0 0 0\n", r"x\.tum:2: expected 8 finite numbers"),
+    ("x.tum", "0 0 0 0 0 0 0 1\n1 0 0 nan 0 0 0 1\n", r"x\.tum:2: expected 8 finite"),
+    ("x.tum", "# c\n0 0 0 0 0 0 0 2\n", r"x\.tum:2: quaternion .* has norm 2, not a rotation"),
+    ("x.tum", "0 0 0 0 0 0 0 1\n0 0 0 0 0 0 0 1\n", r"x\.tum:2: timestamps must be strictly increasing"),
+    ("x.tum", "# only a comment\n", r"x\.tum: no poses"),
+    # TUM RGB-D image lists ("timestamp filename"), sqfit.formats.trajectory
+    ("rgb.txt", "1.0 a.png\n2.0\n", r"rgb.txt:2: expected 'timestamp filename'"),
+    ("rgb.txt", "# c\nabc a.png\n", r"rgb.txt:2: expected 'timestamp filename' .*got 'abc a.png'"),
+    ("rgb.txt", "inf a.png\n", r"rgb.txt:1: expected"),
+    ("rgb.txt", "1.0 a.png\n2.0 b.png\n3.0 a.png\n", r"rgb.txt:3: 'a.png' is listed twice \(also line 1\)"),
+    ("rgb.txt", "# nothing\n", r"rgb.txt: no entries"),
 ])
-def test_bad_files_name_file_and_line(tmp_path, text, match):
-    assert_bad_file(tmp_path / "x.tum", text, read_tum, match)
+def test_bad_files_name_file_and_line(tmp_path, name, text, match):
+    reader = read_tum if name.endswith(".tum") else read_image_times
+    assert_bad_file(tmp_path / name, text, reader, match)
 
 
 def test_bad_inputs(tmp_path):

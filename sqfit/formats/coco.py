@@ -15,6 +15,8 @@ Masks are decoded and encoded with pycocotools (imported here only). Conventions
 
 from __future__ import annotations
 
+import warnings
+from collections import Counter
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -91,6 +93,12 @@ def read_coco(path):
         ``width`` / ``height``, duplicate image ids or file names, an annotation naming an unknown
         image, or an annotation without a ``track_id`` (the message names the file, the
         annotation and the field).
+
+    Warns
+    -----
+    UserWarning
+        Annotation ids that occur more than once (named): the file is read as it is, but
+        messages that name an annotation by its id become ambiguous.
     """
     path = Path(path)
     data = read_json(path, "COCO file")
@@ -98,6 +106,7 @@ def read_coco(path):
             or not isinstance(data.get("annotations"), list):
         raise ValueError(f"{path}: a COCO instance file needs lists 'images' and 'annotations'")
     images = _read_images(data["images"], path)
+    _warn_duplicate_ids(data["annotations"], path)
     tracks = {}
     for k, ann in enumerate(data["annotations"]):
         where = f"{path}: annotation {ann.get('id', f'#{k}') if isinstance(ann, dict) else f'#{k}'}"
@@ -116,6 +125,16 @@ def read_coco(path):
     tracks = {t: dict(sorted(tracks[t].items(), key=lambda kv: order.index(kv[0])))
               for t in sorted(tracks, key=lambda t: (isinstance(t, str), t))}
     return CocoInstances(str(path), images, tracks)
+
+
+def _warn_duplicate_ids(annotations, path, shown=10):
+    counts = Counter(a["id"] for a in annotations if isinstance(a, dict) and isinstance(a.get("id"), (int, str)))
+    duplicates = sorted((i for i, n in counts.items() if n > 1), key=lambda i: (isinstance(i, str), i))
+    if duplicates:
+        more = f" and {len(duplicates) - shown} more" if len(duplicates) > shown else ""
+        warnings.warn(f"{path}: {len(duplicates)} annotation id(s) occur more than once: "
+                      f"{', '.join(map(repr, duplicates[:shown]))}{more} (messages naming an annotation by "
+                      "its id are ambiguous; ids should be unique)", UserWarning, stacklevel=3)
 
 
 def _read_images(records, path):

@@ -6,7 +6,7 @@ half-written trial; stale ``.tmp-*`` directories are removed on the next start, 
 trials are skipped, so re-running resumes. Files are byte-deterministic: a trial's bytes depend
 only on the scene, the seed and its index (no timestamps; JSON with sorted keys and Python's
 shortest round-trip float repr; PNGs through Pillow with a fixed compression level).
-``annotations.json`` (COCO instances, RLE masks from pycocotools, a ``track_id`` per object,
+``annotations.json`` (COCO instances, RLE masks from pycocotools or polygons, a ``track_id`` per object,
 :func:`build_annotations`) is rebuilt from all finished trials at the end of every run of
 ``sqsim generate`` (:mod:`sqsim.runs.generate`, which runs the trials over processes or Dask).
 """
@@ -143,12 +143,15 @@ def prepare_dataset(root, scene):
     atomic_write_text(meta_path, dumps(meta))
 
 
-def build_annotations(root):
+def build_annotations(root, polygons=None):
     """COCO instances of every finished trial of a dataset.
 
     ``images`` carry ``file_name`` (relative to the dataset), ``width``, ``height``, ``trial``,
     ``view``, ``intrinsics``, ``T_world_camera`` (the fitter's pose) and ``T_world_camera_true``;
-    ``annotations`` carry an RLE ``segmentation`` (pycocotools, counts as ASCII), ``area``,
+    ``annotations`` carry an RLE ``segmentation`` (pycocotools, counts as ASCII) or, with
+    ``polygons``, a list of polygons traced in that convention (``"opencv"`` or ``"skimage"``,
+    :mod:`sqfit.formats.coco_polygons`; ``area`` and ``bbox`` then of the polygons as
+    pycocotools rasterises them; ``info["mask_encoding"]`` names the choice), ``area``,
     ``bbox`` ``[x, y, w, h]``, ``category_id`` (the object kind), ``instance_id`` (the pixel
     value in the PNG) and ``track_id`` ``"NNNNNN/ID"`` (trial and instance id: unique across the
     dataset's trials, :func:`sqsim.data.export.track_id`), which groups views into objects for
@@ -159,8 +162,12 @@ def build_annotations(root):
     coco : dict
     """
     from sqfit.formats.coco import encode_mask
+    from sqfit.formats.coco_polygons import encode_polygons
 
     from .export import track_id, view_file_name
+
+    def encode(mask):
+        return encode_mask(mask) if polygons is None else encode_polygons(mask, polygons)
 
     root = Path(root)
     images, annotations = [], []
@@ -175,11 +182,13 @@ def build_annotations(root):
                            "trial": path.name, "view": v, "intrinsics": cam.intrinsics.to_dict(),
                            "T_world_camera": cam.pose.tolist(), "T_world_camera_true": true.pose.tolist()})
             for oid in [int(i) for i in np.unique(image) if i != 0]:
-                segmentation, area, bbox = encode_mask(image == oid)
+                segmentation, area, bbox = encode(image == oid)
                 annotations.append({
                     "id": len(annotations) + 1, "image_id": image_id, "instance_id": oid, "iscrowd": 0,
                     "track_id": track_id(path.name, oid),
                     "category_id": OBJECT_KINDS.index(kinds.get(oid, "superquadric")) + 1,
                     "segmentation": segmentation, "area": area, "bbox": bbox})
-    return {"info": {"description": "sqkit simulated instance masks", "version": str(FORMAT_VERSION)},
+    encoding = "rle" if polygons is None else f"polygons-{polygons}"
+    return {"info": {"description": "sqkit simulated instance masks", "version": str(FORMAT_VERSION),
+                     "mask_encoding": encoding},
             "images": images, "annotations": annotations, "categories": CATEGORIES}

@@ -13,9 +13,10 @@ Mask models act on one binary mask ``(h, w) bool`` and take a ``numpy.random.Gen
 - :func:`add_false_blobs` ``n``: adds ``n`` filled discs of radius ``BLOB_RADIUS_FRACTION *
   sqrt(area)`` (clipped to ``BLOB_RADIUS_PX``) on background pixels away from the object.
 
-:func:`corrupt_image` applies them to every instance of an id image in the fixed order erosion,
-dilation, jitter, dropout, false blobs; pixels claimed by several corrupted masks keep their
-original id if it is one of the claimants, else the lowest id. :func:`perturb_pose` models pose
+:func:`corrupt_image` applies them to every instance of an id image in the fixed order
+segmenter-like models (:mod:`sqsim.imaging.mask_models`: thin-part loss, smooth error, boundary bias,
+holes), erosion, dilation, jitter, dropout, false blobs; pixels claimed by several corrupted
+masks keep their original id if it is one of the claimants, else the lowest id. :func:`perturb_pose` models pose
 noise: a rotation by an isotropic Gaussian rotation vector (per-axis std ``rotation_deg``),
 applied in the camera frame, and a Gaussian shift of the camera centre (per-axis std
 ``translation_m``, world frame). Masks stay rendered from the true poses; the fitter sees the
@@ -30,8 +31,10 @@ from scipy import ndimage
 import sqfit
 from sqfit._checks import check_shape
 
+from .mask_ops import as_mask, mask_box
+
 __all__ = ["erode", "dilate", "jitter_boundary", "drop_out", "add_false_blobs", "corrupt_image",
-           "perturb_pose", "perturb_cameras", "JITTER_SCALE_PX", "DROPOUT_SCALE_PX"]
+           "corrupts_masks", "perturb_pose", "perturb_cameras", "JITTER_SCALE_PX", "DROPOUT_SCALE_PX"]
 
 #: Correlation length (Gaussian sigma, px) of the boundary-jitter field.
 JITTER_SCALE_PX = 8.0
@@ -40,23 +43,6 @@ DROPOUT_SCALE_PX = 6.0
 #: False-blob radius as a fraction of sqrt(object area), clipped to this range (px).
 BLOB_RADIUS_FRACTION = 0.15
 BLOB_RADIUS_PX = (2.0, 25.0)
-
-
-def _check_mask(mask):
-    mask = np.asarray(mask)
-    if mask.ndim != 2:
-        raise ValueError(f"mask must have shape (h, w), got {mask.shape}")
-    return mask != 0
-
-
-def _crop(mask, margin):
-    """Slices of the mask's bounding box grown by ``margin`` px (clipped to the image)."""
-    rows, cols = np.nonzero(mask)
-    if len(rows) == 0:
-        return None
-    h, w = mask.shape
-    return (slice(max(rows.min() - margin, 0), min(rows.max() + margin + 1, h)),
-            slice(max(cols.min() - margin, 0), min(cols.max() + margin + 1, w)))
 
 
 def _signed_distance(mask):
@@ -79,7 +65,7 @@ def erode(mask, k):
     -------
     eroded : (h, w) bool
     """
-    mask = _check_mask(mask)
+    mask = as_mask(mask)
     k = _check_px(k, "erosion")
     if k == 0 or not mask.any():
         return mask.copy()
@@ -101,12 +87,12 @@ def dilate(mask, k):
     -------
     dilated : (h, w) bool
     """
-    mask = _check_mask(mask)
+    mask = as_mask(mask)
     k = _check_px(k, "dilation")
     if k == 0 or not mask.any():
         return mask.copy()
     out = mask.copy()
-    box = _crop(mask, k + 1)
+    box = mask_box(mask, k + 1)
     out[box] = ndimage.distance_transform_edt(~mask[box]) <= k
     return out
 
@@ -146,13 +132,13 @@ def jitter_boundary(mask, sigma, rng=None, scale=JITTER_SCALE_PX):
     -------
     jittered : (h, w) bool
     """
-    mask = _check_mask(mask)
+    mask = as_mask(mask)
     sigma = _check_nonneg(sigma, "boundary jitter")
     rng = np.random.default_rng(rng)
     if sigma == 0 or not mask.any():
         return mask.copy()
     margin = int(np.ceil(4 * sigma + 2))
-    box = _crop(mask, margin)
+    box = mask_box(mask, margin)
     sub = mask[box]
     field = _smooth_field(sub.shape, scale, rng) * sigma
     out = np.zeros_like(mask)
@@ -177,7 +163,7 @@ def drop_out(mask, fraction, rng=None, scale=DROPOUT_SCALE_PX):
     kept : (h, w) bool
         ``round(fraction * area)`` pixels fewer than ``mask``.
     """
-    mask = _check_mask(mask)
+    mask = as_mask(mask)
     fraction = float(fraction)
     if not 0 <= fraction < 1:
         raise ValueError(f"dropout fraction must be in [0, 1), got {fraction}")
@@ -185,7 +171,7 @@ def drop_out(mask, fraction, rng=None, scale=DROPOUT_SCALE_PX):
     n_drop = int(round(fraction * mask.sum()))
     if n_drop == 0:
         return mask.copy()
-    box = _crop(mask, 0)
+    box = mask_box(mask, 0)
     sub = mask[box]
     values = _smooth_field(sub.shape, scale, rng)[sub]
     order = np.argsort(values, kind="stable")
@@ -215,7 +201,7 @@ def add_false_blobs(mask, n, rng=None, forbidden=None):
     out : (h, w) bool
         ``mask`` with up to ``n`` added discs (fewer only if no free place is found).
     """
-    mask = _check_mask(mask)
+    mask = as_mask(mask)
     n = _check_px(n, "false_blobs")
     rng = np.random.default_rng(rng)
     out = mask.copy()
@@ -224,7 +210,7 @@ def add_false_blobs(mask, n, rng=None, forbidden=None):
     h, w = mask.shape
     lo, hi = BLOB_RADIUS_PX
     radius = float(np.clip(BLOB_RADIUS_FRACTION * np.sqrt(max(mask.sum(), 1)), lo, hi))
-    taken = (mask if forbidden is None else _check_mask(forbidden) | mask).copy()
+    taken = (mask if forbidden is None else as_mask(forbidden) | mask).copy()
     yy, xx = np.mgrid[0:h, 0:w]
     placed, attempts = 0, 0
     while placed < n and attempts < 100 * n:
@@ -260,11 +246,14 @@ def corrupt_image(image, noise, rng=None):
     image = np.asarray(image)
     if image.ndim != 2:
         raise ValueError(f"image must have shape (h, w), got {image.shape}")
+    from .mask_models import apply_mask_models
+
     rng = np.random.default_rng(rng)
     ids = [int(i) for i in np.unique(image) if i != 0]
     claimed = {}
     for oid in ids:
         m = image == oid
+        m = apply_mask_models(m, noise, rng)
         m = erode(m, noise.erosion_px)
         m = dilate(m, noise.dilation_px)
         m = jitter_boundary(m, noise.boundary_jitter_px, rng)
@@ -278,6 +267,14 @@ def corrupt_image(image, noise, rng=None):
         keep = claimed[oid] & (image == oid)
         out[keep] = oid
     return out
+
+
+def corrupts_masks(noise):
+    """True when a scene's ``[noise]`` (``sqsim.world.scene.NoiseConfig``) changes instance masks."""
+    from .mask_models import mask_models_active
+
+    return bool(any((noise.erosion_px, noise.dilation_px, noise.boundary_jitter_px, noise.dropout,
+                     noise.false_blobs)) or mask_models_active(noise))
 
 
 def perturb_pose(pose, rotation_deg, translation_m, rng=None):

@@ -30,8 +30,8 @@ import sqfit
 from sqfit.views.sequence import Sequence
 
 from ..world.layout import place_objects
-from .noise import corrupt_image
 from ..world.odometry import integrate_odometry
+from .noise import corrupt_image, corrupts_masks
 from .render import get_renderer
 from ..world.scene import child_seed, trial_seed
 from ..world.trajectory import is_sequence, sequence_poses
@@ -182,7 +182,7 @@ def simulate_sequence(scene, seed=None, index=0, renderer=None):
     objects, timestamps, true_poses, clean, observed, resampled = sample_sequence(scene, seed, index, renderer)
     root = trial_seed(seed, index)
     noise = scene.noise
-    if any((noise.erosion_px, noise.dilation_px, noise.boundary_jitter_px, noise.dropout, noise.false_blobs)):
+    if corrupts_masks(noise):
         mask_rng = np.random.default_rng(child_seed(root, SEED_STREAMS["mask_noise"]))
         images = np.stack([corrupt_image(im, noise, mask_rng) for im in clean])
     else:

@@ -19,7 +19,7 @@ import numpy as np
 
 from sqfit.views.dataset import observations_from_images
 
-from .noise import corrupt_image, perturb_cameras
+from .noise import corrupt_image, corrupts_masks, perturb_cameras
 from .render import get_renderer
 from ..world.objects import draw_objects, geometry_visible, make_objects, surely_not_visible
 from ..world.scene import child_seed, trial_seed
@@ -132,7 +132,7 @@ def simulate_trial(scene, index, renderer=None):
     visible, cut, border = visibility(objects, true_cameras, clean, renderer)
     noise = scene.noise
     mask_rng = np.random.default_rng(child_seed(seed, SEED_STREAMS["mask_noise"]))
-    if any((noise.erosion_px, noise.dilation_px, noise.boundary_jitter_px, noise.dropout, noise.false_blobs)):
+    if corrupts_masks(noise):
         images = np.stack([corrupt_image(im, noise, mask_rng) for im in clean])
     else:
         images = clean  # both read-only below: no copy needed

@@ -112,6 +112,18 @@ class NoiseConfig:
     pose_translation_m: float = 0.0
     odometry_rotation_deg: float = 0.0  # sequences: per-step noise of the relative poses
     odometry_translation_m: float = 0.0
+    # Segmenter-like mask models (sqsim.imaging.mask_models), per object and view.
+    boundary_bias_px: float = 0.0  # mean outline offset, px (> 0 over-, < 0 under-segmentation)
+    boundary_bias_std_px: float = 0.0  # its standard deviation across objects and views, px
+    smooth_error_px: float = 0.0  # RMS of a smooth normal displacement of the outline, px
+    smooth_error_wavelength_px: float = 32.0  # its wavelength, px
+    thin_part_width_px: float = 0.0  # parts narrower than this vanish (opening), px
+    hole_rate: float = 0.0  # interior holes per 1000 px of mask area
+    hole_radius_px: float = 2.0
+
+
+#: Keys of [noise] that shape a model rather than turn it on (they leave clean masks clean).
+NOISE_SHAPE_KEYS = ("smooth_error_wavelength_px", "hole_radius_px")
 
 
 @dataclass(frozen=True)
@@ -141,7 +153,10 @@ _CHECKS = {
     "noise": {"erosion_px": integer(0), "dilation_px": integer(0), "boundary_jitter_px": number(0),
               "dropout": number(0, 1, hi_open=True), "false_blobs": integer(0),
               "pose_rotation_deg": number(0), "pose_translation_m": number(0),
-              "odometry_rotation_deg": number(0), "odometry_translation_m": number(0)},
+              "odometry_rotation_deg": number(0), "odometry_translation_m": number(0),
+              "boundary_bias_px": number(), "boundary_bias_std_px": number(0), "smooth_error_px": number(0),
+              "smooth_error_wavelength_px": number(0, lo_open=True), "thin_part_width_px": number(0),
+              "hole_rate": number(0), "hole_radius_px": number(0, lo_open=True)},
     "fit": {"polygon": choice(POLYGON_KINDS), "penalty_riou": number(0, lo_open=True),
             "penalty_analytic": number(0, lo_open=True), "pose_sigma_deg": number(0),
             "occlusion_aware": boolean},
@@ -178,8 +193,8 @@ class Scene:
 
     @property
     def noise_free(self):
-        """True when every noise parameter is zero."""
-        return not any(asdict(self.noise).values())
+        """True when every noise amount is zero (model shapes, :data:`NOISE_SHAPE_KEYS`, aside)."""
+        return not any(v for k, v in asdict(self.noise).items() if k not in NOISE_SHAPE_KEYS)
 
     def to_dict(self):
         """Plain, TOML/JSON-friendly mapping (lists, not tuples); :func:`parse_scene` round-trips it."""
