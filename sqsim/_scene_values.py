@@ -85,3 +85,9 @@ def _waypoints(v):
     from .trajectory import check_waypoint_rows
 
     return check_waypoint_rows(v)
+
+
+def _catalogue(v):
+    from .household import check_catalogue
+
+    return check_catalogue(v)

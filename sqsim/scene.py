@@ -21,14 +21,15 @@ import numpy as np
 import sqfit
 from sqfit.observation import POLYGON_KINDS, SAMPLING_METHODS
 
-from ._scene_values import (_bool, _choice, _float, _int, _optional_path, _range, _string,  # noqa: F401
-                            _strings, _vector, _waypoints)
+from ._scene_values import (_bool, _catalogue, _choice, _float, _int, _optional_path, _range,  # noqa: F401
+                            _string, _strings, _vector, _waypoints)
+from .objects import KEEPS_PROPORTIONS, PROPORTIONS
 
 __all__ = ["Scene", "ExperimentConfig", "CameraConfig", "TrajectoryConfig", "ObjectsConfig",
            "MasksConfig", "NoiseConfig", "FitConfig", "OBJECT_KINDS", "load_scene", "parse_scene", "trial_seed",
            "child_seed", "camera_poses"]
 
-OBJECT_KINDS = ("superquadric", "box", "cylinder", "capsule", "cone", "mesh")
+OBJECT_KINDS = ("superquadric", "box", "cylinder", "capsule", "cone", "mesh", "household")
 RENDERERS = ("osmesa", "egl", "polygon")
 TRAJECTORIES = ("circle", "orbit", "waypoints")  # orbit, waypoints: sequences (sqsim.trajectory)
 LAYOUTS = ("free", "ground")  # sqsim.layout
@@ -89,6 +90,8 @@ class ObjectsConfig:
     max_attempts: int = 10000  # draws per trial before giving up on an unobservable scene
     layout: str = "free"  # "free": positions uniform in a cube; "ground": on the floor (sqsim.layout)
     upright: bool = False  # ground layout: only the yaw (rz) is drawn, rx = ry = 0
+    catalogue: tuple | None = None  # household kinds drawn from (sqsim.household); None = all
+    proportions: str | None = None  # mesh, household: "keep" (default) or "stretch" (sqsim.objects)
 
 
 @dataclass(frozen=True)
@@ -135,7 +138,8 @@ _CHECKS = {
     "objects": {"count": _int(1), "kind": _choice(OBJECT_KINDS), "size": _range(0, lo_open=True),
                 "position": _range(), "rotation": _range(), "shape": _range(lo=sqfit.constants.SHAPE_DOMAIN[0], hi=sqfit.constants.SHAPE_DOMAIN[1]),
                 "path": _optional_path, "mesh_resolution": _int(2), "max_attempts": _int(1),
-                "layout": _choice(LAYOUTS), "upright": _bool},
+                "layout": _choice(LAYOUTS), "upright": _bool, "catalogue": _catalogue,
+                "proportions": _choice(PROPORTIONS)},
     "masks": {"renderer": _choice(RENDERERS), "samples": _int(3), "sampling": _choice(SAMPLING_METHODS),
               "min_area_px": _int(0), "cleanup": _bool, "max_cut_fraction": _float(0, 1, hi_open=True)},
     "noise": {"erosion_px": _int(0), "dilation_px": _int(0), "boundary_jitter_px": _float(0),
@@ -317,10 +321,22 @@ def _check_scene(scene):
             path = Path(src).resolve().parent / path
         if not path.is_file():
             raise ValueError(f"{src}: objects.path: mesh file not found: {path}")
+        from .objects import check_mesh_file
+
+        try:
+            check_mesh_file(str(path))
+        except ValueError as exc:
+            raise ValueError(f"{src}: objects.path: {exc}") from None
         scene = replace(scene, objects=replace(obj, path=str(path)))
     elif obj.path is not None:
         raise ValueError(f"{src}: objects.path is only used with objects.kind = \"mesh\", "
                          f"not {obj.kind!r}")
+    if obj.catalogue is not None and obj.kind != "household":
+        raise ValueError(f"{src}: objects.catalogue is only used with objects.kind = \"household\", "
+                         f"not {obj.kind!r}")
+    if obj.proportions is not None and obj.kind not in KEEPS_PROPORTIONS:
+        raise ValueError(f"{src}: objects.proportions is only used with objects.kind = \"mesh\" or "
+                         f"\"household\", not {obj.kind!r} (its size is the half-axes a)")
     if obj.count > np.iinfo(np.uint16).max:
         raise ValueError(f"{src}: objects.count must be <= 65535 (uint16 instance ids)")
     from .layout import check_layout
