@@ -156,7 +156,7 @@ def test_a_mesh_file_that_is_not_watertight_is_refused_when_the_scene_is_read(tm
     assert "\n" not in str(info.value)
     (tmp_path / "junk.obj").write_text("this is not a mesh\n")
     (tmp_path / "junk.toml").write_text('[objects]\nkind = "mesh"\npath = "junk.obj"\n')
-    with pytest.raises(ValueError, match=r"junk\.toml: objects\.path: .*junk\.obj"):
+    with pytest.raises(ValueError, match=r"junk\.toml: objects\.path: mesh file .*junk\.obj holds no triangles"):
         load_scene(tmp_path / "junk.toml")
 
 
@@ -185,3 +185,10 @@ def test_experiment_records_the_kind_of_each_object(tmp_path):
     records = [json.loads(line) for line in (tmp_path / "trials.jsonl").read_text().splitlines()]
     assert [r["gt"]["item"] for r in records] == ["can", "can"]
     assert all(r["status"] == "ok" and r["metrics"]["iou"] > 0.8 for r in records)  # a can is nearly a superquadric
+
+
+def test_make_object_refuses_an_unknown_kind_and_a_household_object_without_its_item():
+    with pytest.raises(ValueError, match="unknown object kind 'torus'"):
+        make_object(1, "torus", (1.0, 1.0, 1.0), None, (0, 0, 0), (0, 0, 0))
+    with pytest.raises(ValueError, match="a household object needs its catalogue kind"):
+        make_object(1, "household", (1.0, 1.0, 1.0), None, (0, 0, 0), (0, 0, 0))
