@@ -62,7 +62,8 @@ def main(argv=None):
         ref, got, sec, same = rows[sel, 1], rows[sel, 2], rows[sel, 3], rows[sel, 4]
         err = np.abs(got - ref) / ref
         print(f"{label:5s} pairs {sel.sum():3d}  ref IoU median {np.median(ref):.4f}  "
-              f"rel. error median {np.median(err):.2e} max {err.max():.2e}  signed mean {np.mean((got - ref) / ref):+.2e}  "
+              f"rel. error median {np.median(err):.2e} max {err.max():.2e}  "
+              f"signed mean {np.mean((got - ref) / ref):+.2e}  "
               f"time median {1e3 * np.median(sec):.2f} ms  iou(a, a) min {same.min():.6f} max {same.max():.6f}")
 
 

@@ -24,7 +24,8 @@ trial never depends on other trials, worker count or order. The mesh kinds use t
 "keep"``): they are scaled uniformly so that their longest half-extent is ``ax`` (``ay`` and
 ``az`` are drawn and ignored); ``"stretch"`` scales them per axis so that their bounding box is
 ``2 a``, like the other mesh kinds. The shape exponents are drawn for every kind (so kinds share
-the random stream up to the household draws) and ignored by the mesh kinds. Cameras sit on a circle (``trajectory``) and look at ``look_at`` with +z up.
+the random stream up to the household draws) and ignored by the mesh kinds. Cameras sit on a
+circle (``trajectory``) and look at ``look_at`` with +z up.
 A trial is observable when every object's mesh is in front of every camera (depth > ``ZNEAR``),
 its projection lies inside every image without touching the border pixels (or, with
 ``masks.max_cut_fraction > 0``, at most that fraction of its projected area -- the convex hull of

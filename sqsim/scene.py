@@ -21,9 +21,10 @@ import numpy as np
 import sqfit
 from sqfit.observation import POLYGON_KINDS, SAMPLING_METHODS
 
-from ._scene_values import (_bool, _catalogue, _choice, _float, _int, _optional_path, _range,  # noqa: F401
-                            _string, _strings, _vector, _waypoints)
-from .objects import KEEPS_PROPORTIONS, PROPORTIONS
+from ._scene_values import (_bool, _choice, _float, _int, _optional_path, _range, _string,  # noqa: F401
+                            _strings, _vector, _waypoints)
+from ._scene_values import _catalogue
+from .objects import KEEPS_PROPORTIONS, PROPORTIONS, check_mesh_file
 
 __all__ = ["Scene", "ExperimentConfig", "CameraConfig", "TrajectoryConfig", "ObjectsConfig",
            "MasksConfig", "NoiseConfig", "FitConfig", "OBJECT_KINDS", "load_scene", "parse_scene", "trial_seed",
@@ -321,8 +322,6 @@ def _check_scene(scene):
             path = Path(src).resolve().parent / path
         if not path.is_file():
             raise ValueError(f"{src}: objects.path: mesh file not found: {path}")
-        from .objects import check_mesh_file
-
         try:
             check_mesh_file(str(path))
         except ValueError as exc:

@@ -151,7 +151,8 @@ def test_a_mesh_file_that_is_not_watertight_is_refused_when_the_scene_is_read(tm
     box = trimesh.creation.box()
     trimesh.Trimesh(box.vertices, box.faces[:-1]).export(tmp_path / "open.stl")
     (tmp_path / "scene.toml").write_text('[objects]\nkind = "mesh"\npath = "open.stl"\n')
-    with pytest.raises(ValueError, match=r"scene\.toml: objects\.path: mesh file .*open\.stl is not watertight") as info:
+    refused = r"scene\.toml: objects\.path: mesh file .*open\.stl is not watertight"
+    with pytest.raises(ValueError, match=refused) as info:
         load_scene(tmp_path / "scene.toml")
     assert "\n" not in str(info.value)
     (tmp_path / "junk.obj").write_text("this is not a mesh\n")
