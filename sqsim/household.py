@@ -11,6 +11,10 @@ centred on its axis-aligned bounding box (the base is at ``z = -height / 2``); t
 -y (a viewer at -y sees a monitor's or laptop's screen, a chair's seat edge, a book's spine);
 a mug's handle points to +x. Meshes are closed, outward-facing, single solids.
 
+Containers (mug, bowl) hold contents up to a drawn fraction of their inner depth: no silhouette
+reveals the cavity of a container, so an empty thin shell would score every mask-based method by
+its wall thickness rather than by its fit; the contents leave a visible recess below the rim.
+
 >>> import numpy as np
 >>> mug = build_household("mug", np.random.default_rng(0))
 >>> bool(mug.is_watertight and mug.volume > 0)
@@ -81,19 +85,22 @@ def _quarter(n):
 # --- the catalogue --------------------------------------------------------------------------------
 
 MUG_DIMENSIONS = {"radius": (0.035, 0.05), "height": (0.08, 0.12), "wall": (0.004, 0.007),
-                  "bottom": (0.006, 0.01), "handle_radius": (0.022, 0.032), "handle_thickness": (0.006, 0.01),
-                  "handle_stretch": (1.0, 1.4)}
+                  "bottom": (0.006, 0.01), "fill": (0.75, 0.95), "handle_radius": (0.2, 0.28),
+                  "handle_thickness": (0.006, 0.01), "handle_stretch": (1.0, 1.3)}
 
 
 def mug(rng):
-    """A cylindrical cup, open at the top, with a ring handle on +x (``MUG_DIMENSIONS``)."""
+    """A cylindrical cup with a ring handle on +x (its radius a fraction ``handle_radius`` of the
+    height, ``handle_stretch`` times taller than wide: it stays below the rim), filled to ``fill``
+    of its inner depth (``MUG_DIMENSIONS``; containers: module docstring)."""
     d = _draw(MUG_DIMENSIONS, rng)
     r, h = d["radius"], d["height"]
-    handle = torus(d["handle_radius"], d["handle_thickness"], major_sections=SECTIONS, minor_sections=16)
+    handle = torus(d["handle_radius"] * h, d["handle_thickness"], major_sections=SECTIONS, minor_sections=16)
     handle.apply_transform(trimesh.transformations.rotation_matrix(np.pi / 2, (1, 0, 0)))
     handle.apply_scale((1.0, 1.0, d["handle_stretch"]))
     handle.apply_translation((r, 0.0, h / 2))
-    cavity = _rod(r - d["wall"], d["bottom"], h + 0.01)
+    level = d["bottom"] + d["fill"] * (h - d["bottom"])
+    cavity = _rod(r - d["wall"], level, h + 0.01)
     return _difference(_union(_rod(r, 0.0, h), handle), cavity)
 
 
@@ -126,19 +133,22 @@ def can(rng):
 
 
 BOWL_DIMENSIONS = {"radius": (0.07, 0.12), "depth": (0.35, 0.55), "wall": (0.004, 0.008),
-                   "foot_radius": (0.4, 0.55), "foot_height": (0.006, 0.012)}
+                   "foot_radius": (0.4, 0.55), "foot_height": (0.006, 0.012), "fill": (0.6, 0.9)}
 
 
 def bowl(rng):
-    """An open bowl on a foot ring; ``depth`` and ``foot_radius`` are fractions of the radius
-    (``BOWL_DIMENSIONS``)."""
+    """A round bowl on a foot, filled to ``fill`` of its inner depth; ``depth`` and
+    ``foot_radius`` are fractions of the radius (``BOWL_DIMENSIONS``; containers: module
+    docstring)."""
     d = _draw(BOWL_DIMENSIONS, rng)
     r, w, zf = d["radius"], d["wall"], d["foot_height"]
     rf, depth = d["foot_radius"] * r, d["depth"] * r
     t = _quarter(16)
     outer = np.stack([rf + (r - rf) * np.sin(t), zf + depth * (1.0 - np.cos(t))], axis=1)
-    inner = np.stack([(r - w) * np.sin(t), zf + w + (depth - w) * (1.0 - np.cos(t))], axis=1)[::-1]
-    return _lathe([(0.0, 0.0), (rf, 0.0), *outer, *inner])
+    # Inner wall, a quarter ellipse from the rim down to the contents' level (1 - cos t = fill).
+    s = np.linspace(np.pi / 2, np.arccos(1.0 - d["fill"]), 12)
+    inner = np.stack([(r - w) * np.sin(s), zf + w + (depth - w) * (1.0 - np.cos(s))], axis=1)
+    return _lathe([(0.0, 0.0), (rf, 0.0), *outer, *inner, (0.0, inner[-1, 1])])
 
 
 BOOK_DIMENSIONS = {"height": (0.18, 0.28), "width": (0.12, 0.2), "thickness": (0.015, 0.05),

@@ -193,3 +193,25 @@ def test_make_object_refuses_an_unknown_kind_and_a_household_object_without_its_
         make_object(1, "torus", (1.0, 1.0, 1.0), None, (0, 0, 0), (0, 0, 0))
     with pytest.raises(ValueError, match="a household object needs its catalogue kind"):
         make_object(1, "household", (1.0, 1.0, 1.0), None, (0, 0, 0), (0, 0, 0))
+
+
+def solid_at(mesh, point, side=1e-4):
+    """Whether a cube of ``side`` metres at ``point`` lies inside ``mesh`` (exact boolean)."""
+    probe = trimesh.creation.box(extents=(side,) * 3)
+    probe.apply_translation(point)
+    inside = trimesh.boolean.intersection([mesh, probe], engine="manifold")
+    return bool(not inside.is_empty and inside.volume > 0.5 * side ** 3)
+
+
+@pytest.mark.parametrize("seed", range(4))
+@pytest.mark.parametrize("name", ["mug", "bowl"])
+def test_containers_hold_contents_below_the_rim_and_the_handle_stays_below_it(name, seed):
+    mesh = build_household(name, seed)
+    top = mesh.bounds[1, 2]
+    rim = mesh.vertices[mesh.vertices[:, 2] > top - 1e-9]
+    axis = np.array([rim[:, 0].mean(), 0.0])  # the rim is a ring around the body's axis
+    height = mesh.extents[2]
+    assert not solid_at(mesh, (*axis, top - 0.02 * height))  # a recess under the rim...
+    assert solid_at(mesh, (*axis, top - 0.5 * height))  # ... over the contents
+    if name == "mug":
+        assert rim[:, 0].max() < mesh.bounds[1, 0] - 0.01  # the handle reaches further out, not higher
