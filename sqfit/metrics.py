@@ -1,12 +1,15 @@
 """Evaluation metrics (paper, section IV-A): 3D IoU, R-IOU, R-IOU-M, success.
 
-3D IoU of two superquadrics uses the exact closed-form volumes for ``|A|`` and ``|B|`` and
-estimates only the intersection volume, by occupancy of both implicit functions at the cell
-centres of a regular grid in the smaller superquadric's frame (see
-:func:`intersection_volume`). With the default ``IOU_GRID_CELLS = 2**18`` cells (64 per axis)
-the result agrees with an exact mesh boolean within 1 % (``tests/test_metrics.py`` checks it
-against manifold3d on random pairs, thin and edgy shapes included). If the boxes do not overlap
-the IoU is exactly 0.
+3D IoU of two superquadrics takes the intersection and the volumes from one estimator: the
+fraction of the smaller superquadric's grid cells (cell centres of a regular grid over its local
+box) that lie inside the other, times its exact closed-form volume, is the intersection
+(:func:`intersection_volume`); ``|A|`` and ``|B|`` are the closed-form volumes. The smaller
+one's own discretisation cancels in the fraction, so ``iou_3d(a, a)`` is exactly 1 for every
+shape (it was 0.989 for box-like shapes with the grid intersection over exact volumes). With
+the default ``IOU_GRID_CELLS = 2**18`` cells (64 per axis) the result agrees with an exact mesh
+boolean within 1 % (``tests/test_metrics.py`` checks it against manifold3d on random pairs,
+thin and edgy shapes included; ``benchmarks/bench_iou3d.py``: median error 0.06 %, at most
+0.3 % on 36 random pairs, ~18 ms a call). If the boxes do not overlap the IoU is exactly 0.
 """
 
 from __future__ import annotations
@@ -19,6 +22,12 @@ __all__ = ["IOU_GRID_CELLS", "METRIC_SILHOUETTE_DIRECTIONS", "bounding_box", "io
 
 #: Grid cells (over the bounding-box intersection) used by :func:`iou_3d`.
 IOU_GRID_CELLS = 2**18
+#: Smallest grid of :func:`intersection_volume`, cells per axis (coarser grids can miss every
+#: cell of a pinched shape).
+_MIN_CELLS_PER_AXIS = 8
+#: ``log F`` up to which a cell is tested in the world frame (dimensionless): the frame change
+#: moves ``log F`` by ~1e-13 at most (``2 / e <= 20`` times the coordinates' rounding).
+_CANDIDATE_LOG_MARGIN = 1e-9
 
 #: Silhouette directions for the 2D metrics: the exact silhouette polygon with 256 tangent
 #: directions is within 0.1 % IoU of a dense-mesh hull (64 directions, the fitter's working
@@ -44,18 +53,50 @@ def _corners(sq):
     return (signs * np.asarray(sq.size)) @ sq.rotation_matrix.T + np.asarray(sq.position)
 
 
-def intersection_volume(a, b, cells=IOU_GRID_CELLS, chunk=1 << 16):
-    """Volume of the intersection of two superquadrics by grid occupancy.
+def _cells_per_axis(cells):
+    """Even number of grid cells per axis for about ``cells`` cells in all (>= ``_MIN_CELLS_PER_AXIS``)."""
+    if int(cells) != cells or cells < _MIN_CELLS_PER_AXIS ** 3:
+        raise ValueError(f"cells must be an integer >= {_MIN_CELLS_PER_AXIS ** 3}, got {cells!r}")
+    return max(2 * int(round(cells ** (1.0 / 3.0) / 2.0)), _MIN_CELLS_PER_AXIS)
 
-    The grid lives in the local frame of the smaller superquadric (the intersection lies inside
-    it), spans its local box clipped to the other's bounding box, and has the same number of
-    cells along each local axis, so thin shapes are resolved as well as round ones.
+
+def _candidate_cells(frame, n):
+    """Local centres of the cells of an ``n``-per-axis grid over ``frame``'s box that may be inside it.
+
+    The grid is symmetric about the centre (``n`` even) and the implicit function is even in each
+    coordinate, so one octant is tested and mirrored. A cell is a candidate when ``log F`` is at
+    most ``_CANDIDATE_LOG_MARGIN``: far above the rounding of the world-frame test, so every cell
+    :func:`contains` puts inside ``frame`` is a candidate.
+
+    Returns
+    -------
+    local : (m, 3) float
+        Cell centres in ``frame``'s coordinates, metres.
+    """
+    size = np.asarray(frame.size)
+    step = 2.0 * size / n
+    half = (np.arange(n // 2) + 0.5)[:, None] * step  # (n/2, 3): positive centres per axis
+    octant = np.stack(np.meshgrid(half[:, 0], half[:, 1], half[:, 2], indexing="ij"), axis=-1).reshape(-1, 3)
+    keep = log_implicit_unit(octant / size, frame.shape) <= _CANDIDATE_LOG_MARGIN
+    positive = octant[keep]
+    signs = np.array(np.meshgrid([-1.0, 1.0], [-1.0, 1.0], [-1.0, 1.0], indexing="ij")).reshape(3, -1).T
+    return (signs[:, None, :] * positive[None]).reshape(-1, 3)
+
+
+def intersection_volume(a, b, cells=IOU_GRID_CELLS, chunk=1 << 16):
+    """Volume of the intersection of two superquadrics: the smaller one's exact volume times the
+    fraction of its grid cells that lie in the other.
+
+    The grid spans the local box of the smaller superquadric (the intersection lies inside it)
+    with the same even number of cells along each local axis, so thin shapes are resolved as well
+    as round ones. Both superquadrics are tested at the same world points (:func:`contains`), so
+    the fraction is exactly 1 when ``a`` and ``b`` are the same superquadric.
 
     Parameters
     ----------
     a, b : Superquadric
     cells : int
-        Number of grid cells.
+        Number of grid cells (>= 512).
 
     Returns
     -------
@@ -63,23 +104,25 @@ def intersection_volume(a, b, cells=IOU_GRID_CELLS, chunk=1 << 16):
         Cubic metres.
     """
     frame, other = (a, b) if volume(a) <= volume(b) else (b, a)
+    n = _cells_per_axis(cells)
     size = np.asarray(frame.size)
     other_local = to_local(frame, _corners(other))
-    lo = np.maximum(-size, other_local.min(axis=0))
-    hi = np.minimum(size, other_local.max(axis=0))
-    extent = hi - lo
-    if np.any(extent <= 0):
+    if np.any(other_local.min(axis=0) >= size) or np.any(other_local.max(axis=0) <= -size):
         return 0.0
-    counts = np.maximum(np.round(cells ** (1.0 / 3.0) * extent / size / 2.0), 2).astype(int)
-    step = extent / counts
-    axes = [lo[k] + (np.arange(counts[k]) + 0.5) * step[k] for k in range(3)]
-    grid = np.stack(np.meshgrid(*axes, indexing="ij"), axis=-1).reshape(-1, 3)
-    world = grid @ frame.rotation_matrix.T + np.asarray(frame.position)
-    inside = 0
-    for start in range(0, len(grid), chunk):
-        keep = log_implicit_unit(grid[start:start + chunk] / size, frame.shape) <= 0.0
-        inside += int(np.count_nonzero(contains(other, world[start:start + chunk][keep])))
-    return inside * float(np.prod(step))
+    local = _candidate_cells(frame, n)
+    world = local @ frame.rotation_matrix.T + np.asarray(frame.position)
+    box = bounding_box(other)
+    in_frame = in_both = 0
+    for start in range(0, len(world), chunk):
+        points = world[start:start + chunk]
+        inside = contains(frame, points)
+        in_frame += int(np.count_nonzero(inside))
+        near = np.all((points >= box[0]) & (points <= box[1]), axis=1)
+        if near.all():  # always for a == b: both tests then see the very same array
+            in_both += int(np.count_nonzero(contains(other, points) & inside))
+        elif near.any():
+            in_both += int(np.count_nonzero(contains(other, points[near]) & inside[near]))
+    return volume(frame) * (in_both / in_frame) if in_frame else 0.0
 
 
 def iou_3d(a, b, cells=IOU_GRID_CELLS):
@@ -94,7 +137,7 @@ def iou_3d(a, b, cells=IOU_GRID_CELLS):
     Returns
     -------
     iou : float
-        In ``[0, 1]``.
+        In ``[0, 1]``; exactly 1 for ``iou_3d(a, a)``.
     """
     for name, sq in (("a", a), ("b", b)):
         if not isinstance(sq, Superquadric):

@@ -1,10 +1,12 @@
 import numpy as np
 import pytest
 import trimesh
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from sqfit import Superquadric
-from sqfit.metrics import bounding_box, iou_3d, iou_3d_mesh, success
-from sqfit.geometry.superquadric import contains, sample_surface_uniform, to_mesh
+from sqfit.metrics import bounding_box, intersection_volume, iou_3d, iou_3d_mesh, success
+from sqfit.geometry.superquadric import contains, sample_surface_uniform, to_mesh, volume
 
 
 def random_pair(rng):
@@ -36,10 +38,44 @@ def test_iou_3d_thin_and_edgy_shapes(shape):
 
 def test_iou_3d_identity_disjoint_and_symmetry():
     a, b = random_pair(np.random.default_rng(42))
-    assert iou_3d(a, a) == pytest.approx(1.0, abs=0.01)
+    assert iou_3d(a, a) == 1.0
     far = Superquadric(a.size, a.shape, np.asarray(a.position) + 100.0, a.rotation)
     assert iou_3d(a, far) == 0.0 and not success(0.0)
     assert iou_3d(a, b) == pytest.approx(iou_3d(b, a), rel=0.01)
+
+
+@pytest.mark.parametrize("shape", [(0.1, 0.1), (0.1, 1.9), (1.9, 0.1), (1.9, 1.9), (1.0, 1.0), (0.5, 1.5)])
+@pytest.mark.parametrize("size", [(1.0, 1.0, 1.0), (4.0, 0.15, 0.1), (0.1, 5.0, 2.0)])
+def test_iou_3d_of_a_superquadric_with_itself_is_exactly_one(shape, size):
+    # Box-like shapes were 0.989 when the intersection came from a grid and the volumes from
+    # the closed form; both now come from the same cells.
+    sq = Superquadric(size, shape, (1.0, -2.0, 0.5), (0.3, -1.2, 2.5))
+    assert iou_3d(sq, sq) == 1.0
+    assert iou_3d(sq, Superquadric.from_vector(sq.to_vector())) == 1.0
+
+
+@settings(max_examples=60, deadline=None)
+@given(size=st.tuples(*[st.floats(0.1, 5.0)] * 3), shape=st.tuples(*[st.floats(0.1, 1.9)] * 2),
+       position=st.tuples(*[st.floats(-5.0, 5.0)] * 3), rotation=st.tuples(*[st.floats(-np.pi, np.pi)] * 3),
+       cells=st.sampled_from([512, 2**12, 2**16, 2**18]))
+def test_iou_3d_with_itself_is_one_for_every_shape(size, shape, position, rotation, cells):
+    sq = Superquadric(size, shape, position, rotation)
+    assert iou_3d(sq, sq, cells) == 1.0
+
+
+def test_intersection_volume_of_nested_superquadrics_is_the_inner_volume():
+    inner = Superquadric((0.5, 0.3, 0.2), (0.4, 1.2), (0.1, 0.0, 0.0), (0.2, 0.1, -0.3))
+    outer = Superquadric((3.0, 3.0, 3.0), (1.0, 1.0))
+    assert intersection_volume(inner, outer) == pytest.approx(volume(inner), rel=1e-12)
+    assert iou_3d(inner, outer) == pytest.approx(volume(inner) / volume(outer), rel=1e-12)
+
+
+def test_iou_3d_rejects_a_grid_too_coarse():
+    sq = Superquadric((1, 1, 1))
+    with pytest.raises(ValueError, match="cells must be an integer >= 512"):
+        iou_3d(sq, sq, cells=100)
+    with pytest.raises(ValueError, match="cells must be an integer >= 512"):
+        iou_3d(sq, sq, cells=1000.5)
 
 
 def test_iou_3d_rejects_non_superquadrics():

@@ -8,7 +8,8 @@
     ``objects.position``. Each object draws, in the same order as ``free`` (so kinds and layouts
     share the random stream), its size, shape exponents, position and Euler angles (with
     ``objects.upright = true`` the x and y angles are set to 0 after drawing: the object stands
-    on the floor turned only about the vertical). It is then lifted so that its lowest mesh vertex
+    on the floor turned only about the vertical; a household object then draws its kind and
+    seed, ``sqsim.world.objects.draw_item``). It is then lifted so that its lowest mesh vertex
     touches the floor (it rests on the plane; the drawn z is ignored). Objects do not
     interpenetrate: each one's footprint disc (centre = its position in the floor plane, radius =
     the largest horizontal distance of a mesh vertex from it, plus :data:`LAYOUT_GAP_M` / 2) must
@@ -27,7 +28,7 @@ import numpy as np
 
 import sqfit
 
-from .objects import make_object, sample_objects
+from .objects import draw_item, make_object, proportions_of, sample_objects
 
 __all__ = ["place_objects", "ground_layout", "footprint_radius", "check_layout", "LAYOUT_GAP_M",
            "PLACEMENT_TRIES"]
@@ -77,8 +78,9 @@ def ground_layout(objects, rng):
         rotation = rng.uniform(*objects.rotation, 3)
         if objects.upright:
             rotation[:2] = 0.0
+        item = draw_item(objects, rng)
         at_origin = make_object(oid, objects.kind, size, shape, np.zeros(3), rotation, objects.path,
-                                objects.mesh_resolution)
+                                objects.mesh_resolution, proportions_of(objects), item)
         radius = footprint_radius(at_origin) + LAYOUT_GAP_M / 2
         for _ in range(PLACEMENT_TRIES):
             if all(np.hypot(*(xy - c)) >= radius + r for c, r in discs):
@@ -108,12 +110,16 @@ def check_layout(scene):
     Every object's footprint radius is at least ``objects.size[0]`` (a superquadric or mesh kind
     reaches ``a`` along each of its axes), so ``count`` discs need centres ``2 size[0]`` apart in
     a square of side ``position[1] - position[0]``; more than ``(side / (2 size[0]) + 1)^2`` of
-    them never fit.
+    them never fit. Objects that keep their proportions (``sqsim.world.objects.proportions_of``) may be
+    narrower than ``size[0]``: no bound is checked for them (a floor too small then fails when
+    the objects are drawn).
     """
     obj = scene.objects
     if obj.layout != "ground":
         if obj.upright:
             raise ValueError(f"{scene.source}: objects.upright is only used with objects.layout = \"ground\"")
+        return scene
+    if proportions_of(obj) == "keep":
         return scene
     side = obj.position[1] - obj.position[0]
     spacing = 2 * obj.size[0] + LAYOUT_GAP_M

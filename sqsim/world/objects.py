@@ -12,11 +12,20 @@ trial never depends on other trials, worker count or order. The mesh kinds use t
 - ``capsule``: a capsule of radius 1 and total length 4, scaled by ``(ax, ay, az / 2)``: elliptic
   cross-section ``ax, ay``, total length ``2 az``;
 - ``cone``: elliptic base ``ax, ay`` at local ``z = -az``, apex at ``z = +az``;
-- ``mesh``: the file at ``objects.path`` (relative to the scene file), centred on its bounding
-  box and scaled per axis so that its bounding box is ``2 a``.
+- ``mesh``: the file at ``objects.path`` (relative to the scene file; it must be watertight),
+  centred on its bounding box;
+- ``household``: a kind of ``objects.catalogue`` (default: all of :data:`sqsim.world.household.CATALOGUE`)
+  drawn uniformly, built with seeded proportions (:func:`sqsim.world.household.build_household`),
+  centred on its bounding box. After the Euler angles each object draws the kind (an index into
+  the catalogue) and the builder's seed (an integer below 2**32), recorded as ``item`` and
+  ``item_seed``.
 
-The shape exponents are drawn for every kind (so kinds share the random stream) and ignored by
-the mesh kinds. Cameras sit on a circle (``trajectory``) and look at ``look_at`` with +z up.
+``mesh`` and ``household`` objects keep their proportions by default (``objects.proportions =
+"keep"``): they are scaled uniformly so that their longest half-extent is ``ax`` (``ay`` and
+``az`` are drawn and ignored); ``"stretch"`` scales them per axis so that their bounding box is
+``2 a``, like the other mesh kinds. The shape exponents are drawn for every kind (so kinds share
+the random stream up to the household draws) and ignored by the mesh kinds. Cameras sit on a
+circle (``trajectory``) and look at ``look_at`` with +z up.
 A trial is observable when every object's mesh is in front of every camera (depth > ``ZNEAR``),
 its projection lies inside every image without touching the border pixels (or, with
 ``masks.max_cut_fraction > 0``, at most that fraction of its projected area -- the convex hull of
@@ -35,11 +44,18 @@ import numpy as np
 import sqfit
 from sqfit.geometry.superquadric import euler_to_matrix, to_mesh
 
-__all__ = ["ZNEAR", "SceneObject", "make_object", "sample_objects", "draw_objects", "make_objects",
-           "surely_not_visible", "geometry_visible", "cut_fractions"]
+__all__ = ["ZNEAR", "PROPORTIONS", "SceneObject", "make_object", "sample_objects", "draw_objects", "draw_item",
+           "make_objects", "proportions_of", "check_mesh_file", "surely_not_visible", "geometry_visible",
+           "cut_fractions"]
 
 #: Metres: every mesh vertex must be deeper than this in every camera.
 ZNEAR = 0.05
+#: Values of ``objects.proportions``; the first is the default of :data:`KEEPS_PROPORTIONS`.
+PROPORTIONS = ("keep", "stretch")
+#: Kinds whose natural proportions are kept by default (the others are defined by ``a`` alone).
+KEEPS_PROPORTIONS = ("mesh", "household")
+#: Household builder seeds are drawn below this.
+_ITEM_SEEDS = 2**32
 
 
 @dataclass(frozen=True, eq=False)
@@ -65,6 +81,8 @@ class SceneObject:
     outward : bool
         The mesh is closed with outward-facing triangles (lets the renderer cull back faces);
         built-in kinds always are, a mesh file is checked when loaded.
+    item, item_seed : str or None, int or None
+        ``household`` only: the catalogue kind (e.g. ``"mug"``) and its builder's seed.
     """
 
     id: int
@@ -77,6 +95,8 @@ class SceneObject:
     mesh: object
     path: str | None = None
     outward: bool = True
+    item: str | None = None
+    item_seed: int | None = None
 
     @property
     def pose(self):
@@ -95,10 +115,12 @@ class SceneObject:
             d["params"] = [float(x) for x in self.superquadric.to_vector()]
         if self.path is not None:
             d["path"] = self.path
+        if self.item is not None:
+            d["item"], d["item_seed"] = self.item, self.item_seed
         return d
 
 
-def _unit_mesh_kind(kind, path=None):
+def _unit_mesh_kind(kind):
     """Mesh of a mesh kind with half-extents 1, centred at the origin (local frame)."""
     import trimesh
 
@@ -114,11 +136,31 @@ def _unit_mesh_kind(kind, path=None):
         mesh = trimesh.creation.cone(radius=1.0, height=2.0, sections=64)
         mesh.apply_translation((0.0, 0.0, -1.0))
         return mesh
+    raise ValueError(f"unknown object kind {kind!r}")
+
+
+def _natural_mesh(kind, path, item, item_seed):
+    """Mesh of a ``mesh`` or ``household`` object in its own units, centred on its bounding box."""
+    if kind == "household":
+        from .household import build_household
+
+        if item is None:
+            raise ValueError("a household object needs its catalogue kind (item)")
+        return build_household(item, np.random.default_rng(item_seed))
     mesh = _load_mesh(path)
-    lo, hi = mesh.bounds
-    mesh.apply_translation(-(lo + hi) / 2)
-    mesh.apply_scale(2.0 / np.maximum(hi - lo, 1e-12))
+    mesh.apply_translation(-mesh.bounds.mean(axis=0))
     return mesh
+
+
+def _scale_natural(mesh, size, proportions):
+    """Scale a centred mesh in place (module docstring); returns its half-extents ``(3,)``, metres."""
+    half = np.maximum(mesh.extents / 2, 1e-12)
+    if proportions == "keep":
+        factor = size[0] / half.max()
+        mesh.apply_scale(factor)
+        return half * factor
+    mesh.apply_scale(np.asarray(size) / half)
+    return np.asarray(size, dtype=np.float64)
 
 
 _MESH_FILES = {}
@@ -139,13 +181,46 @@ def _load_mesh(path):
     return _MESH_FILES[path][0].copy()
 
 
-def make_object(oid, kind, size, shape, position, rotation, path=None, resolution=32):
-    """Build a ground-truth object from its sampled values (see the module docstring per kind)."""
+def check_mesh_file(path):
+    """Read a mesh file (cached) and refuse it unless it is a closed surface.
+
+    Raises
+    ------
+    ValueError
+        Unreadable, no triangles, or not watertight (the message names the file).
+    """
+    mesh = _load_mesh(path)
+    if not mesh.is_watertight:
+        raise ValueError(f"mesh file {path} is not watertight (a 3D IoU against it needs a closed surface; "
+                         "repair it, e.g. with trimesh.repair.fill_holes or manifold3d)")
+
+
+def proportions_of(objects):
+    """``"keep"`` or ``"stretch"``: ``objects.proportions``, or the default of ``objects.kind``."""
+    if objects.proportions is not None:
+        return objects.proportions
+    return PROPORTIONS[0] if objects.kind in KEEPS_PROPORTIONS else "stretch"
+
+
+def make_object(oid, kind, size, shape, position, rotation, path=None, resolution=32, proportions=None,
+                item=None):
+    """Build a ground-truth object from its sampled values (see the module docstring per kind).
+
+    ``proportions`` (``"keep"`` or ``"stretch"``; default: the kind's) applies to ``mesh`` and
+    ``household``; ``item`` is a household object's ``(kind, seed)`` (:func:`draw_item`).
+    """
     if kind == "superquadric":
         sq = sqfit.Superquadric(size, shape, position, rotation)
         return SceneObject(oid, kind, sq.size, sq.position, sq.rotation, sq.shape, sq, to_mesh(sq, resolution))
-    mesh = _unit_mesh_kind(kind, path)
-    mesh.apply_scale(np.asarray(size, dtype=np.float64))
+    name, seed = item if item is not None else (None, None)
+    if kind in KEEPS_PROPORTIONS:
+        if proportions is None:
+            proportions = PROPORTIONS[0]
+        mesh = _natural_mesh(kind, path, name, seed)
+        size = _scale_natural(mesh, np.asarray(size, dtype=np.float64), proportions)
+    else:
+        mesh = _unit_mesh_kind(kind)
+        mesh.apply_scale(np.asarray(size, dtype=np.float64))
     T = np.eye(4)
     T[:3, :3] = euler_to_matrix(rotation)
     T[:3, 3] = position
@@ -153,7 +228,7 @@ def make_object(oid, kind, size, shape, position, rotation, path=None, resolutio
     as_tuple = lambda v: tuple(float(x) for x in v)  # noqa: E731
     outward = _MESH_FILES[path][1] if kind == "mesh" else True
     return SceneObject(oid, kind, as_tuple(size), as_tuple(position), as_tuple(rotation), None, None,
-                       mesh, path, outward)
+                       mesh, path, outward, name, None if seed is None else int(seed))
 
 
 def sample_objects(objects, rng):
@@ -178,8 +253,9 @@ def draw_objects(objects, rng):
     Returns
     -------
     draws : list of tuple
-        ``(id, size (3,), shape (2,), position (3,), rotation (3,))`` per object, drawn in the
-        order of the module docstring; :func:`make_objects` builds them.
+        ``(id, size (3,), shape (2,), position (3,), rotation (3,), item)`` per object, drawn in
+        the order of the module docstring (``item``: :func:`draw_item`); :func:`make_objects`
+        builds them.
     """
     out = []
     for oid in range(1, objects.count + 1):
@@ -187,14 +263,26 @@ def draw_objects(objects, rng):
         shape = rng.uniform(*objects.shape, 2)
         position = rng.uniform(*objects.position, 3)
         rotation = rng.uniform(*objects.rotation, 3)
-        out.append((oid, size, shape, position, rotation))
+        out.append((oid, size, shape, position, rotation, draw_item(objects, rng)))
     return out
+
+
+def draw_item(objects, rng):
+    """A household object's ``(kind, builder seed)``, drawn from ``rng``; ``None`` (no draw) for
+    the other kinds."""
+    if objects.kind != "household":
+        return None
+    from .household import CATALOGUE
+
+    names = objects.catalogue if objects.catalogue is not None else tuple(CATALOGUE)
+    return names[int(rng.integers(len(names)))], int(rng.integers(_ITEM_SEEDS))
 
 
 def make_objects(objects, draws):
     """Build the objects of :func:`draw_objects` (``objects.kind``, meshed)."""
-    return [make_object(oid, objects.kind, size, shape, position, rotation, objects.path, objects.mesh_resolution)
-            for oid, size, shape, position, rotation in draws]
+    return [make_object(oid, objects.kind, size, shape, position, rotation, objects.path, objects.mesh_resolution,
+                        proportions_of(objects), item)
+            for oid, size, shape, position, rotation, item in draws]
 
 
 #: Margin (pixels and metres) by which a mesh anchor must fail :func:`geometry_visible`'s test
@@ -228,7 +316,7 @@ def surely_not_visible(objects, draws, cameras):
 
     m = _ANCHOR_MARGIN
     points = np.concatenate([mesh_anchors(sqfit.Superquadric(size, shape, position, rotation), objects.mesh_resolution)
-                             for _, size, shape, position, rotation in draws])
+                             for _, size, shape, position, rotation, _item in draws])
     for cam in cameras:  # sqfit.project's arithmetic, without its per-call checks
         k = cam.intrinsics
         local = (points - cam.center) @ cam.rotation

@@ -21,14 +21,15 @@ import numpy as np
 import sqfit
 from sqfit.views.observation import POLYGON_KINDS, SAMPLING_METHODS
 
-from .values import (boolean, choice, integer, interval, nonempty_string, nonempty_strings, number,
+from .objects import KEEPS_PROPORTIONS, PROPORTIONS, check_mesh_file
+from .values import (boolean, catalogue, choice, integer, interval, nonempty_string, nonempty_strings, number,
                      optional_path, vector, waypoint_rows)
 
 __all__ = ["Scene", "ExperimentConfig", "CameraConfig", "TrajectoryConfig", "ObjectsConfig",
            "MasksConfig", "NoiseConfig", "FitConfig", "OBJECT_KINDS", "load_scene", "parse_scene", "trial_seed",
            "child_seed", "camera_poses"]
 
-OBJECT_KINDS = ("superquadric", "box", "cylinder", "capsule", "cone", "mesh")
+OBJECT_KINDS = ("superquadric", "box", "cylinder", "capsule", "cone", "mesh", "household")
 RENDERERS = ("osmesa", "egl", "polygon")
 TRAJECTORIES = ("circle", "orbit", "waypoints")  # orbit, waypoints: sequences (sqsim.world.trajectory)
 LAYOUTS = ("free", "ground")  # sqsim.world.layout
@@ -89,6 +90,8 @@ class ObjectsConfig:
     max_attempts: int = 10000  # draws per trial before giving up on an unobservable scene
     layout: str = "free"  # "free": positions uniform in a cube; "ground": on the floor (sqsim.world.layout)
     upright: bool = False  # ground layout: only the yaw (rz) is drawn, rx = ry = 0
+    catalogue: tuple | None = None  # household kinds drawn from (sqsim.world.household); None = all
+    proportions: str | None = None  # mesh, household: "keep" (default) or "stretch" (sqsim.world.objects)
 
 
 @dataclass(frozen=True)
@@ -147,7 +150,8 @@ _CHECKS = {
     "objects": {"count": integer(1), "kind": choice(OBJECT_KINDS), "size": interval(0, lo_open=True),
                 "position": interval(), "rotation": interval(), "shape": interval(lo=sqfit.constants.SHAPE_DOMAIN[0], hi=sqfit.constants.SHAPE_DOMAIN[1]),
                 "path": optional_path, "mesh_resolution": integer(2), "max_attempts": integer(1),
-                "layout": choice(LAYOUTS), "upright": boolean},
+                "layout": choice(LAYOUTS), "upright": boolean, "catalogue": catalogue,
+                "proportions": choice(PROPORTIONS)},
     "masks": {"renderer": choice(RENDERERS), "samples": integer(3), "sampling": choice(SAMPLING_METHODS),
               "min_area_px": integer(0), "cleanup": boolean, "max_cut_fraction": number(0, 1, hi_open=True)},
     "noise": {"erosion_px": integer(0), "dilation_px": integer(0), "boundary_jitter_px": number(0),
@@ -332,10 +336,20 @@ def _check_scene(scene):
             path = Path(src).resolve().parent / path
         if not path.is_file():
             raise ValueError(f"{src}: objects.path: mesh file not found: {path}")
+        try:
+            check_mesh_file(str(path))
+        except ValueError as exc:
+            raise ValueError(f"{src}: objects.path: {exc}") from None
         scene = replace(scene, objects=replace(obj, path=str(path)))
     elif obj.path is not None:
         raise ValueError(f"{src}: objects.path is only used with objects.kind = \"mesh\", "
                          f"not {obj.kind!r}")
+    if obj.catalogue is not None and obj.kind != "household":
+        raise ValueError(f"{src}: objects.catalogue is only used with objects.kind = \"household\", "
+                         f"not {obj.kind!r}")
+    if obj.proportions is not None and obj.kind not in KEEPS_PROPORTIONS:
+        raise ValueError(f"{src}: objects.proportions is only used with objects.kind = \"mesh\" or "
+                         f"\"household\", not {obj.kind!r} (its size is the half-axes a)")
     if obj.count > np.iinfo(np.uint16).max:
         raise ValueError(f"{src}: objects.count must be <= 65535 (uint16 instance ids)")
     from .layout import check_layout

@@ -9,7 +9,7 @@ from __future__ import annotations
 import math
 
 __all__ = ["integer", "number", "choice", "boolean", "nonempty_string", "vector", "interval",
-           "nonempty_strings", "optional_path", "waypoint_rows"]
+           "nonempty_strings", "optional_path", "waypoint_rows", "catalogue"]
 
 
 def integer(lo=None):
@@ -88,3 +88,9 @@ def waypoint_rows(v):
     from .trajectory import check_waypoint_rows
 
     return check_waypoint_rows(v)
+
+
+def catalogue(v):
+    from .household import check_catalogue
+
+    return check_catalogue(v)
