@@ -85,7 +85,8 @@ from . import constants as C
 from ._checks import check_shape
 from .multistart import symmetric_candidates
 from .pipeline import _NUMERICAL_ERRORS, r_iou_m, to_superquadric
-from .raycost import batch_ray_residuals
+from .backend import compiled
+from .raycost import _BOUNDS, _ray_kind, _solver_args, batch_ray_residuals
 from .rays import contour_rays
 from .stage3g import silhouette_stage
 from .stages import STAGES, StageError, register
@@ -176,6 +177,13 @@ def batch_levenberg_marquardt(X0, rays, iterations, weight=C.PENALTY_ANALYTIC, p
     X = np.array(check_shape(X0, (None, C.N_PARAMS), "X0"), dtype=np.float64)
     if int(iterations) != iterations or iterations < 0:
         raise ValueError(f"iterations must be an integer >= 0, got {iterations}")
+    kernels = compiled()
+    if kernels is not None:  # the same loop, compiled (sqfit.ray_kernels.screen_lm)
+        with np.errstate(all="ignore"):
+            return kernels.screen_lm(X, rays.origins, rays.directions, rays.weights, _ray_kind(rays), int(iterations),
+                                     *_solver_args(SCREEN_RTOL, SCREEN_MAX_NEWTON), float(weight), *_BOUNDS,
+                                     _LAMBDA0, _LAMBDA_MAX, -1 if prune_after is None else int(prune_after),
+                                     float(prune_ratio))
     with np.errstate(all="ignore"):
         r, J, d = batch_ray_residuals(X, rays, weight, rtol=SCREEN_RTOL, max_newton=SCREEN_MAX_NEWTON)
         cost = 0.5 * np.einsum("bm,bm->b", r, r)
