@@ -31,17 +31,17 @@ _JIT = dict(cache=True, error_model="numpy", nogil=True)
 # scalar helpers with numpy's NaN semantics (Python's max / min drop a NaN argument)
 
 
-@njit(inline="always", **_JIT)
+@njit(**_JIT)
 def _maximum(a, b):
     return a if (a >= b or a != a) else b
 
 
-@njit(inline="always", **_JIT)
+@njit(**_JIT)
 def _minimum(a, b):
     return a if (a <= b or a != a) else b
 
 
-@njit(inline="always", **_JIT)
+@njit(**_JIT)
 def _logaddexp(x, y):
     """``np.logaddexp``."""
     if x == y:
@@ -54,7 +54,7 @@ def _logaddexp(x, y):
     return t
 
 
-@njit(inline="always", **_JIT)
+@njit(**_JIT)
 def _nz(x):
     return _TINY if x == 0.0 else x
 
@@ -63,7 +63,7 @@ def _nz(x):
 # the ray minimiser (sqfit.raycost._gauge_minima, one ray at a time)
 
 
-@njit(inline="always", **_JIT)
+@njit(**_JIT)
 def _logs(q0x, q0y, q0z, ux, uy, uz, d):
     qx, qy, qz = _nz(q0x + d * ux), _nz(q0y + d * uy), _nz(q0z + d * uz)
     return math.log(abs(qx)), math.log(abs(qy)), math.log(abs(qz)), ux / qx, uy / qy, uz / qz
@@ -199,13 +199,13 @@ def _rotation(r):
     return R, dR
 
 
-@njit(inline="always", **_JIT)
+@njit(**_JIT)
 def _wmul(w, x):
     """``w * x`` with ``0 * -inf = 0`` (``sqfit.costs._wmul``)."""
     return w * (x if np.isfinite(x) else 0.0) if w > 0 else 0.0
 
 
-@njit(inline="always", **_JIT)
+@njit(**_JIT)
 def _dot3(R, i, x, y, z):
     """``(x, y, z) . R[:, i]``: coordinate ``i`` of a world vector in the superquadric frame."""
     return x * R[0, i] + y * R[1, i] + z * R[2, i]
