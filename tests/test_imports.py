@@ -5,7 +5,8 @@ import sys
 def test_sqfit_does_not_import_opengl_or_sqsim():
     code = ("import sys, sqfit, sqfit.cli; "
             "import sqfit.recording, sqfit.cli.fit; "
-            "bad = [m for m in ('OpenGL', 'pyrender', 'sqsim', 'pycolmap', 'pycocotools', 'rerun', 'distributed') "
+            "bad = [m for m in ('OpenGL', 'pyrender', 'sqsim', 'pycolmap', 'pycocotools', 'rerun', 'distributed', 'numba', "
+            "'llvmlite') "
             "if m in sys.modules]; "
             "assert not bad, bad")
     subprocess.run([sys.executable, "-c", code], check=True)
@@ -33,4 +34,12 @@ def test_sequence_readers_import_no_optional_library():
 def test_sqfit_does_not_import_gtsam_but_sqfit_graph_does():
     code = ("import sys, sqfit, sqfit.cli; assert 'gtsam' not in sys.modules, 'sqfit imported gtsam'; "
             "import sqfit.graph; assert 'gtsam' in sys.modules")
+    subprocess.run([sys.executable, "-c", code], check=True)
+
+
+def test_first_fit_imports_numba_lazily():
+    # the compiled kernels come in at the first fit that needs them, not with the package
+    code = ("import sys, sqfit; from sqfit.testing import paper_trial; assert 'numba' not in sys.modules; "
+            "sqfit.fit(paper_trial(0).observations); "
+            "import sqfit.fitting.backend as b; assert ('numba' in sys.modules) == (b.kernels_name() == 'numba')")
     subprocess.run([sys.executable, "-c", code], check=True)

@@ -83,7 +83,8 @@ import numpy as np
 from .. import constants as C
 from .._checks import check_shape
 from .restarts import N_SCREEN_CONTOUR, screen_rays, symmetric_candidates
-from .raycost import batch_ray_residuals
+from .backend import compiled
+from .raycost import RAY_BOUNDS, batch_ray_residuals, ray_kind, solver_args
 from .grazing import silhouette_stage
 from .stages import NUMERICAL_ERRORS, STAGES, StageError, r_iou_m, register, to_superquadric
 
@@ -162,6 +163,13 @@ def batch_levenberg_marquardt(X0, rays, iterations, weight=C.PENALTY_ANALYTIC, p
     X = np.array(check_shape(X0, (None, C.N_PARAMS), "X0"), dtype=np.float64)
     if int(iterations) != iterations or iterations < 0:
         raise ValueError(f"iterations must be an integer >= 0, got {iterations}")
+    kernels = compiled()
+    if kernels is not None:  # the same loop, compiled (sqfit.fitting.ray_kernels.screen_lm)
+        with np.errstate(all="ignore"):
+            return kernels.screen_lm(X, rays.origins, rays.directions, rays.weights, ray_kind(rays), int(iterations),
+                                     *solver_args(SCREEN_RTOL, SCREEN_MAX_NEWTON), float(weight), *RAY_BOUNDS,
+                                     _LAMBDA0, _LAMBDA_MAX, -1 if prune_after is None else int(prune_after),
+                                     float(prune_ratio))
     with np.errstate(all="ignore"):
         r, J, d = batch_ray_residuals(X, rays, weight, rtol=SCREEN_RTOL, max_newton=SCREEN_MAX_NEWTON)
         cost = 0.5 * np.einsum("bm,bm->b", r, r)

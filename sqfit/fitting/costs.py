@@ -37,6 +37,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from .. import constants as C
+from .backend import compiled
 from ..geometry.camera import bearings
 from ..views.observation import Observation
 from ..geometry.polygon import batch_iou, convex_iou_jacobian, half_planes
@@ -369,6 +370,10 @@ def radial_terms(xi, points):
     d_point : (n, 3) float
         ``d g3 / d point`` (world frame).
     """
+    kernels = compiled()
+    if kernels is not None:
+        return kernels.radial_rows(np.ascontiguousarray(xi, dtype=np.float64),
+                                   np.ascontiguousarray(points, dtype=np.float64))
     R, dR = rotation_and_derivatives(xi[8:11])
     g3, d_xi, d_point = _radial_core(np.asarray(xi, dtype=np.float64)[None], R[None], dR.reshape(1, 3, 9),
                                      np.asarray(points, dtype=np.float64)[None])

@@ -41,12 +41,14 @@ import numpy as np
 
 from .. import constants as C
 from .._checks import check_shape
+from .backend import compiled
 from .costs import LOWER_BOUNDS, UPPER_BOUNDS, batch_radial_terms, penalty, penalty_jacobian, rotation_and_derivatives
 from ..geometry.silhouette import ZNEAR
 from ..views.rays import RaySet
 
 __all__ = ["ray_minima", "batch_ray_minima", "ray_residuals", "batch_ray_residuals", "posed_ray_residuals",
-           "log_gauge_jacobian", "batch_log_gauge_jacobian"]
+           "log_gauge_jacobian", "batch_log_gauge_jacobian", "gauge_minima", "gauge_phi", "ray_kind", "solver_args",
+           "RAY_BOUNDS"]
 
 #: Newton iterations of :func:`ray_minima` at most, and its relative stopping tolerance on ``d``.
 _MAX_NEWTON = 30
@@ -61,9 +63,10 @@ _GRID = 24
 _NEWTON_POWER = 2.0
 _WARM_BRACKET = 0.05
 _TINY = 1e-300
+_GRID_T = np.linspace(0.0, 1.0, _GRID)
 #: Soft bounds of the 3G penalty rows: those of eq. 7 but with ``C.SILHOUETTE_SHAPE_BOUNDS``.
-_BOUNDS = (np.r_[LOWER_BOUNDS[:3], [C.SILHOUETTE_SHAPE_BOUNDS[0]] * 2, LOWER_BOUNDS[5:]],
-           np.r_[UPPER_BOUNDS[:3], [C.SILHOUETTE_SHAPE_BOUNDS[1]] * 2, UPPER_BOUNDS[5:]])
+RAY_BOUNDS = (np.r_[LOWER_BOUNDS[:3], [C.SILHOUETTE_SHAPE_BOUNDS[0]] * 2, LOWER_BOUNDS[5:]],
+               np.r_[UPPER_BOUNDS[:3], [C.SILHOUETTE_SHAPE_BOUNDS[1]] * 2, UPPER_BOUNDS[5:]])
 
 
 def _line_log_gauge(q0, u, d, e1, e2):
@@ -182,7 +185,19 @@ def gauge_minima(q0, u, rel0, ul, ratio, e1, e2, d0, rtol=_D_RTOL, max_newton=_M
 
     ``q0``, ``u`` are ``(3, n)``; ``rel0``, ``ul`` the same rays in superquadric coordinates
     (metres), ``(n, 3)``; ``ratio`` is ``a_max / a_min`` per ray; ``e1``, ``e2`` scalars or ``(n,)``.
+    Runs the compiled kernel (:func:`sqfit.fitting.ray_kernels.gauge_minima`) unless :mod:`sqfit.fitting.backend`
+    chose numpy.
     """
+    kernels = compiled()
+    if kernels is not None:
+        n = len(ratio)
+        f = np.ascontiguousarray
+        warm = d0 is not None
+        return kernels.gauge_minima(f(q0, dtype=np.float64), f(u, dtype=np.float64), f(rel0, dtype=np.float64),
+                                    f(ul, dtype=np.float64), f(ratio, dtype=np.float64),
+                                    *(f(np.broadcast_to(e, (n,)), dtype=np.float64) for e in (e1, e2)),
+                                    f(d0, dtype=np.float64) if warm else _NO_WARM, warm,
+                                    *solver_args(rtol, max_newton))
     bb = np.einsum("ij,ij->i", ul, ul)
     dc = -np.einsum("ij,ij->i", rel0, ul) / bb
     rho = np.linalg.norm(rel0 + dc[:, None] * ul, axis=1)
@@ -246,6 +261,37 @@ def gauge_minima(q0, u, rel0, ul, ratio, e1, e2, d0, rtol=_D_RTOL, max_newton=_M
     return d, log_m
 
 
+_NO_WARM = np.zeros(1)
+
+
+def solver_args(rtol, max_newton):
+    """The ray minimiser's tolerances and constants, as the compiled kernels (:mod:`.ray_kernels`) take
+    them: ``(rtol, max_newton, max_newton_warm, grid, znear, warm_bracket, newton_power)``."""
+    return float(rtol), int(max_newton), _MAX_NEWTON_WARM, _GRID_T, ZNEAR, _WARM_BRACKET, _NEWTON_POWER
+
+
+def ray_kind(rays):
+    """``(n,) int64`` per ray of ``rays`` for the compiled kernels: 0 two-sided, 1 active where
+    ``phi > 0`` (hinge in), 2 active where ``phi < 0`` (two-sided hinge out), 3 never (one-sided
+    hinge out); computed once per RaySet."""
+    kind = rays.__dict__.get("_kind")
+    if kind is None:
+        kind = np.zeros(len(rays), dtype=np.int64)
+        kind[rays._hinge_in] = 1
+        kind[rays._hinge_out] = np.where(rays.two_sided[rays._hinge_out], 2, 3)
+        object.__setattr__(rays, "_kind", kind)
+    return kind
+
+
+def _compiled_rows(kernels, X, rays, weight, d0, rtol=_D_RTOL, max_newton=_MAX_NEWTON):
+    """:func:`batch_ray_residuals` by :func:`sqfit.fitting.ray_kernels.ray_rows`."""
+    f = np.ascontiguousarray
+    warm = d0 is not None
+    return kernels.ray_rows(f(X, dtype=np.float64), f(rays.origins), f(rays.directions), f(rays.weights),
+                            ray_kind(rays), f(d0, dtype=np.float64).reshape(len(X), len(rays)) if warm else
+                            _NO_WARM[None], warm, *solver_args(rtol, max_newton), float(weight), *RAY_BOUNDS)
+
+
 def gauge_phi(log_m):
     """``phi(m)``: ``log m`` for ``m >= 1``, ``m - 1`` below; and ``d phi / d log m``."""
     m = np.exp(np.minimum(log_m, 0.0))
@@ -307,9 +353,13 @@ def ray_residuals(xi, rays, weight=C.PENALTY_ANALYTIC, d0=None):
         Ray minimisers (pass back as ``d0`` at a nearby ``xi``).
     """
     xi = np.asarray(xi, dtype=np.float64)
+    kernels = compiled()
+    if kernels is not None:
+        r, J, d = _compiled_rows(kernels, xi[None], rays, weight, None if d0 is None else np.asarray(d0)[None])
+        return r[0], J[0], d[0]
     r_rays, coef, d_log_m, d = _ray_terms(xi, rays, rays.directions, d0)
-    r = np.concatenate([r_rays, penalty(xi, weight, *_BOUNDS)])
-    J = np.vstack([coef[:, None] * d_log_m, np.diag(penalty_jacobian(xi, weight, *_BOUNDS))])
+    r = np.concatenate([r_rays, penalty(xi, weight, *RAY_BOUNDS)])
+    J = np.vstack([coef[:, None] * d_log_m, np.diag(penalty_jacobian(xi, weight, *RAY_BOUNDS))])
     return r, J, d
 
 
@@ -336,6 +386,9 @@ def batch_ray_residuals(X, rays, weight=C.PENALTY_ANALYTIC, d0=None, rtol=_D_RTO
     X = check_shape(X, (None, C.N_PARAMS), "X", finite=False)
     if not isinstance(rays, RaySet):
         raise TypeError(f"rays must be a sqfit.views.rays.RaySet, got {type(rays).__name__}")
+    kernels = compiled()
+    if kernels is not None:
+        return _compiled_rows(kernels, X, rays, weight, d0, rtol, max_newton)
     b, n, k = len(X), len(rays), C.N_PARAMS
     d, _ = batch_ray_minima(X, rays.origins, rays.directions, d0, rtol, max_newton)
     r = np.empty((b, n + k))
@@ -354,8 +407,8 @@ def batch_ray_residuals(X, rays, weight=C.PENALTY_ANALYTIC, d0=None, rtol=_D_RTO
     J[:, :n] = (scale * dphi)[:, :, None] * d_log_m
     diag = np.arange(k)
     for i, xi in enumerate(X):
-        r[i, n:] = penalty(xi, weight, *_BOUNDS)
-        J[i, n + diag, diag] = penalty_jacobian(xi, weight, *_BOUNDS)
+        r[i, n:] = penalty(xi, weight, *RAY_BOUNDS)
+        J[i, n + diag, diag] = penalty_jacobian(xi, weight, *RAY_BOUNDS)
     return r, J, d
 
 
@@ -367,6 +420,9 @@ def batch_log_gauge_jacobian(X, points):
     ``log_g`` (b, n) and ``d_xi`` (b, n, 11).
     """
     X = np.asarray(X, dtype=np.float64)
+    kernels = compiled()
+    if kernels is not None:
+        return kernels.log_gauge_rows(np.ascontiguousarray(X), np.ascontiguousarray(points, dtype=np.float64))
     g3, d_g3, _ = batch_radial_terms(X, points)
     rel = points - X[:, None, 5:8]
     norm = np.sqrt((rel * rel).sum(axis=2))
@@ -417,6 +473,13 @@ def posed_ray_residuals(x, rays, sigma_rad, weight=C.PENALTY_ANALYTIC, d0=None):
     x = check_shape(x, (C.N_PARAMS + 3 * v,), "x")
     if not (np.isfinite(sigma_rad) and sigma_rad > 0):
         raise ValueError(f"sigma_rad must be a finite number > 0, got {sigma_rad}")
+    kernels = compiled()
+    if kernels is not None:
+        f = np.ascontiguousarray
+        warm = d0 is not None
+        return kernels.posed_rows(f(x), f(rays.origins), f(rays.directions), f(rays.weights), ray_kind(rays),
+                                  f(rays.view), f(d0, dtype=np.float64) if warm else _NO_WARM, warm,
+                                  *solver_args(_D_RTOL, _MAX_NEWTON), float(weight), *RAY_BOUNDS, float(sigma_rad))
     xi, w = x[:C.N_PARAMS], x[C.N_PARAMS:].reshape(v, 3)
     b = rays.directions
     directions = b + np.cross(w[rays.view], b)
@@ -428,7 +491,7 @@ def posed_ray_residuals(x, rays, sigma_rad, weight=C.PENALTY_ANALYTIC, d0=None):
     d_w = (coef * d)[:, None] * np.cross(d_log_m[:, 5:8], b)
     cols = k + 3 * rays.view[:, None] + np.arange(3)
     J[np.arange(n)[:, None], cols] = d_w
-    J[n:n + k, :k] = np.diag(penalty_jacobian(xi, weight, *_BOUNDS))
+    J[n:n + k, :k] = np.diag(penalty_jacobian(xi, weight, *RAY_BOUNDS))
     J[n + k:, k:] = np.eye(3 * v) / sigma_rad
-    r = np.concatenate([r_rays, penalty(xi, weight, *_BOUNDS), w.ravel() / sigma_rad])
+    r = np.concatenate([r_rays, penalty(xi, weight, *RAY_BOUNDS), w.ravel() / sigma_rad])
     return r, J, d

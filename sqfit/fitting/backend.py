@@ -1,0 +1,89 @@
+"""Which implementation the hot loops run: compiled kernels or numpy.
+
+The ray minimisers and the 3G residuals and Jacobians (:mod:`sqfit.fitting.raycost`, used by stages 3G,
+3H, 3S and the factor graph) and the radial terms of G3-G5 (:mod:`sqfit.fitting.costs`) have two
+implementations that compute the same numbers: vectorised numpy, and per-ray loops compiled with
+numba (:mod:`sqfit.fitting.ray_kernels`). Small arrays make numpy pay its per-call overhead dozens of
+times per evaluation; the compiled loops do not (README, "Fitter speed").
+
+Choice, first match wins:
+
+1. :func:`set_kernels` (``"numba"``, ``"numpy"`` or ``"auto"``), for the rest of the process;
+2. the environment variable ``SQFIT_KERNELS`` (same values), read at the first fit;
+3. ``"auto"``: numba when it imports, numpy otherwise.
+
+numba is imported lazily, at the first evaluation that needs it, never by ``import sqfit``; its
+kernels are cached on disk (``cache=True``) so only a process on an empty cache compiles them.
+"""
+
+from __future__ import annotations
+
+import os
+
+__all__ = ["KERNELS", "ENV_VAR", "set_kernels", "kernels_name", "compiled"]
+
+#: Accepted names of an implementation.
+KERNELS = ("auto", "numba", "numpy")
+#: Environment variable read when :func:`set_kernels` was not called.
+ENV_VAR = "SQFIT_KERNELS"
+
+_state = {"choice": None, "module": None, "resolved": None}
+
+
+def set_kernels(name):
+    """Choose the implementation of the hot loops for this process.
+
+    Parameters
+    ----------
+    name : {"auto", "numba", "numpy"} or None
+        ``"numba"`` fails at the next evaluation if numba does not import; None returns to the
+        environment variable's choice.
+
+    Returns
+    -------
+    previous : str or None
+        The choice before this call (to restore it).
+    """
+    if name is not None and name not in KERNELS:
+        raise ValueError(f"kernels must be one of {KERNELS} or None, got {name!r}")
+    previous = _state["choice"]
+    _state["choice"] = name
+    _state["resolved"] = None
+    return previous
+
+
+def _requested():
+    if _state["choice"] is not None:
+        return _state["choice"]
+    name = os.environ.get(ENV_VAR, "auto").strip().lower() or "auto"
+    if name not in KERNELS:
+        raise ValueError(f"environment variable {ENV_VAR} must be one of {KERNELS}, got {name!r}")
+    return name
+
+
+def compiled():
+    """The compiled kernels module (:mod:`sqfit.fitting.ray_kernels`), or None for the numpy path."""
+    if _state["resolved"] is None:
+        _state["resolved"] = _resolve(_requested())
+    return _state["module"] if _state["resolved"] == "numba" else None
+
+
+def kernels_name():
+    """``"numba"`` or ``"numpy"``: the implementation the next evaluation runs."""
+    compiled()
+    return _state["resolved"]
+
+
+def _resolve(name):
+    if name == "numpy":
+        return "numpy"
+    if _state["module"] is None:
+        try:
+            from . import ray_kernels
+        except ImportError as exc:
+            if name == "numba":
+                raise ImportError(f"kernels 'numba' were requested ({ENV_VAR} or set_kernels) but numba "
+                                  f"does not import: {exc}") from exc
+            return "numpy"
+        _state["module"] = ray_kernels
+    return "numba"

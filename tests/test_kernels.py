@@ -1,0 +1,161 @@
+"""The compiled kernels (sqfit.fitting.ray_kernels) against the numpy code they replace (sqfit.fitting.backend).
+
+Problems with known answers: the same residuals, Jacobians, ray minima and fits from both paths.
+Jacobians agree to 1e-12 where they are well conditioned; at points close to a coordinate plane of
+a pointed superquadric (``e`` near 1.9) the terms ``|y_i| ** (2 / e - 1)`` amplify the rounding of
+``y = R^T (x - p)`` (BLAS with FMA in numpy, plain products compiled), so there the agreement is
+relative (``test_ray_residuals_agree_on_a_paper_trial``).
+"""
+
+import os
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+import sqfit
+from sqfit.fitting import axis_screen, backend, costs, raycost
+from sqfit.views.rays import contour_rays
+from sqfit.testing import paper_trial
+
+pytest.importorskip("numba")
+
+#: Shapes ``[ax, ay, az, e1, e2]`` of the equality tests: ellipsoid, box-like, pointed, mixed.
+SHAPES = [(1.0, 0.5, 0.8, 1.0, 1.0), (0.6, 1.2, 0.4, 0.2, 0.3), (0.9, 0.7, 1.1, 1.6, 1.4),
+          (2.0, 0.3, 0.5, 0.5, 1.2)]
+
+
+@pytest.fixture
+def kernels():
+    """Run a callable under each implementation: ``kernels(f) -> (numba result, numpy result)``."""
+    previous = backend.set_kernels(None)
+
+    def both(f):
+        out = []
+        for name in ("numba", "numpy"):
+            backend.set_kernels(name)
+            assert backend.kernels_name() == name
+            out.append(f())
+        return out
+
+    yield both
+    backend.set_kernels(previous)
+
+
+def _xi(shape, rng):
+    return np.r_[shape, rng.uniform(-0.5, 0.5, 3), rng.uniform(-np.pi, np.pi, 3)]
+
+
+def _close(a, b, tol):
+    """``|a - b| <= tol * max(1, |b|)`` elementwise."""
+    a, b = np.asarray(a), np.asarray(b)
+    return np.all(np.abs(a - b) <= tol * np.maximum(1.0, np.abs(b)))
+
+
+@pytest.mark.parametrize("shape", SHAPES)
+def test_radial_terms_agree_at_generic_points(kernels, shape):
+    rng = np.random.default_rng(1)
+    xi = _xi(shape, rng)
+    points = xi[5:8] + rng.normal(size=(200, 3))
+    (g_k, dxi_k, dp_k), (g_n, dxi_n, dp_n) = kernels(lambda: costs.radial_terms(xi, points))
+    assert _close(g_k, g_n, 1e-12) and _close(dxi_k, dxi_n, 1e-12) and _close(dp_k, dp_n, 1e-12)
+
+
+@pytest.mark.parametrize("shape", SHAPES)
+def test_log_gauge_jacobian_agrees_at_generic_points(kernels, shape):
+    rng = np.random.default_rng(2)
+    X = np.stack([_xi(shape, rng) for _ in range(3)])
+    points = X[:, None, 5:8] + rng.normal(size=(3, 50, 3))
+    (lg_k, d_k), (lg_n, d_n) = kernels(lambda: raycost.batch_log_gauge_jacobian(X, points))
+    assert _close(lg_k, lg_n, 1e-12) and _close(d_k, d_n, 1e-12)
+
+
+@pytest.mark.parametrize("shape", SHAPES)
+@pytest.mark.parametrize("warm", [False, True])
+def test_ray_minima_agree(kernels, shape, warm):
+    rng = np.random.default_rng(3)
+    xi = _xi(shape, rng)
+    origins = rng.normal(size=(100, 3)) * 0.5 + [0.0, 0.0, -8.0]
+    directions = xi[5:8] + rng.normal(size=(100, 3)) * 0.8 - origins
+    directions /= directions[:, 2:3]
+    d0 = raycost.ray_minima(xi, origins, directions)[0] * 1.01 if warm else None
+    (d_k, m_k), (d_n, m_n) = kernels(lambda: raycost.ray_minima(xi, origins, directions, d0))
+    assert _close(d_k, d_n, 1e-12) and _close(m_k, m_n, 1e-12)
+    if warm:  # warm rays stop after a few Newton steps (raycost._MAX_NEWTON_WARM): not always converged
+        return
+    # and the answer is the minimum: no point of a fine grid along each ray is lower
+    grid = np.linspace(1e-3, 20.0, 4001)
+    pts = origins[:, None] + grid[None, :, None] * directions[:, None]
+    lg = raycost.batch_log_gauge_jacobian(np.repeat(xi[None], len(grid), 0),
+                                          pts.transpose(1, 0, 2))[0].T
+    assert np.all(m_k <= lg.min(axis=1) + 1e-9)
+
+
+def test_ray_residuals_agree_on_a_paper_trial(kernels):
+    trial = paper_trial(3)
+    rays = contour_rays(trial.observations, 16, band_px=1.5, n_inside=8)
+    xi = trial.gt.to_vector()
+    X = axis_screen.axis_candidates(xi * np.r_[1.2, 0.9, 1.1, 1, 1, np.ones(6)] + np.r_[np.zeros(5), 0.1, 0.1, -0.1,
+                                                                                          0.05, 0, 0])
+    xp = np.r_[X[0], 0.01, -0.02, 0.005, 0.0, 0.01, 0.0, 0.003, 0.0, 0.0]
+
+    def evaluate():
+        r, J, d = raycost.batch_ray_residuals(X, rays, rtol=1e-6, max_newton=10)
+        warm = raycost.batch_ray_residuals(X * 1.001, rays, d0=d)
+        return (r, J, d) + warm + raycost.posed_ray_residuals(xp, rays, 0.5) + raycost.ray_residuals(X[0], rays)
+
+    fast, slow = kernels(evaluate)
+    for k, (a, b) in enumerate(zip(fast, slow)):
+        if k % 3 == 1:  # Jacobians: see the module docstring
+            assert _close(a, b, 1e-7), k
+        else:
+            assert _close(a, b, 1e-12), k
+    # the ellipsoid and flat candidates are well conditioned: there the Jacobians agree to 1e-12 too
+    assert _close(fast[1][0], slow[1][0], 1e-12) and _close(fast[7], slow[7], 1e-12)
+
+
+def test_screen_agrees(kernels):
+    trial = paper_trial(0)
+    rays = contour_rays(trial.observations, axis_screen.N_SCREEN_CONTOUR)
+    X = axis_screen.axis_candidates(trial.gt.to_vector() * np.r_[1.3, 0.8, 1.1, 0.8, 1.2, np.ones(6)])
+    (X_k, c_k), (X_n, c_n) = kernels(lambda: axis_screen.batch_levenberg_marquardt(X, rays, 12))
+    assert np.abs(X_k - X_n).max() < 1e-9 and _close(c_k, c_n, 1e-9)
+    assert np.all(c_k < axis_screen.batch_levenberg_marquardt(X, rays, 0)[1])  # it descended
+
+
+@pytest.mark.parametrize("chain, seeds", [("1-2-3D", range(5)), ("1-2-3H", (0, 3, 4))])
+def test_fits_agree(kernels, chain, seeds):
+    # seeds whose last LM run does not stop on a knife edge (README "Fitter speed": on others a
+    # rounding difference moves the stopping step; the fits are then distribution-equal)
+    for seed in seeds:
+        obs = paper_trial(seed).observations
+        a, b = kernels(lambda: sqfit.fit(obs, chain).superquadric.to_vector())
+        assert np.abs(a - b).max() < 1e-9, seed
+
+
+def test_set_kernels_rejects_unknown_names():
+    with pytest.raises(ValueError, match="kernels must be one of"):
+        backend.set_kernels("fortran")
+
+
+def test_environment_variable_is_checked():
+    code = "import sqfit.fitting.backend as b; b.compiled()"
+    env = dict(os.environ, SQFIT_KERNELS="fortran")
+    out = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True)
+    assert out.returncode != 0 and "SQFIT_KERNELS must be one of" in out.stderr
+
+
+def test_environment_variable_selects_numpy():
+    code = "import sqfit.fitting.backend as b, sys; print(b.kernels_name(), 'numba' in sys.modules)"
+    env = dict(os.environ, SQFIT_KERNELS="numpy")
+    out = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, check=True)
+    assert out.stdout.split() == ["numpy", "False"]
+
+
+def test_compiled_path_is_the_default_when_numba_is_installed():
+    # CI installs numba (a core dependency): the suite must run the compiled path unless told not to
+    if os.environ.get(backend.ENV_VAR, "auto") in ("auto", "numba"):
+        code = "import sqfit.fitting.backend as b; print(b.kernels_name())"
+        out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+        assert out.stdout.strip() == "numba"
