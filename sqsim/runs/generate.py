@@ -4,7 +4,8 @@ The trials are written by :mod:`sqsim.data.dataset` (sequences by :mod:`sqsim.da
 each atomically, so a killed run resumes; this module runs them in this process, in a spawn-context
 process pool or on a Dask cluster (:mod:`sqsim.runs.parallel`), then rebuilds ``annotations.json``
 (COCO), optionally the COLMAP model ``sparse/0`` (``--colmap``, :mod:`sqsim.data.export`) and a
-rerun recording (``--rerun``); ``--coco-polygons`` writes the COCO masks as polygons. The bytes written do not depend on where or in which order a trial ran.
+rerun recording (``--rerun``); ``--coco-polygons`` writes the COCO masks as polygons. The bytes
+written do not depend on where or in which order a trial ran.
 """
 
 from __future__ import annotations
