@@ -22,6 +22,7 @@ from .posejson import read_pose_json, write_pose_json
 from .trajectory import match_trajectory, read_image_times, read_intrinsics, write_image_times, write_intrinsics
 from .tum import read_tum, write_tum
 
-__all__ = ["TRACK_KEY", "read_coco", "decode_segmentation", "encode_mask", "POLYGON_CONVENTIONS", "mask_to_polygons",
-           "encode_polygons", "read_colmap", "write_colmap", "read_pose_json", "write_pose_json", "read_tum", "write_tum",
-           "read_intrinsics", "write_intrinsics", "read_image_times", "write_image_times", "match_trajectory"]
+__all__ = ["TRACK_KEY", "read_coco", "decode_segmentation", "encode_mask", "POLYGON_CONVENTIONS",
+           "mask_to_polygons", "encode_polygons", "read_colmap", "write_colmap", "read_pose_json",
+           "write_pose_json", "read_tum", "write_tum", "read_intrinsics", "write_intrinsics", "read_image_times",
+           "write_image_times", "match_trajectory"]

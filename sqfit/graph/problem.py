@@ -128,8 +128,8 @@ class GraphOptions(Options):
 
     def __post_init__(self):
         check_fields(self, integers={"n_contour": 3, "init_frames": MIN_FRAMES, "max_iterations": 1, "batch_window": 0},
-                     positive=("silhouette_sigma", "huber_k", "odometry_sigma_deg", "odometry_sigma_m", "prior_sigma_deg",
-                               "prior_sigma_m", "landmark_prior_sigma_deg", "init_parallax_deg",
+                     positive=("silhouette_sigma", "huber_k", "odometry_sigma_deg", "odometry_sigma_m",
+                               "prior_sigma_deg", "prior_sigma_m", "landmark_prior_sigma_deg", "init_parallax_deg",
                                "isam2_relinearize_threshold", "window_relative_tolerance", "landmark_prior_sigma_m",
                                "shape_prior_sigma", "box_sigma_px", "relative_tolerance"),
                      nonnegative=("bounds_weight", "refit_misfit"))
