@@ -6,8 +6,8 @@ Per object and view:
   rendered alone in that view (1: nothing in front of it; the part outside the image counts in
   neither);
 - the *cut fraction* (:func:`sqsim.world.objects.cut_fractions`) is the part of its projected
-  area outside the image, the projected area being that of the convex hull of the projected mesh vertices (exact for the convex kinds, an
-  over-estimate of the silhouette for a non-convex mesh);
+  area outside the image, the projected area being that of the convex hull of the projected mesh
+  vertices (exact for the convex kinds, an over-estimate of the silhouette for a non-convex mesh);
 - it is *cut by the border* when its clean mask touches the first or last row or column.
 """
 
