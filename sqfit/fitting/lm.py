@@ -86,6 +86,7 @@ class SchurJacobian:
         self.A, self.D, self.P = A, D, P
         self.k = A.shape[1]
         self._Hss = A.T @ A + P.T @ P
+        self._D2 = D ** 2
 
     def finite(self):
         return bool(np.isfinite(self.A).all() and np.isfinite(self.D).all() and np.isfinite(self.P).all())
@@ -95,13 +96,13 @@ class SchurJacobian:
         return np.concatenate([self.A.T @ r[:n] + self.P.T @ r[n:], self.D * r[:n]])
 
     def diag(self):
-        return np.concatenate([np.diag(self._Hss), self.D ** 2])
+        return np.concatenate([np.diag(self._Hss), self._D2])
 
     def solve(self, g, lam, scale):
         k, A, D = self.k, self.A, self.D
         g_s, g_d = g[:k], g[k:]
-        hdd = D ** 2 + lam * scale[k:]
-        Hs = self._Hss + np.diag(lam * scale[:k]) - (A.T * (D ** 2 / hdd)) @ A
+        hdd = self._D2 + lam * scale[k:]
+        Hs = self._Hss + np.diag(lam * scale[:k]) - (A.T * (self._D2 / hdd)) @ A
         rhs = -g_s + A.T @ (D * g_d / hdd)
         ds = np.linalg.solve(Hs, rhs)
         dd = (-g_d - D * (A @ ds)) / hdd
