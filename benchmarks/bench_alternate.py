@@ -46,9 +46,13 @@ print(json.dumps({"median_s": float(np.median(times)), "mean_s": float(np.mean(t
 
 def measure(tree, chain, trials, repeat):
     env = dict(os.environ, PYTHONPATH=os.path.abspath(tree), OPENBLAS_NUM_THREADS="1")
+    # cwd=tree: ``python -c`` puts the working directory first on sys.path, ahead of PYTHONPATH
     out = subprocess.run([sys.executable, "-c", _MEASURE, chain, str(trials), str(repeat)], env=env,
-                         capture_output=True, text=True, check=True)
-    return json.loads(out.stdout.strip().splitlines()[-1])
+                         capture_output=True, text=True, check=True, cwd=os.path.abspath(tree))
+    result = json.loads(out.stdout.strip().splitlines()[-1])
+    if not result["file"].startswith(os.path.abspath(tree) + os.sep):
+        raise RuntimeError(f"measured {result['file']}, not the tree {tree}")
+    return result
 
 
 def main(argv=None):

@@ -63,6 +63,21 @@ def test_radial_terms_agree_at_generic_points(kernels, shape):
 
 
 @pytest.mark.parametrize("shape", SHAPES)
+@pytest.mark.parametrize("scaled", [True, False])
+def test_g5_residuals_agree(kernels, shape, scaled):
+    rng = np.random.default_rng(5)
+    obs = costs.ObservationSet(paper_trial(1).observations)
+    xi = _xi(shape, rng)
+    xi[5:8] = paper_trial(1).gt.position  # the samples' rays pass near the centre
+    xi[2] = -xi[2]  # a negative size: the volume factor keeps its sign
+    depths = rng.uniform(5.0, 15.0, len(obs.rays))
+    out_k, out_n = kernels(lambda: costs.g5_residuals(xi, depths, obs, 100.0, scaled=scaled))
+    for a, b in zip(out_k, out_n):
+        assert a.shape == b.shape and _close(a, b, 1e-12)
+    assert np.any(out_n[0][-11:] != 0)  # a penalty row is active (the negative size)
+
+
+@pytest.mark.parametrize("shape", SHAPES)
 def test_log_gauge_jacobian_agrees_at_generic_points(kernels, shape):
     rng = np.random.default_rng(2)
     X = np.stack([_xi(shape, rng) for _ in range(3)])

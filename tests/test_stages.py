@@ -6,6 +6,7 @@ from sqfit.fitting import stages as S
 from sqfit.fitting.costs import ObservationSet, sample_points
 from sqfit.fitting.lm import CONVERGED
 from sqfit.fitting.stages import r_iou_m, to_superquadric
+from sqfit.geometry.silhouette import batch_silhouettes
 from sqfit.geometry.superquadric import radial_distance
 from sqfit.testing import paper_cameras, paper_trial, polygon_mask
 
@@ -154,3 +155,27 @@ def test_riou_stage_jacobians_analytic_and_numeric(monkeypatch, trial, obs):
     before, analytic_after, numeric_after = r_iou_m([to_superquadric(xi), to_superquadric(out.xi),
                                                      to_superquadric(numeric.xi)], obs)
     assert analytic_after > before + 0.05 and numeric_after > before + 0.05
+
+
+def test_r_iou_m_scores_each_superquadric_once_per_observation_set(monkeypatch, trial):
+    obs = ObservationSet(trial.observations)
+    a, b = to_superquadric(trial.gt.to_vector()), Superquadric([1.0, 1.0, 1.0], [1.0, 1.0], [0.0, 0.0, 0.0], [0, 0, 0])
+    first = r_iou_m([a, b], obs)
+    calls = []
+
+    def counted(xi, *args):
+        calls.append(len(xi))
+        return batch_silhouettes(xi, *args)
+
+    monkeypatch.setattr(S, "batch_silhouettes", counted)
+    again = r_iou_m([b, a], obs)
+    np.testing.assert_array_equal(again, first[::-1])  # remembered: no evaluation at all
+    assert calls == []
+    c = Superquadric([0.5, 1.0, 1.5], [1.0, 1.0], [0.0, 0.0, 0.0], [0, 0, 0])
+    mixed = r_iou_m([a, c], obs)
+    assert calls == [1] and mixed[0] == first[0]  # only the new one evaluated
+    fresh = r_iou_m([a, c], ObservationSet(trial.observations))  # another set: evaluated afresh
+    np.testing.assert_allclose(fresh, mixed, rtol=0, atol=1e-14)
+    assert calls == [1, 2]
+    contour = r_iou_m([a], obs, "contour")  # the polygon kind is part of the key
+    assert calls == [1, 2, 1] and 0 < contour[0] <= 1

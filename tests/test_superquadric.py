@@ -178,6 +178,37 @@ def test_euler_derivatives_match_finite_differences():
 def test_matrix_to_euler_rejects_non_rotation():
     with pytest.raises(ValueError, match="proper rotation"):
         sqm.matrix_to_euler(np.diag([1.0, 1.0, -1.0]))
+    with pytest.raises(ValueError, match="proper rotation"):
+        sqm.matrix_to_euler(np.stack([np.eye(3), 2.0 * np.eye(3)]))
+    with pytest.raises(ValueError, match=r"R must have shape \(3, 3\) or \(n, 3, 3\)"):
+        sqm.matrix_to_euler(np.eye(4))
+    with pytest.raises(ValueError, match="R must be finite"):
+        sqm.matrix_to_euler(np.full((3, 3), np.nan))
+
+
+def test_matrix_to_euler_closed_form_equals_scipy_batched():
+    rng = np.random.default_rng(7)
+    R = Rotation.random(500, random_state=rng).as_matrix()
+    r = sqm.matrix_to_euler(R)
+    assert r.shape == (len(R), 3)
+    np.testing.assert_allclose(r, Rotation.from_matrix(R).as_euler("xyz"), rtol=0, atol=1e-12)
+    for i in (0, 1, len(R) - 1):  # single matrices: the same numbers as in the batch
+        np.testing.assert_array_equal(sqm.matrix_to_euler(R[i]), r[i])
+    # near (not at) gimbal lock, |ry| 1e-5 rad from pi/2, both round to ~eps / cos(ry) in angle
+    near = Rotation.from_euler("xyz", [[0.4, np.pi / 2 - 1e-5, -1.0], [-2.0, -np.pi / 2 + 1e-5, 0.3]]).as_matrix()
+    r = sqm.matrix_to_euler(near)
+    np.testing.assert_allclose(r, Rotation.from_matrix(near).as_euler("xyz"), rtol=0, atol=1e-9)
+    np.testing.assert_allclose(sqm.euler_to_matrix(r), near, rtol=0, atol=1e-12)
+
+
+@pytest.mark.parametrize("ry", [np.pi / 2, -np.pi / 2])
+def test_matrix_to_euler_gimbal_lock_puts_the_free_angle_in_rx(ry):
+    R = sqm.euler_to_matrix([0.3, ry, 0.5])
+    r = sqm.matrix_to_euler(R)
+    assert r[2] == 0.0 and abs(r[1]) == np.pi / 2
+    np.testing.assert_allclose(sqm.euler_to_matrix(r), R, atol=1e-12)
+    with pytest.warns(UserWarning, match="Gimbal lock"):  # scipy makes the same choice
+        np.testing.assert_allclose(r, Rotation.from_matrix(R).as_euler("xyz"), atol=1e-12)
 
 
 def test_pose_maps_local_to_world():

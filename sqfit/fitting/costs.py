@@ -480,6 +480,10 @@ def g5_residuals(xi, depths, obs, weight=C.PENALTY_ANALYTIC, scaled=True):
         Diagonal of ``d penalty / d xi``.
     """
     xi = np.asarray(xi, dtype=np.float64)
+    kernels = compiled()
+    if kernels is not None:
+        return kernels.g5_rows(np.ascontiguousarray(xi), np.ascontiguousarray(depths, dtype=np.float64),
+                               np.ascontiguousarray(obs.origins), np.ascontiguousarray(obs.rays), bool(scaled), float(weight), LOWER_BOUNDS, UPPER_BOUNDS)
     g3, d_xi, d_point = radial_terms(xi, sample_points(obs, depths))
     D = (d_point * obs.rays).sum(axis=1)
     if scaled:

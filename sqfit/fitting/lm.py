@@ -53,7 +53,7 @@ class DenseJacobian:
         self._H = self.J.T @ self.J
 
     def finite(self):
-        return bool(np.all(np.isfinite(self.J)))
+        return bool(np.isfinite(self.J).all())
 
     def gradient(self, r):
         return self.J.T @ r
@@ -86,22 +86,23 @@ class SchurJacobian:
         self.A, self.D, self.P = A, D, P
         self.k = A.shape[1]
         self._Hss = A.T @ A + P.T @ P
+        self._D2 = D ** 2
 
     def finite(self):
-        return bool(np.all(np.isfinite(self.A)) and np.all(np.isfinite(self.D)) and np.all(np.isfinite(self.P)))
+        return bool(np.isfinite(self.A).all() and np.isfinite(self.D).all() and np.isfinite(self.P).all())
 
     def gradient(self, r):
         n = len(self.D)
         return np.concatenate([self.A.T @ r[:n] + self.P.T @ r[n:], self.D * r[:n]])
 
     def diag(self):
-        return np.concatenate([np.diag(self._Hss), self.D ** 2])
+        return np.concatenate([np.diag(self._Hss), self._D2])
 
     def solve(self, g, lam, scale):
         k, A, D = self.k, self.A, self.D
         g_s, g_d = g[:k], g[k:]
-        hdd = D ** 2 + lam * scale[k:]
-        Hs = self._Hss + np.diag(lam * scale[:k]) - (A.T * (D ** 2 / hdd)) @ A
+        hdd = self._D2 + lam * scale[k:]
+        Hs = self._Hss + np.diag(lam * scale[:k]) - (A.T * (self._D2 / hdd)) @ A
         rhs = -g_s + A.T @ (D * g_d / hdd)
         ds = np.linalg.solve(Hs, rhs)
         dd = (-g_d - D * (A @ ds)) / hdd
@@ -215,15 +216,16 @@ def levenberg_marquardt(model, x0, *, max_iterations=100, ftol=1e-8, xtol=1e-8, 
         except np.linalg.LinAlgError:
             dx = np.full_like(x, np.nan)
         x_new = x + dx
-        if np.all(np.isfinite(dx)):
+        finite_step = bool(np.isfinite(dx).all())
+        if finite_step:
             r_new, J_new = model(x_new)
             nfev += 1
             cost_new = 0.5 * float(r_new @ r_new)
         else:
             cost_new = np.inf
-        Jdx = J.apply(dx) if np.all(np.isfinite(dx)) else np.zeros_like(r)
+        Jdx = J.apply(dx) if finite_step else np.zeros_like(r)
         predicted = -float(g @ dx) - 0.5 * float(Jdx @ Jdx)
-        if secant is not None and np.all(np.isfinite(dx)):
+        if secant is not None and finite_step:
             predicted -= 0.5 * float(dx @ secant.S @ dx)
         actual = cost - cost_new
         rho = actual / predicted if predicted > 0 else -1.0

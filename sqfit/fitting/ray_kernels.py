@@ -3,7 +3,8 @@
 The same formulas as the numpy code, written per ray / per point: :func:`gauge_minima` is
 ``sqfit.fitting.raycost.gauge_minima``, :func:`ray_rows` is :func:`sqfit.fitting.raycost.batch_ray_residuals`
 with the ray solve fused in, :func:`posed_rows` is :func:`sqfit.fitting.raycost.posed_ray_residuals`,
-:func:`radial_rows` is ``sqfit.fitting.costs._radial_core`` and :func:`log_gauge_rows` is
+:func:`radial_rows` is ``sqfit.fitting.costs._radial_core``, :func:`g5_rows` is
+:func:`sqfit.fitting.costs.g5_residuals` and :func:`log_gauge_rows` is
 :func:`sqfit.fitting.raycost.batch_log_gauge_jacobian`. Same operations in the same order wherever the
 numpy code does not sum through BLAS, so the two agree to rounding (tests: residuals and
 Jacobians to 1e-12). No ``fastmath``: it would reorder them.
@@ -21,7 +22,7 @@ import math
 import numpy as np
 from numba import njit
 
-__all__ = ["gauge_minima", "ray_rows", "posed_rows", "radial_rows", "log_gauge_rows", "screen_lm"]
+__all__ = ["gauge_minima", "ray_rows", "posed_rows", "radial_rows", "g5_rows", "log_gauge_rows", "screen_lm"]
 
 _TINY = 1e-300
 _LOGE2 = math.log(2.0)
@@ -267,6 +268,40 @@ def radial_rows(xi, points):
     for i in range(n):
         g3[i] = _radial_point(xi, log_a, R, dR, points[i, 0], points[i, 1], points[i, 2], d_xi[i], d_point[i])
     return g3, d_xi, d_point
+
+
+@njit(**_JIT)
+def g5_rows(xi, depths, origins, rays, scaled, weight, lower, upper):
+    """``sqfit.fitting.costs.g5_residuals``: ``xi`` ``(11,)``, ``depths`` ``(n,)``, ``origins`` and
+    ``rays`` ``(n, 3)`` -> ``r`` ``(n + 11,)``, ``A`` ``(n, 11)``, ``D`` ``(n,)``, ``P`` ``(11,)``
+    (sample points, radial terms, volume factor and penalty in one pass)."""
+    n = depths.shape[0]
+    R, dR = _rotation(xi[8:11])
+    log_a = np.log(np.abs(xi[0:3]))
+    r, A, D, P = np.empty(n + 11), np.empty((n, 11)), np.empty(n), np.empty(11)
+    d_point = np.empty(3)
+    vol = xi[0] * xi[1] * xi[2]
+    scale = vol + 1.0
+    per_size = np.empty(3)
+    for j in range(3):
+        per_size[j] = vol / (_TINY if xi[j] == 0 else xi[j])
+    for i in range(n):
+        d = depths[i]
+        g3 = _radial_point(xi, log_a, R, dR, origins[i, 0] + rays[i, 0] * d, origins[i, 1] + rays[i, 1] * d,
+                           origins[i, 2] + rays[i, 2] * d, A[i], d_point)
+        Di = d_point[0] * rays[i, 0] + d_point[1] * rays[i, 1] + d_point[2] * rays[i, 2]
+        if scaled:
+            for j in range(11):
+                A[i, j] *= scale
+            for j in range(3):
+                A[i, j] += g3 * per_size[j]
+            Di *= scale
+            g3 = g3 * scale
+        r[i], D[i] = g3, Di
+    for j in range(11):  # the penalty rows and the diagonal of their Jacobian (as _penalty_rows)
+        r[n + j] = weight * (_maximum(lower[j] - xi[j], 0.0) + _maximum(xi[j] - upper[j], 0.0))
+        P[j] = weight * ((1.0 if xi[j] > upper[j] else 0.0) - (1.0 if xi[j] < lower[j] else 0.0))
+    return r, A, D, P
 
 
 @njit(**_JIT)

@@ -134,14 +134,23 @@ def symmetric_candidates(xi):
     if np.any((e < lo) | (e > hi)):
         raise ValueError(f"xi: shape exponents must be in [{lo}, {hi}], got {e.tolist()}")
     R = euler_to_matrix(xi[C.ROTATION])
-    rows = []
+    sizes, shapes, frames = [], [], []
     for i, perm in enumerate(_PERMUTATIONS):
         Rp, ap, ep = R[:, perm], a[list(perm)], e if i == 0 else e[::-1]
         if i:
-            rows.append(_vector(ap, ep, xi[C.POSITION], Rp))
+            sizes.append(ap)
+            shapes.append(ep)
+            frames.append(Rp)
         s = diagonal_radius(ap[0], ap[1], ep[1])
-        rows.append(_vector([s, s, ap[2]], [ep[0], 2.0 - ep[1]], xi[C.POSITION], Rp @ _rot_z(_EIGHTH_TURN)))
-    return np.array(rows)
+        sizes.append([s, s, ap[2]])
+        shapes.append([ep[0], 2.0 - ep[1]])
+        frames.append(Rp @ _rot_z(_EIGHTH_TURN))
+    rows = np.empty((len(frames), C.N_PARAMS))
+    rows[:, C.SIZE] = sizes
+    rows[:, C.SHAPE] = np.clip(shapes, *C.SHAPE_BOUNDS)
+    rows[:, C.POSITION] = xi[C.POSITION]
+    rows[:, C.ROTATION] = matrix_to_euler(np.array(frames))  # one closed-form call for all rows
+    return rows
 
 
 def diagonal_radius(ax, ay, e2):
@@ -155,10 +164,6 @@ def diagonal_radius(ax, ay, e2):
 def _rot_z(angle):
     c, s = np.cos(angle), np.sin(angle)
     return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
-
-
-def _vector(a, e, p, R):
-    return np.concatenate([a, np.clip(e, *C.SHAPE_BOUNDS), p, matrix_to_euler(R)])
 
 
 def screen_rays(obs):

@@ -45,6 +45,7 @@ is behind the camera).
 
 from __future__ import annotations
 
+import weakref
 from dataclasses import dataclass, replace
 
 import numpy as np
@@ -135,10 +136,30 @@ def to_superquadric(xi):
 
 
 def r_iou_m(superquadrics, obs, polygon="hull"):
-    """R-IOU-M of several superquadrics at once: ``(b,) float`` mean over views of the IoU."""
+    """R-IOU-M of several superquadrics at once: ``(b,) float`` mean over views of the IoU.
+
+    Scores are remembered per observation set (while it lives) by exact parameter vector, so a
+    superquadric scored twice -- 3H's rescue check and then :func:`sqfit.fit`'s per-stage
+    R-IOU-M of the same snapshot -- is evaluated once; the others are evaluated as one batch.
+    A batch's silhouette solver stops when its slowest member converged, so a score can differ
+    from the same superquadric's score in another batch by rounding (measured <= 1e-15).
+    """
     xi = np.stack([sq.to_vector() for sq in superquadrics])
-    polys, valid, _ = batch_silhouettes(xi, obs.rotations, obs.centers, obs.intrinsics)
-    return visible_iou(polys, valid, obs, polygon).mean(axis=1)
+    memo = _R_IOU_M_MEMO.get(obs)
+    if memo is None or len(memo) > _R_IOU_M_MEMO_SIZE:
+        memo = _R_IOU_M_MEMO[obs] = {}
+    keys = [(polygon, x.tobytes()) for x in xi]
+    todo = [i for i, key in enumerate(keys) if key not in memo]
+    if todo:
+        polys, valid, _ = batch_silhouettes(xi[todo], obs.rotations, obs.centers, obs.intrinsics)
+        for i, score in zip(todo, visible_iou(polys, valid, obs, polygon).mean(axis=1)):
+            memo[keys[i]] = score
+    return np.array([memo[key] for key in keys], dtype=np.float64)
+
+
+#: Remembered R-IOU-M scores per observation set (see :func:`r_iou_m`); at most this many each.
+_R_IOU_M_MEMO_SIZE = 64
+_R_IOU_M_MEMO = weakref.WeakKeyDictionary()
 
 STAGES = {}
 

@@ -32,6 +32,7 @@ __all__ = [
     "euler_derivatives",
     "rotation_and_derivatives",
     "matrix_to_euler",
+    "GIMBAL_TOL",
     "spow",
     "to_local",
     "implicit",
@@ -44,6 +45,10 @@ __all__ = [
     "project_to_surface",
     "to_mesh",
 ]
+
+#: :func:`matrix_to_euler` treats ``|R[2, 0]| >= 1 - GIMBAL_TOL`` (``|ry|`` within ~1.4e-6 rad of
+#: ``pi/2``) as gimbal lock (unitless).
+GIMBAL_TOL = 1e-12
 
 # log F is clipped here before exp() so F stays finite (exp(700) ~ 1e304).
 _LOG_F_MAX = 700.0
@@ -200,24 +205,44 @@ def rotation_and_derivatives(r, derivatives=True):
     return R, dR
 
 def matrix_to_euler(R):
-    """Euler angles (module convention) of a rotation matrix.
+    """Euler angles (module convention) of rotation matrices, closed form.
 
     Parameters
     ----------
-    R : (3, 3) float
-        A rotation matrix (``det = +1``).
+    R : (3, 3) or (n, 3, 3) float
+        Proper rotation matrices (orthonormal to 1e-6, ``det = +1``).
 
     Returns
     -------
-    r : (3,) float
-        Angles ``(rx, ry, rz)`` in radians, ``ry`` in ``[-pi/2, pi/2]``.
+    r : (3,) or (n, 3) float
+        Angles ``(rx, ry, rz)`` in radians, ``ry`` in ``[-pi/2, pi/2]``: scipy's
+        ``Rotation.from_matrix(R).as_euler("xyz")`` to rounding (pinned by a test). Within
+        :data:`GIMBAL_TOL` of ``|ry| = pi/2`` only ``rx -+ rz`` is defined; it is put in ``rx`` and
+        ``rz = 0`` (scipy's choice too). Closed form rather than scipy: the fitter converts a few
+        matrices at a time, where scipy's per-call overhead was ~0.1 ms a matrix.
     """
-    from scipy.spatial.transform import Rotation
-
-    R = check_shape(R, (3, 3), "R")
-    if not np.allclose(R @ R.T, np.eye(3), atol=1e-6) or np.linalg.det(R) < 0:
+    R = np.asarray(R, dtype=np.float64)
+    if R.shape[-2:] != (3, 3) or R.ndim not in (2, 3):
+        raise ValueError(f"R must have shape (3, 3) or (n, 3, 3), got {R.shape}")
+    if not np.all(np.isfinite(R)):
+        raise ValueError("R must be finite")
+    Rb = R.reshape(-1, 3, 3)
+    off = np.abs(Rb @ np.swapaxes(Rb, 1, 2) - np.eye(3)).max(initial=0.0)
+    if off > 1e-6 or np.any(np.linalg.det(Rb) < 0):
         raise ValueError("R must be a proper rotation matrix (orthonormal, det = +1)")
-    return Rotation.from_matrix(R).as_euler("xyz")
+    r = np.empty((len(Rb), 3))
+    r[:, 0] = np.arctan2(Rb[:, 2, 1], Rb[:, 2, 2])
+    r[:, 1] = np.arctan2(-Rb[:, 2, 0], np.hypot(Rb[:, 0, 0], Rb[:, 1, 0]))
+    # rz from rx and the first two columns (sz, cz exactly): the pair stays consistent near gimbal
+    # lock, where rx and rz each lose digits but R(r) does not.
+    s1, c1 = np.sin(r[:, 0]), np.cos(r[:, 0])
+    r[:, 2] = np.arctan2(s1 * Rb[:, 0, 2] - c1 * Rb[:, 0, 1], c1 * Rb[:, 1, 1] - s1 * Rb[:, 1, 2])
+    lock = np.abs(Rb[:, 2, 0]) >= 1.0 - GIMBAL_TOL
+    if np.any(lock):  # R = Ry(+-pi/2) Rx(rx): rx from the middle row
+        r[lock, 0] = np.arctan2(-Rb[lock, 1, 2], Rb[lock, 1, 1])
+        r[lock, 1] = np.copysign(np.pi / 2, -Rb[lock, 2, 0])
+        r[lock, 2] = 0.0
+    return r.reshape(R.shape[:-2] + (3,))
 
 
 def spow(x, e):

@@ -352,6 +352,29 @@ def sample_polyline(polygon, n, rng, return_index=False):
     polygon : (m, 2) float
     n : int
     rng : numpy.random.Generator
+        Draws the phase (one ``rng.random()``), see :func:`polyline_points`.
+    return_index : bool
+        Also return the edge of each point (edge ``k`` runs from vertex ``k`` to ``k + 1``).
+
+    Returns
+    -------
+    points : (n, 2) float
+    index : (n,) int
+        Only with ``return_index``.
+    """
+    return polyline_points(polygon, n, rng.random(), return_index)
+
+
+def polyline_points(polygon, n, phase, return_index=False):
+    """``n`` points evenly spaced by arc length around a closed polygon, starting at ``phase``.
+
+    Parameters
+    ----------
+    polygon : (m, 2) float
+    n : int
+    phase : float
+        In ``[0, 1)``: point ``i`` lies at arc length ``(phase + i) / n`` of the perimeter from
+        vertex 0.
     return_index : bool
         Also return the edge of each point (edge ``k`` runs from vertex ``k`` to ``k + 1``).
 
@@ -364,7 +387,7 @@ def sample_polyline(polygon, n, rng, return_index=False):
     closed = np.vstack([polygon, polygon[:1]])
     seg = np.linalg.norm(np.diff(closed, axis=0), axis=1)
     cum = np.concatenate([[0.0], np.cumsum(seg)])
-    s = (rng.random() + np.arange(n)) / n * cum[-1]
+    s = (phase + np.arange(n)) / n * cum[-1]
     idx = np.clip(np.searchsorted(cum, s, side="right") - 1, 0, len(seg) - 1)
     frac = (s - cum[idx]) / np.where(seg[idx] > 0, seg[idx], 1.0)
     points = closed[idx] + frac[:, None] * (closed[idx + 1] - closed[idx])

@@ -12,12 +12,13 @@ view, and whether it is two-sided: a ray through an outline point labelled ``ins
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import cache
 
 import numpy as np
 
 from .._checks import check_shape
 from ..geometry.camera import bearings
-from .observation import Observation, sample_polyline
+from .observation import Observation, polyline_points
 from .visibility import BACKGROUND, point_labels
 
 __all__ = ["RaySet", "CONTOUR", "INSIDE", "OUTSIDE", "contour_rays", "outward_normals"]
@@ -61,7 +62,7 @@ class RaySet:
         object.__setattr__(self, "origins", origins)
         object.__setattr__(self, "directions", check_shape(self.directions, (n, 3), "directions"))
         modes = check_shape(self.modes, (n,), "modes", dtype=np.int64)
-        if not np.all(np.isin(modes, (CONTOUR, INSIDE, OUTSIDE))):
+        if not np.all((modes >= CONTOUR) & (modes <= OUTSIDE)):  # the three modes are 0, 1, 2
             raise ValueError("modes must be CONTOUR (0), INSIDE (1) or OUTSIDE (2)")
         object.__setattr__(self, "modes", modes)
         weights = check_shape(self.weights, (n,), "weights")
@@ -154,9 +155,15 @@ def contour_rays(observations, n_contour=64, band_px=0.0, n_inside=0):
     return RaySet(*(np.concatenate(col) for col in zip(*parts)))
 
 
+@cache
+def _contour_phase():
+    """Phase of the contour points: fixed (the first draw of seed 0), so the rays are a
+    deterministic function of the mask; drawn once, not per view."""
+    return float(np.random.default_rng(0).random())
+
+
 def _view_points(observation, n_contour, band_px, n_inside):
-    rng = np.random.default_rng(0)  # fixed phase: the rays are a deterministic function of the mask
-    on, edges = sample_polyline(observation.contour, n_contour, rng, return_index=True)
+    on, edges = polyline_points(observation.contour, n_contour, _contour_phase(), return_index=True)
     sided = point_labels(observation.contour_labels, edges) == BACKGROUND
     if band_px > 0:
         # Normals at the sample points: those of the nearest contour vertices.
