@@ -345,23 +345,8 @@ def _sample_area(rows, cols, n, rng):
 
 
 def sample_polyline(polygon, n, rng, return_index=False):
-    """``n`` points evenly spaced by arc length around a closed polygon, with a random phase.
-
-    Parameters
-    ----------
-    polygon : (m, 2) float
-    n : int
-    rng : numpy.random.Generator
-        Draws the phase (one ``rng.random()``), see :func:`polyline_points`.
-    return_index : bool
-        Also return the edge of each point (edge ``k`` runs from vertex ``k`` to ``k + 1``).
-
-    Returns
-    -------
-    points : (n, 2) float
-    index : (n,) int
-        Only with ``return_index``.
-    """
+    """:func:`polyline_points` with a random phase: one ``rng.random()`` (``rng`` a
+    numpy.random.Generator); the other arguments and the results as there."""
     return polyline_points(polygon, n, rng.random(), return_index)
 
 
