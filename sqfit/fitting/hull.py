@@ -17,6 +17,27 @@ stage computes its start from the masks alone (it discards an ``initial`` superq
 next stage gets closed-form depths per sample on the fitted quadric
 (:func:`sqfit.fitting.stages.ellipsoid_depths`).
 
+Measured (``sqsim experiment SCENE --trials 30 --chains default,hull,HULL-3H --seed S --workers 1``,
+household ``--trials 24``; seeds 0 / 1; median 3D IoU; median wall time per object of the whole
+chain, a loaded 2-core machine):
+
+==========  ===============  ===============  ===============  ==================
+scene       default 1-2-3H   hull             HULL-3H          time (default/hull)
+==========  ===============  ===============  ===============  ==================
+paper       0.993 / 0.994    0.704 / 0.647    0.993 / 0.993    12 / 361-395 ms
+boxes       0.971 / 0.970    0.681 / 0.661    0.968 / 0.970    15 / 371-375 ms
+cylinders   0.977 / 0.979    0.759 / 0.797    0.979 / 0.977    16 / 389-391 ms
+household   0.563 / 0.648    0.580 / 0.597    0.555 / 0.654    14 / 395-402 ms
+==========  ===============  ===============  ===============  ==================
+
+As a start for 3H (``HULL-3H``) where stage 2's ellipsoid is poor (its 3D IoU < 0.5: 13-19 of
+30 trials on paper, boxes, cylinders): the hull start is better (median IoU 0.43-0.75 against
+0.21-0.36) but the refined fits are not: paper seed 0 median / 10th percentile 0.965 / 0.639
+against the default's 0.979 / 0.889, seed 1 0.987 / 0.771 against 0.975 / 0.600; boxes and
+cylinders within 0.01 of the default's medians, with more trials worse by > 0.01 than better
+(4 / 5 / 2 worse against 2 / 3 / 0 better on boxes s0, s1, cylinders s1). 3H's own axis screen
+already repairs a poor ellipsoid; ``HULL-3H`` costs the hull's ~0.4 s. Not the default's start.
+
 Deterministic; no random numbers.
 """
 
