@@ -2,7 +2,7 @@
 
 Above :mod:`sqfit.views`. Stages are registered by name in :data:`STAGES` (paper codes: ``1``,
 ``2``, ``3A``-``3F`` in :mod:`.stages`; ``3G`` in :mod:`.grazing`; ``3S`` in :mod:`.restarts`;
-``3H`` in :mod:`.axis_screen`), and a chain is a dash-joined list of them (``"1-2-3H"``).
+``3H`` in :mod:`.axis_screen`; ``HULL`` in :mod:`.hull`), and a chain is a dash-joined list of them (``"1-2-3H"``).
 
 - :mod:`.costs` — the paper's costs: R-IOU (G2), the analytic G3-G5, penalty, bounds;
 - :mod:`.raycost` — the grazing-ray cost: ray residuals and their batched minimisers;
@@ -11,11 +11,14 @@ Above :mod:`sqfit.views`. Stages are registered by name in :data:`STAGES` (paper
 - :mod:`.grazing` — stage 3G: the superquadric that grazes every outline ray;
 - :mod:`.restarts` — stage 3S: symmetric restarts of 3G;
 - :mod:`.axis_screen` — stage 3H (the default's last stage): choose the axes, then 3G;
+- :mod:`.pointcloud` — an outlier-tolerant superquadric fit to a point cloud (EMS);
+- :mod:`.hull` — stage HULL (the visual-hull baseline, chain ``hull``): carve, then the point fit;
 - :mod:`.pipeline` — options, results and :func:`fit`.
 """
 
-from . import axis_screen, grazing, restarts  # noqa: F401  (register stages 3H, 3G, 3S)
-from .pipeline import DEFAULT_CHAIN, PAPER_CHAINS, FitOptions, FitResult, StageRecord, fit, parse_chain
+from . import axis_screen, grazing, hull, restarts  # noqa: F401  (register stages 3H, 3G, HULL, 3S)
+from .pipeline import CHAIN_ALIASES, DEFAULT_CHAIN, HULL_CHAIN, PAPER_CHAINS, FitOptions, FitResult, StageRecord, fit, parse_chain
 from .stages import STAGES
 
-__all__ = ["fit", "FitOptions", "FitResult", "StageRecord", "DEFAULT_CHAIN", "PAPER_CHAINS", "STAGES", "parse_chain"]
+__all__ = ["fit", "FitOptions", "FitResult", "StageRecord", "DEFAULT_CHAIN", "HULL_CHAIN", "CHAIN_ALIASES",
+           "PAPER_CHAINS", "STAGES", "parse_chain"]

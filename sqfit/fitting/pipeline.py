@@ -23,13 +23,14 @@ from .. import constants as C
 from .._checks import Options, check_fields
 from .costs import ObservationSet
 from ..views.observation import POLYGON_KINDS, Observation
+from .hull import HULL_CHAIN
 from .stages import (NUMERICAL_ERRORS, STAGES, FitState, StageError, default_state, ellipsoid_depths, r_iou_m,
                      to_superquadric)
 from ..geometry.superquadric import Superquadric
 from ..views.visibility import BORDER
 
 __all__ = ["fit", "FitOptions", "FitResult", "StageRecord", "PAPER_CHAINS", "DEFAULT_CHAIN",
-           "INITIAL_CHAIN", "parse_chain"]
+           "INITIAL_CHAIN", "HULL_CHAIN", "CHAIN_ALIASES", "parse_chain"]
 
 #: The 13 chains of the paper's Table II, in its row order.
 PAPER_CHAINS = ("3A", "3B", "1-3A", "1-2-3A", "1-2-3B", "3E", "1-3E", "1-2-3C", "1-2-3D", "1-2-3E",
@@ -38,8 +39,11 @@ DEFAULT_CHAIN = "1-2-3H"  # measured: README "Beyond the paper", sqfit.fitting.a
 #: Chain of :func:`fit` when a starting superquadric is given (``initial=``) and no chain is: a
 #: local refinement from it.
 INITIAL_CHAIN = "3G"
+#: Names that stand for a whole chain wherever a chain is given (:func:`parse_chain`); ``hull`` is the
+#: visual-hull baseline (:data:`sqfit.fitting.hull.HULL_CHAIN`).
+CHAIN_ALIASES = {"default": DEFAULT_CHAIN, "hull": HULL_CHAIN}
 #: Stages that compute their start from the masks alone and would discard ``initial``.
-_SELF_STARTING = ("1", "2")
+_SELF_STARTING = ("1", "2", "HULL")
 
 
 @dataclass(frozen=True)
@@ -235,7 +239,10 @@ class FitResult:
 
 
 def parse_chain(chain):
-    """``"1-2-3D-3A"`` -> ``["1", "2", "3D", "3A"]``; unknown names raise ValueError listing valid ones."""
+    """``"1-2-3D-3A"`` -> ``["1", "2", "3D", "3A"]``; a name of :data:`CHAIN_ALIASES` stands for its chain
+    (``"hull"`` -> ``["HULL"]``); unknown names raise ValueError listing valid ones."""
+    if isinstance(chain, str) and chain.strip() in CHAIN_ALIASES:
+        chain = CHAIN_ALIASES[chain.strip()]
     if isinstance(chain, (list, tuple)):
         names = [str(s) for s in chain]
     elif isinstance(chain, str):
@@ -312,7 +319,8 @@ def fit(observations, chain=None, *, initial=None, rng=None, options=None):
     observations : list of Observation
         One per view, >= 2 (fewer gives status ``too_few_views``).
     chain : str or list of str, optional
-        Stage names joined by ``-`` (see :mod:`sqfit.fitting.stages`), e.g. ``"1-2-3D-3A"``. Default
+        Stage names joined by ``-`` (see :mod:`sqfit.fitting.stages`), e.g. ``"1-2-3D-3A"``, or a name of
+        :data:`CHAIN_ALIASES` (``"default"``, ``"hull"``: the visual-hull baseline). Default
         :data:`DEFAULT_CHAIN`, or :data:`INITIAL_CHAIN` when ``initial`` is given.
     initial : Superquadric or (11,) float, optional
         Start of the first stage instead of the default guess (a unit sphere at the origin): e.g.

@@ -6,6 +6,7 @@ Above :mod:`sqfit.geometry` and :mod:`sqfit.formats`, below :mod:`sqfit.fitting`
   outline, hull and visibility labels;
 - :mod:`.visibility` — the labels of outline points (background, another instance, image border);
 - :mod:`.rays` — camera rays through outline points, the grazing-ray stages' data;
+- :mod:`.carving` — the visual hull: voxel carving of the masks, honouring the labels;
 - :mod:`.dataset` — reading (and writing masks of) datasets in the ``sqsim generate`` format, and
   observations from instance-id images;
 - :mod:`.sequence` — image sequences with odometry (TUM trajectories, lazily read frames);

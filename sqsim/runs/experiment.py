@@ -56,6 +56,7 @@ def add_arguments(parser):
     parser.add_argument("--trials", type=int, default=None, help="number of trials (default: the scene's)")
     parser.add_argument("--chains", default=None,
                         help="comma-separated chains, e.g. 1-2-3D-3A,1-2-3D; 'default' = sqfit.DEFAULT_CHAIN, "
+                             "'hull' = the visual-hull baseline (HULL), "
                              "'paper' = all 13 chains of the paper's Table II (default: the scene's)")
     parser.add_argument("--seed", type=int, default=None, help="experiment seed (default: the scene's)")
     parser.add_argument("--workers", type=int, default=1, help="local worker processes")
@@ -93,7 +94,8 @@ def check_chain(chain):
 
 
 def parse_chains(text):
-    """Chain list from ``--chains``: ``None`` keeps the scene's; ``default`` and ``paper`` expand."""
+    """Chain list from ``--chains``: ``None`` keeps the scene's; ``paper`` and the names of
+    ``sqfit.fitting.CHAIN_ALIASES`` (``default``, ``hull``) expand."""
     if text is None:
         return None
     import sqfit
@@ -102,8 +104,8 @@ def parse_chains(text):
     for item in (c.strip() for c in text.split(",")):
         if not item:
             continue
-        if item == "default":
-            chains.append(sqfit.DEFAULT_CHAIN)
+        if item in sqfit.fitting.CHAIN_ALIASES:
+            chains.append(sqfit.fitting.CHAIN_ALIASES[item])
         elif item == "paper":
             chains.extend(sqfit.PAPER_CHAINS)
         else:
@@ -154,7 +156,7 @@ def run_experiment(scene, output, *, trials=None, chains=None, seed=None, worker
         overrides["experiment.chains"] = list(chains)
     if overrides:
         scene = scene.with_overrides(overrides)
-    chains = list(dict.fromkeys(sqfit.DEFAULT_CHAIN if c == "default" else c for c in scene.experiment.chains))
+    chains = list(dict.fromkeys(sqfit.fitting.CHAIN_ALIASES.get(c, c) for c in scene.experiment.chains))
     for chain in chains:
         check_chain(chain)
     if int(workers) < 1:
