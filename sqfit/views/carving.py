@@ -172,18 +172,12 @@ def known_background(observation):
 
 
 def background_clearance(observation):
-    """Chessboard distance from each pixel to the nearest pixel that is not known background.
+    """``(height, width) int``: chessboard distance from each pixel of ``observation``'s image to the
+    nearest pixel that is not known background of the object.
 
-    Parameters
-    ----------
-    observation : Observation
-
-    Returns
-    -------
-    clearance : (height, width) int
-        0 on the object's pixels (:func:`object_pixels`); outside the image counts as not known
-        background, so a background pixel on the image's edge has 1. Every pixel within
-        chessboard distance ``clearance - 1`` of a pixel is known background.
+    0 on the object's pixels (:func:`object_pixels`); outside the image counts as not known
+    background, so a background pixel on the image's edge has 1. Every pixel within chessboard
+    distance ``clearance - 1`` of a pixel is known background.
     """
     from scipy import ndimage
 
