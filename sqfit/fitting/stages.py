@@ -55,7 +55,7 @@ from .costs import g5_residuals, hidden_at, penalty_jacobian, riou_residuals, ro
 from .lm import DenseJacobian, SchurJacobian, levenberg_marquardt
 from ..geometry.silhouette import NEWTON_TOL, ZNEAR, batch_silhouettes
 
-__all__ = ["FitState", "StageError", "STAGES", "register", "default_state", "trusted_views",
+__all__ = ["FitState", "StageError", "STAGES", "register", "default_state", "view_depths_of", "trusted_views",
            "TRUSTED_SILHOUETTE_FRACTION", "NUMERICAL_ERRORS", "to_superquadric", "r_iou_m"]
 
 #: Triangulation fails when the condition number of the QR factor R exceeds this.
@@ -160,7 +160,9 @@ def default_state(obs):
     return FitState(xi, view_depths=view, sample_depths=d)
 
 
-def _view_depths(state, obs):
+def view_depths_of(state, obs):
+    """``(v,) float``: the state's depth per view, else its per-sample depths averaged per view, else
+    the default state's."""
     if state.view_depths is not None:
         return state.view_depths
     if state.sample_depths is not None:
@@ -249,7 +251,7 @@ def pca_init(state, obs, options):
     Shape ``e = 1``; position kept from the input state (stage 1's triangulated point, as the
     paper). Per-sample depth: the closed-form minimiser along each ray (:func:`ellipsoid_depths`).
     """
-    depths = _view_depths(state, obs)
+    depths = view_depths_of(state, obs)
     use = trusted_views(obs)[obs.view_of_sample]
     points = (obs.origins + obs.rays * depths[obs.view_of_sample][:, None])[use]
     centred = points - points.mean(axis=0)
@@ -416,7 +418,7 @@ def _g5_stage(state, obs, options, free, quadric, per_sample, name):
     if per_sample:
         d0 = np.array(_sample_depths(state, obs), dtype=np.float64)
     else:
-        d0 = np.array(_view_depths(state, obs), dtype=np.float64)
+        d0 = np.array(view_depths_of(state, obs), dtype=np.float64)
     view = obs.view_of_sample
     n_views = len(obs)
 
