@@ -86,7 +86,9 @@ from .restarts import N_SCREEN_CONTOUR, screen_rays, symmetric_candidates
 from .backend import compiled
 from .raycost import RAY_BOUNDS, batch_ray_residuals, ray_kind, solver_args
 from .grazing import silhouette_stage
-from .stages import NUMERICAL_ERRORS, STAGES, StageError, r_iou_m, register, to_superquadric
+from .costs import ObservationSet
+from .stages import NUMERICAL_ERRORS, STAGES, FitState, StageError, ellipsoid_depths, r_iou_m, register, to_superquadric
+from ..views.grid import with_grid_samples, with_outline_samples
 
 __all__ = ["N_SCREEN_CONTOUR", "SCREEN_ITERATIONS", "SCREEN_MAX_NEWTON", "CANDIDATES", "RESCUE_R_IOU_M",
            "RESCUE_STAGES", "axis_candidates", "batch_levenberg_marquardt", "axis_search_stage"]
@@ -221,17 +223,19 @@ def axis_search_stage(state, obs, options):
     one with the higher R-IOU-M is returned.
     """
     new = _screen_and_refine(state, obs, options)
-    score = _visible_r_iou_m(new, obs, options)
+    outline = ObservationSet([with_outline_samples(o) for o in obs.observations])
+    score = _visible_r_iou_m(new, outline, options)
     if score >= RESCUE_R_IOU_M:
         return new
     path = "-".join(RESCUE_STAGES) + "-3H"
     try:
-        start, nfev = state, 0
+        grid = ObservationSet([with_grid_samples(o) for o in obs.observations])
+        start, nfev = FitState(state.xi, sample_depths=ellipsoid_depths(state.xi, grid)), 0
         for name in RESCUE_STAGES:
-            start = STAGES[name](start, obs, options)
+            start = STAGES[name](start, grid, options)
             nfev += start.nfev
-        other = _screen_and_refine(start, obs, options)
-        other_score = _visible_r_iou_m(other, obs, options)
+        other = _screen_and_refine(FitState(start.xi, sample_depths=ellipsoid_depths(start.xi, obs)), obs, options)
+        other_score = _visible_r_iou_m(other, outline, options)
     except (StageError, *NUMERICAL_ERRORS) as exc:
         return replace(new, message=f"{new.message}; rescue ({path}) failed: {exc}")
     keep, lost = (other, new) if other_score > score else (new, other)
