@@ -13,7 +13,7 @@ import sqfit
 from sqfit import Observation
 from sqfit.fitting.costs import ObservationSet
 from sqfit.fitting.moments import mask_moments_3d
-from sqfit.geometry.polygon import polygon_moments
+from sqfit.geometry.polygon import batch_polygon_moments, polygon_moments
 from sqfit.metrics import iou_3d
 from sqfit.testing import paper_trial
 from sqfit.views.grid import grid_samples, with_grid_samples, with_outline_samples

@@ -11,7 +11,7 @@ stage 2 estimates, without samples:
 - At one depth ``d_i`` per view (stage 1's), back-projection is affine in the image point:
   ``X = C_i + d_i R_i K_i^-1 (u, v, 1)``. The uniform distribution over the view's region (the
   polygon of ``Observation.contour``) has an exact mean and covariance
-  (:func:`sqfit.geometry.polygon.polygon_moments`), so the back-projected points' mean and
+  (:func:`sqfit.geometry.polygon.batch_polygon_moments`), so the back-projected points' mean and
   covariance are exact too; the views are pooled with equal weights (stage 2 draws the same
   number of samples in every view): covariance = mean of the views' covariances + covariance of
   their means.
@@ -31,9 +31,8 @@ from __future__ import annotations
 import numpy as np
 
 from .. import constants as C
-from ..geometry.polygon import polygon_moments
-from ..geometry.superquadric import matrix_to_euler
-from .stages import FitState, ellipsoid_depths, register, trusted_views, view_depths_of
+from ..geometry.polygon import batch_polygon_moments
+from .stages import FitState, ellipsoid_depths, register, rotation_to_euler, trusted_views, view_depths_of
 
 __all__ = ["mask_moments_3d", "moments_init"]
 
@@ -75,15 +74,13 @@ def mask_moments_3d(obs, depths, views=None):
     if views.shape != (len(obs),) or not views.any():
         raise ValueError(f"views must be ({len(obs)},) bool with at least one True, got {views}")
     offset, linear = _back_projection(obs, depths)
-    means, covs = [], []
-    for i in np.flatnonzero(views):
-        _, centroid, cov = polygon_moments(obs.observations[i].contour)
-        means.append(offset[i] + linear[i] @ centroid)
-        covs.append(linear[i] @ cov @ linear[i].T)
-    means = np.array(means)
+    used = np.flatnonzero(views)
+    _, centroid, cov = batch_polygon_moments([obs.observations[i].contour for i in used])
+    means = offset[used] + np.einsum("vij,vj->vi", linear[used], centroid)
+    covs = np.einsum("vik,vkl,vjl->vij", linear[used], cov, linear[used])
     mean = means.mean(axis=0)
     spread = means - mean
-    return mean, np.mean(covs, axis=0) + spread.T @ spread / len(means)
+    return mean, covs.mean(axis=0) + spread.T @ spread / len(means)
 
 
 @register("2M")
@@ -97,12 +94,13 @@ def moments_init(state, obs, options):
     use = trusted_views(obs)
     mean, cov = mask_moments_3d(obs, depths, use)
     values, vectors = np.linalg.eigh(cov)
-    R = vectors[:, np.argsort(values)[::-1]]
+    R = vectors[:, ::-1].copy()  # largest first (eigh: ascending)
     if np.linalg.det(R) < 0:
         R[:, 2] = -R[:, 2]
     offset, linear = _back_projection(obs, depths)
-    outline = np.concatenate([offset[i] + obs.observations[i].contour @ linear[i].T for i in np.flatnonzero(use)])
-    local = (outline - mean) @ R
+    # Extent along each axis of the back-projected contours: affine, so (m, 2) @ (2, 3) per view.
+    local = np.concatenate([obs.observations[i].contour @ (linear[i].T @ R) + (offset[i] - mean) @ R
+                            for i in np.flatnonzero(use)])
     size = np.maximum((local.max(axis=0) - local.min(axis=0)) / 2.0, C.SIZE_MIN)
-    xi = np.concatenate([size, [1.0, 1.0], state.xi[5:8], matrix_to_euler(R)])
+    xi = np.concatenate([size, [1.0, 1.0], state.xi[5:8], rotation_to_euler(R)])
     return FitState(xi, view_depths=None, sample_depths=ellipsoid_depths(xi, obs))

@@ -55,7 +55,7 @@ from .costs import g5_residuals, hidden_at, penalty_jacobian, riou_residuals, ro
 from .lm import DenseJacobian, SchurJacobian, levenberg_marquardt
 from ..geometry.silhouette import NEWTON_TOL, ZNEAR, batch_silhouettes
 
-__all__ = ["FitState", "StageError", "STAGES", "register", "default_state", "view_depths_of", "trusted_views",
+__all__ = ["FitState", "StageError", "STAGES", "register", "default_state", "view_depths_of", "rotation_to_euler", "trusted_views",
            "TRUSTED_SILHOUETTE_FRACTION", "NUMERICAL_ERRORS", "to_superquadric", "r_iou_m"]
 
 #: Triangulation fails when the condition number of the QR factor R exceeds this.
@@ -261,7 +261,7 @@ def pca_init(state, obs, options):
         R[:, 2] = -R[:, 2]
     local = centred @ R
     size = np.maximum((local.max(axis=0) - local.min(axis=0)) / 2.0, C.SIZE_MIN)
-    xi = np.concatenate([size, _QUADRIC, state.xi[5:8], _matrix_to_euler(R)])
+    xi = np.concatenate([size, _QUADRIC, state.xi[5:8], rotation_to_euler(R)])
     return FitState(xi, view_depths=None, sample_depths=ellipsoid_depths(xi, obs))
 
 
@@ -296,8 +296,8 @@ def _rotation(xi):
     return rotation_and_derivatives(xi[8:11])[0]
 
 
-def _matrix_to_euler(R):
-    """Euler angles (convention of :mod:`sqfit.geometry.superquadric`) of a proper rotation, closed form."""
+def rotation_to_euler(R):
+    """``(3,) float`` Euler angles (convention of :mod:`sqfit.geometry.superquadric`) of a proper rotation, closed form."""
     ry = -np.arcsin(np.clip(R[2, 0], -1.0, 1.0))
     if abs(R[2, 0]) < 1.0 - 1e-12:
         return np.array([np.arctan2(R[2, 1], R[2, 2]), ry, np.arctan2(R[1, 0], R[0, 0])])
