@@ -177,3 +177,17 @@ def test_the_rescue_gives_one_answer_whatever_the_sampling_seed(monkeypatch):
     fits = [sqfit.fit(_resampled(trial, s)) for s in (0, 1)]
     assert all("re-fitted through 3D-3A-3H" in f.stages[-1].message for f in fits)
     assert fits[0].superquadric == fits[1].superquadric
+
+
+def test_batch_polygon_moments_equal_one_at_a_time():
+    polys = [o.contour for o in paper_trial(3).observations] + [_ellipse(3.0, 1.0, 0.2, [5.0, 5.0], n=50)]
+    area, centroid, cov = batch_polygon_moments(polys)
+    for i, p in enumerate(polys):
+        a, c, s = polygon_moments(p)
+        assert area[i] == pytest.approx(a)
+        np.testing.assert_allclose(centroid[i], c)
+        np.testing.assert_allclose(cov[i], s)
+    with pytest.raises(ValueError, match="at least one polygon"):
+        batch_polygon_moments([])
+    with pytest.raises(ValueError, match=r"polygons\[1\] must have shape"):
+        batch_polygon_moments([polys[0], np.zeros((3, 3))])
