@@ -24,7 +24,11 @@ therefore decides before 3G, from the 3G cost itself:
    object that grazes every outline ray), the input is fitted again through 3D and 3A
    (:data:`RESCUE_STAGES`, costs without that minimum) and steps 1-3, and the fit with the higher
    R-IOU-M is kept. It costs one R-IOU-M evaluation (~0.4 ms) on every fit and ~60 ms on the
-   rescued ones.
+   rescued ones. One answer (issue 22): R-IOU-M here is taken against the hull of each whole
+   outline (:func:`sqfit.views.grid.with_outline_samples`; :data:`DECISION_MARGIN` says when the
+   samples' hull suffices) and 3D-3A run on a regular grid of samples inside the outline
+   (:func:`sqfit.views.grid.with_grid_samples`), so the rescue does not depend on the sampling seed
+   either (it used the random samples until issue 22).
 
 Why this and not the alternatives (paper scene ``sqfit.testing.paper_trial`` seeds 0-29, elliptic
 cylinders and boxes from ``scenes/cylinders.toml`` / ``scenes/boxes.toml``, 30 trials each; median
@@ -86,10 +90,12 @@ from .restarts import N_SCREEN_CONTOUR, screen_rays, symmetric_candidates
 from .backend import compiled
 from .raycost import RAY_BOUNDS, batch_ray_residuals, ray_kind, solver_args
 from .grazing import silhouette_stage
-from .stages import NUMERICAL_ERRORS, STAGES, StageError, r_iou_m, register, to_superquadric
+from .costs import ObservationSet
+from .stages import NUMERICAL_ERRORS, STAGES, FitState, StageError, ellipsoid_depths, r_iou_m, register, to_superquadric
+from ..views.grid import with_grid_samples, with_outline_samples
 
 __all__ = ["N_SCREEN_CONTOUR", "SCREEN_ITERATIONS", "SCREEN_MAX_NEWTON", "CANDIDATES", "RESCUE_R_IOU_M",
-           "RESCUE_STAGES", "axis_candidates", "batch_levenberg_marquardt", "axis_search_stage"]
+           "DECISION_MARGIN", "RESCUE_STAGES", "axis_candidates", "batch_levenberg_marquardt", "axis_search_stage"]
 
 #: Names of the rows of :func:`axis_candidates`, in order.
 CANDIDATES = ("input", "R45", "P1", "P1R45", "P2", "P2R45")
@@ -114,6 +120,14 @@ SCREEN_MAX_NEWTON = 10
 #: through :data:`RESCUE_STAGES` and the screen, and the better of the two by R-IOU-M is kept.
 #: Good fits score 0.75-0.95 on clean and noisy masks; the 3G minima this catches score below 0.3.
 RESCUE_R_IOU_M = C.POOR_FIT_R_IOU_M
+#: The rescue decides on R-IOU-M against the hull of each whole outline, not of the random samples,
+#: so that it does not depend on the sampling seed (:mod:`sqfit.views.grid`). That hull costs ~1 ms
+#: (qhull on ~600 outline points), so a fit whose R-IOU-M against the samples' hull (computed anyway,
+#: and reused by :func:`sqfit.fit`) clears the threshold by this margin is accepted without it: the
+#: samples' hull lies inside the outline's, and on the paper and 1 px bias scenes (100 trials, seeds 0
+#: and 1) the two scores of a 3H fit differ by far less (scripts/seed_stability.py finds no seed
+#: dependence).
+DECISION_MARGIN = 0.15
 #: Stages of the rescue, from 3H's input (G5 on the samples, then R-IOU: neither has 3G's "far, huge"
 #: minimum).
 RESCUE_STAGES = ("3D", "3A")
@@ -221,17 +235,21 @@ def axis_search_stage(state, obs, options):
     one with the higher R-IOU-M is returned.
     """
     new = _screen_and_refine(state, obs, options)
-    score = _visible_r_iou_m(new, obs, options)
+    if _visible_r_iou_m(new, obs, options) >= RESCUE_R_IOU_M + DECISION_MARGIN:
+        return new
+    outline = ObservationSet([with_outline_samples(o) for o in obs.observations])
+    score = _visible_r_iou_m(new, outline, options)
     if score >= RESCUE_R_IOU_M:
         return new
     path = "-".join(RESCUE_STAGES) + "-3H"
     try:
-        start, nfev = state, 0
+        grid = ObservationSet([with_grid_samples(o) for o in obs.observations])
+        start, nfev = FitState(state.xi, sample_depths=ellipsoid_depths(state.xi, grid)), 0
         for name in RESCUE_STAGES:
-            start = STAGES[name](start, obs, options)
+            start = STAGES[name](start, grid, options)
             nfev += start.nfev
-        other = _screen_and_refine(start, obs, options)
-        other_score = _visible_r_iou_m(other, obs, options)
+        other = _screen_and_refine(FitState(start.xi, sample_depths=ellipsoid_depths(start.xi, obs)), obs, options)
+        other_score = _visible_r_iou_m(other, outline, options)
     except (StageError, *NUMERICAL_ERRORS) as exc:
         return replace(new, message=f"{new.message}; rescue ({path}) failed: {exc}")
     keep, lost = (other, new) if other_score > score else (new, other)

@@ -35,7 +35,7 @@ __all__ = ["fit", "FitOptions", "FitResult", "StageRecord", "PAPER_CHAINS", "DEF
 #: The 13 chains of the paper's Table II, in its row order.
 PAPER_CHAINS = ("3A", "3B", "1-3A", "1-2-3A", "1-2-3B", "3E", "1-3E", "1-2-3C", "1-2-3D", "1-2-3E",
                 "1-2-3D-3E", "1-2-3D-3A", "1-2-3D-3F")
-DEFAULT_CHAIN = "1-2-3H"  # measured: README "Beyond the paper", sqfit.fitting.axis_screen
+DEFAULT_CHAIN = "1-2M-3H"  # measured: README "Beyond the paper", sqfit.fitting.axis_screen; 2M: sqfit.fitting.moments
 #: Chain of :func:`fit` when a starting superquadric is given (``initial=``) and no chain is: a
 #: local refinement from it.
 INITIAL_CHAIN = "3G"

@@ -56,7 +56,7 @@ from .costs import g5_residuals, hidden_at, penalty_jacobian, riou_residuals, ro
 from .lm import DenseJacobian, SchurJacobian, levenberg_marquardt
 from ..geometry.silhouette import NEWTON_TOL, ZNEAR, batch_silhouettes
 
-__all__ = ["FitState", "StageError", "STAGES", "register", "default_state", "trusted_views",
+__all__ = ["FitState", "StageError", "STAGES", "register", "default_state", "view_depths_of", "rotation_to_euler", "trusted_views",
            "TRUSTED_SILHOUETTE_FRACTION", "NUMERICAL_ERRORS", "to_superquadric", "r_iou_m"]
 
 #: Triangulation fails when the condition number of the QR factor R exceeds this.
@@ -181,7 +181,9 @@ def default_state(obs):
     return FitState(xi, view_depths=view, sample_depths=d)
 
 
-def _view_depths(state, obs):
+def view_depths_of(state, obs):
+    """``(v,) float``: the state's depth per view, else its per-sample depths averaged per view, else
+    the default state's."""
     if state.view_depths is not None:
         return state.view_depths
     if state.sample_depths is not None:
@@ -270,7 +272,7 @@ def pca_init(state, obs, options):
     Shape ``e = 1``; position kept from the input state (stage 1's triangulated point, as the
     paper). Per-sample depth: the closed-form minimiser along each ray (:func:`ellipsoid_depths`).
     """
-    depths = _view_depths(state, obs)
+    depths = view_depths_of(state, obs)
     use = trusted_views(obs)[obs.view_of_sample]
     points = (obs.origins + obs.rays * depths[obs.view_of_sample][:, None])[use]
     centred = points - points.mean(axis=0)
@@ -280,7 +282,7 @@ def pca_init(state, obs, options):
         R[:, 2] = -R[:, 2]
     local = centred @ R
     size = np.maximum((local.max(axis=0) - local.min(axis=0)) / 2.0, C.SIZE_MIN)
-    xi = np.concatenate([size, _QUADRIC, state.xi[5:8], _matrix_to_euler(R)])
+    xi = np.concatenate([size, _QUADRIC, state.xi[5:8], rotation_to_euler(R)])
     return FitState(xi, view_depths=None, sample_depths=ellipsoid_depths(xi, obs))
 
 
@@ -315,8 +317,8 @@ def _rotation(xi):
     return rotation_and_derivatives(xi[8:11])[0]
 
 
-def _matrix_to_euler(R):
-    """Euler angles (convention of :mod:`sqfit.geometry.superquadric`) of a proper rotation, closed form."""
+def rotation_to_euler(R):
+    """``(3,) float`` Euler angles (convention of :mod:`sqfit.geometry.superquadric`) of a proper rotation, closed form."""
     ry = -np.arcsin(np.clip(R[2, 0], -1.0, 1.0))
     if abs(R[2, 0]) < 1.0 - 1e-12:
         return np.array([np.arctan2(R[2, 1], R[2, 2]), ry, np.arctan2(R[1, 0], R[0, 0])])
@@ -437,7 +439,7 @@ def _g5_stage(state, obs, options, free, quadric, per_sample, name):
     if per_sample:
         d0 = np.array(_sample_depths(state, obs), dtype=np.float64)
     else:
-        d0 = np.array(_view_depths(state, obs), dtype=np.float64)
+        d0 = np.array(view_depths_of(state, obs), dtype=np.float64)
     view = obs.view_of_sample
     n_views = len(obs)
 

@@ -13,7 +13,7 @@ import numpy as np
 
 from .._checks import check_shape
 
-__all__ = ["polygon_area", "is_convex", "half_planes", "convex_iou", "convex_iou_jacobian", "polygon_iou",
+__all__ = ["polygon_area", "polygon_moments", "batch_polygon_moments", "is_convex", "half_planes", "convex_iou", "convex_iou_jacobian", "polygon_iou",
            "batch_iou"]
 
 #: Polygon edges shorter than this (pixels) do not act as clipping half-planes.
@@ -27,6 +27,75 @@ def polygon_area(polygon):
         return 0.0
     x, y = p[:, 0], p[:, 1]
     return 0.5 * float(np.dot(x, np.roll(y, -1)) - np.dot(y, np.roll(x, -1)))
+
+
+def polygon_moments(polygon):
+    """Area, centroid and covariance of the uniform distribution over a simple polygon's region.
+
+    Green's theorem over the edges (exact for the polygon; either orientation), computed about
+    the first vertex for precision.
+
+    Parameters
+    ----------
+    polygon : (k, 2) float
+        Vertices, not closed, k >= 3, non-zero area.
+
+    Returns
+    -------
+    area : float
+        Unsigned area.
+    centroid : (2,) float
+    covariance : (2, 2) float
+        ``E[(x - centroid)(x - centroid)^T]`` over the region.
+
+    Raises
+    ------
+    ValueError
+        If ``polygon`` is not ``(k, 2)`` finite with k >= 3, or its area is zero.
+    """
+    area, centroid, covariance = batch_polygon_moments([polygon])
+    return float(area[0]), centroid[0], covariance[0]
+
+
+def batch_polygon_moments(polygons):
+    """:func:`polygon_moments` of several polygons in one vectorised pass.
+
+    Parameters
+    ----------
+    polygons : sequence of (k_i, 2) float
+        At least one; each as :func:`polygon_moments` (the message names the index).
+
+    Returns
+    -------
+    area : (b,) float
+    centroid : (b, 2) float
+    covariance : (b, 2, 2) float
+    """
+    checked = [check_shape(p, (None, 2), "polygon" if len(polygons) == 1 else f"polygons[{i}]")
+               for i, p in enumerate(polygons)]
+    if not checked:
+        raise ValueError("polygons must hold at least one polygon")
+    lengths = np.array([len(p) for p in checked])
+    if lengths.min() < 3:
+        raise ValueError(f"polygon must have >= 3 vertices, got {lengths.min()}")
+    starts = np.concatenate([[0], np.cumsum(lengths)[:-1]])
+    p = np.concatenate(checked)
+    q = p - np.repeat(p[starts], lengths, axis=0)  # about each polygon's first vertex
+    following = np.arange(1, len(p) + 1)
+    following[starts + lengths - 1] = starts
+    x, y = q[:, 0], q[:, 1]
+    xn, yn = x[following], y[following]
+    cross = x * yn - xn * y
+    terms = np.stack([cross, (x + xn) * cross, (y + yn) * cross, (x * x + x * xn + xn * xn) * cross,
+                      (y * y + y * yn + yn * yn) * cross, (2.0 * (x * y + xn * yn) + x * yn + xn * y) * cross])
+    twice_area, sx, sy, sxx, syy, sxy = np.add.reduceat(terms, starts, axis=1)
+    if not np.all(np.abs(twice_area) > 0):
+        raise ValueError("polygon has zero area")
+    mean = np.stack([sx, sy], axis=1) / (3.0 * twice_area[:, None])
+    second = np.stack([np.stack([sxx / 6.0, sxy / 12.0], axis=1), np.stack([sxy / 12.0, syy / 6.0], axis=1)],
+                      axis=1) / twice_area[:, None, None]
+    covariance = second - mean[:, :, None] * mean[:, None, :]
+    return np.abs(0.5 * twice_area), mean + p[starts], covariance
 
 
 def is_convex(polygon, tol=1e-9):
