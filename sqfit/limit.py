@@ -13,18 +13,26 @@ Method (all seeded by ``rng``):
    ``|M| * (fraction of the sample inside the superquadric)``, with the superquadric's volume in
    closed form, so each evaluation of the IoU is one ``log F`` test of the sample. (Cell centres
    instead of random points let the search shrink the superquadric by half a cell for free.)
-2. **Global search**: starts in two frames of the mesh (the principal axes of the interior
-   sample and trimesh's minimum-volume oriented bounding box), each with every choice of the frame
-   axis that becomes the superquadric's z axis (``e1`` acts on z, ``e2`` on the xy section),
-   the mesh's half-extents in that frame scaled by :data:`START_SCALES`, and the shape
+2. **Global search**: starts in several frames: the whole mesh in the principal axes of the
+   interior sample and in trimesh's minimum-volume oriented bounding box, and the parts found by
+   k-means of the sample (2 to :data:`PART_CLUSTERS` clusters) in their own principal axes; in
+   each, every choice of the frame axis that becomes the superquadric's z axis (``e1`` acts on z,
+   ``e2`` on the xy section), the half-extents scaled by :data:`START_SCALES` and the shape
    exponents on the grid :data:`START_SHAPES` x :data:`START_SHAPES`; all scored on a
    ``search_points`` subset of the sample.
 3. **Local refinement**: Nelder-Mead (scipy) on the 11 parameters (log sizes, log shape
-   exponents, centre, a rotation vector composed with the start's rotation) from the best start of each of
-   the ``starts`` best (frame, z axis) pairs on the subset, then from the best
-   :data:`FINAL_STARTS` on the whole sample.
+   exponents, centre, a rotation vector composed with the start's rotation), by successive
+   halving: the best start of every (frame, z axis) pair for :data:`SCREEN_EVALUATIONS`
+   evaluations on the subset, the best ``starts`` of those for :data:`SEARCH_EVALUATIONS` more,
+   the best :data:`FINAL_STARTS` for :data:`FINAL_EVALUATIONS` on the whole sample.
 4. **Report**: the accurate IoU of the refined candidates by an exact mesh boolean
    (:func:`sqfit.metrics.iou_3d_mesh`); the best one is the limit.
+
+The search is local and seeded, so the limit it reports is a lower bound of the true one: on
+nine kinds of the household catalogue (two objects each) a search four times as long
+(``starts=24``, 600 / 2000 evaluations, 4 final candidates, 4 parts, one more start scale) found
+IoUs higher by 0.10 on chairs, by up to 0.04 on laptops and tables, by at most 0.01 on mugs,
+bottles, bowls, monitors, lamps and toys.
 
 Shape exponents are searched in ``constants.SILHOUETTE_SHAPE_BOUNDS`` (the widest range the
 fitter itself produces), sizes are free (> 0). The sample's parity labels need no spatial index:
