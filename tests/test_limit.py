@@ -154,7 +154,7 @@ def test_experiments_on_superquadrics_and_without_the_limit_keep_their_tables(tm
     base = {"experiment": {"name": "sq", "seed": 1, "trials": 1, "chains": ["1-2"]}, "masks": {"renderer": "polygon"}}
     summary = run_experiment(parse_scene(base, source="<test>"), tmp_path / "sq", progress=False, figures=False)
     record = json.loads((tmp_path / "sq" / "trials.jsonl").read_text())
-    assert record["metrics"]["iou_limit"] == 1.0 and "limit" not in record  # by definition
+    assert "iou_limit" not in record["metrics"] and "limit" not in record  # 1 by definition, not written
     assert "iou_limit" not in summary and "Limit" not in (tmp_path / "sq" / "table.md").read_text()
     off = {**base, "experiment": {**base["experiment"], "limit": False}, "objects": {"kind": "box"}}
     summary = run_experiment(parse_scene(off, source="<test>"), tmp_path / "off", progress=False, figures=False)

@@ -34,8 +34,8 @@ Representation limit (``experiment.limit = true``, the default): each object who
 not a superquadric is searched once per trial for its best superquadric
 (:func:`sqsim.world.limit.object_limit`; cached per mesh and pose in memory and in ``DIR/limits/``),
 and every record of the object carries ``metrics.iou_limit`` (its 3D IoU with the mesh) and
-``limit`` (``iou``, ``params``, ``seconds``, ``cached``); a superquadric ground truth has
-``iou_limit = 1`` by definition. ``summary.json`` then adds ``iou_limit`` and ``iou_over_limit``
+``limit`` (``iou``, ``params``, ``seconds``, ``cached``). A superquadric ground truth has the
+limit 1 by definition: nothing is searched or written (its records are unchanged). ``summary.json`` then adds ``iou_limit`` and ``iou_over_limit``
 (per-record IoU / limit) to each chain and, when the ground truths are household objects, the
 same per ``gt.item`` under ``by_item`` (:func:`sqsim.reports.experiment.summarize`).
 """
@@ -300,7 +300,7 @@ def fit_trial(scene_dict, index, chains, limits=None):
         limit_cache = LimitCache(limits) if limits is not None else None
     records = []
     for oi, obj in enumerate(sim.objects):
-        limit = object_limit(obj, limit_cache) if scene.experiment.limit else None
+        limit = object_limit(obj, limit_cache) if scene.experiment.limit and obj.superquadric is None else None
         gt_polygons = _ground_truth_polygons(obj, sim)
         try:
             obs = observations(sim, obj.id, scene)
@@ -330,8 +330,7 @@ def fit_trial(scene_dict, index, chains, limits=None):
             limit_metrics = {}
             if limit is not None:
                 limit_metrics = {"iou_limit": limit.iou}
-                if obj.superquadric is None:
-                    base["limit"] = limit.to_dict()
+                base["limit"] = limit.to_dict()
             if obs_error is not None:
                 records.append({**base, "status": "bad_observation", "message": obs_error, "warnings": [],
                                 "params": None, "stages": [], "time_s": 0.0,
