@@ -4,7 +4,7 @@ Reads every module of ``sqfit`` and ``sqsim`` as text (nothing is imported), col
 lazy ones inside functions included, and checks the rules of the README's "Development" section:
 
 - every module sits in a layer, and imports only from its own layer or lower ones
-  (``sqfit``: base < geometry < formats < views < fitting < metrics/recording/testing < graph < cli;
+  (``sqfit``: base < geometry < formats < views < fitting < metrics/limit/recording/testing < graph < cli;
   every ``sqsim`` layer above every ``sqfit`` one: world < imaging < data < reports < runs < cli);
 - no two modules import each other, directly or through a loop;
 - no module takes a private name (``_x``) from another;
@@ -28,7 +28,7 @@ LAYERS = {
     "sqfit.formats": 2,
     "sqfit.views": 3,
     "sqfit.fitting": 4,
-    "sqfit.metrics": 5, "sqfit.recording": 5, "sqfit.testing": 5,
+    "sqfit.metrics": 5, "sqfit.limit": 5, "sqfit.recording": 5, "sqfit.testing": 5,
     "sqfit.graph": 6,
     "sqfit.cli": 7,
     "sqsim": 10,

@@ -40,6 +40,7 @@ __all__ = [
     "radial_distance",
     "contains",
     "volume",
+    "unit_volume",
     "sample_surface_parametric",
     "sample_surface_uniform",
     "project_to_surface",
@@ -370,8 +371,21 @@ def volume(sq):
     v : float
         Cubic metres.
     """
-    (a1, a2, a3), (e1, e2) = sq.size, sq.shape
-    return float(2.0 * a1 * a2 * a3 * e1 * e2 * beta(e1 / 2 + 1, e1) * beta(e2 / 2, e2 / 2))
+    (a1, a2, a3) = sq.size
+    return float(a1 * a2 * a3 * unit_volume(sq.shape))
+
+
+def unit_volume(shape):
+    """Volume of the superquadric of half-axes 1 and shape exponents ``shape = (e1, e2)``: the
+    factor of ``a1 a2 a3`` in :func:`volume` (no ``Superquadric`` is built, for inner loops).
+
+    Returns
+    -------
+    v : float
+        Cubic metres per cubic metre of ``a1 a2 a3``.
+    """
+    e1, e2 = shape
+    return float(2.0 * e1 * e2 * beta(e1 / 2 + 1, e1) * beta(e2 / 2, e2 / 2))
 
 
 def _to_world(sq, local):

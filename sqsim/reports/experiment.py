@@ -46,8 +46,16 @@ def summarize(records, chains, scene_name, seed, trials, resampled):
     Returns
     -------
     summary : dict
+        With representation limits in the records of non-superquadric ground truths
+        (``metrics.iou_limit``), also ``iou_limit`` (over objects) at the top, ``iou_limit`` and
+        ``iou_over_limit`` (per-record IOU / limit) per chain, and per chain ``by_item``: the same
+        with ``iou`` and ``fits`` per household kind (``gt.item``).
     """
     out = {"scene": scene_name, "trials": int(trials), "resampled": int(resampled), "seed": int(seed), "chains": {}}
+    limited = has_limits(records)
+    if limited:
+        objects = {(r["trial"], r["object"]): r["metrics"]["iou_limit"] for r in records if "iou_limit" in r["metrics"]}
+        out["iou_limit"] = stats(list(objects.values()))
     for chain in chains:
         rows = [r for r in records if r["chain"] == chain]
         entry = {m: stats([r["metrics"][m] for r in rows]) for m in METRICS}
@@ -55,8 +63,30 @@ def summarize(records, chains, scene_name, seed, trials, resampled):
         entry["success_rate"] = float(np.mean([r["metrics"]["success"] for r in rows])) if rows else float("nan")
         entry["errors"] = int(sum(r["status"] != "ok" for r in rows))
         entry["fits"] = len(rows)
+        if limited:
+            entry.update(_limit_stats(rows))
+            by_item = {}
+            for r in rows:
+                if r["gt"].get("item") is not None:
+                    by_item.setdefault(r["gt"]["item"], []).append(r)
+            if by_item:
+                entry["by_item"] = {item: {"fits": len(sub), "iou": stats([r["metrics"]["iou"] for r in sub]),
+                                           **_limit_stats(sub)} for item, sub in sorted(by_item.items())}
         out["chains"][chain] = entry
     return out
+
+
+def has_limits(records):
+    """Whether some record carries a representation limit (non-superquadric ground truths only)."""
+    return any("iou_limit" in r["metrics"] for r in records)
+
+
+def _limit_stats(rows):
+    """``iou_limit`` and ``iou_over_limit`` stats of the rows that carry a limit."""
+    rows = [r for r in rows if "iou_limit" in r["metrics"]]
+    limits = np.array([r["metrics"]["iou_limit"] for r in rows])
+    ious = np.array([r["metrics"]["iou"] for r in rows])
+    return {"iou_limit": stats(limits), "iou_over_limit": stats(ious / np.maximum(limits, 1e-12))}
 
 
 def _row_values(entry):
@@ -68,18 +98,46 @@ def _chain_label(chain, tex=False):
     return chain.replace("-", r"$\rightarrow$" if tex else " → ")
 
 
+def _limited(summary):
+    return "iou_limit" in summary
+
+
 def table_markdown(summary, with_paper=True):
-    """Table II layout in Markdown; with ``with_paper``, the paper's row follows each chain."""
+    """Table II layout in Markdown; with ``with_paper``, the paper's row follows each chain.
+
+    With representation limits (:func:`summarize`), two more columns (medians of the limit and of
+    IOU / limit) and a table per household kind follow.
+    """
+    limited = _limited(summary)
     head = ["Stages"] + [f"{METRIC_LABELS[m]} {k}" for m in METRICS for k in ("M", "A", "Std")] + ["σ"]
+    head += ["Limit M", "IOU/Limit M"] if limited else []
     lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
     for chain, entry in summary["chains"].items():
         vals = _row_values(entry)
+        extra = f" {entry['iou_limit']['median']:.3f} | {entry['iou_over_limit']['median']:.3f} |" if limited else ""
         lines.append(f"| {_chain_label(chain)} | " + " | ".join(f"{v:.3f}" for v in vals[:-1])
-                     + f" | {100 * vals[-1]:.0f} % |")
+                     + f" | {100 * vals[-1]:.0f} % |" + extra)
         if with_paper and chain in PAPER_TABLE_II:
             ref = PAPER_TABLE_II[chain]
-            lines.append("| *paper* | " + " | ".join(f"*{v:.3f}*" for v in ref[:-1]) + f" | *{100 * ref[-1]:.0f} %* |")
+            lines.append("| *paper* | " + " | ".join(f"*{v:.3f}*" for v in ref[:-1]) + f" | *{100 * ref[-1]:.0f} %* |"
+                         + (" | |" if limited else ""))
+    if limited:
+        lines += ["", item_table_markdown(summary)]
     return "\n".join(lines) + "\n"
+
+
+def item_table_markdown(summary):
+    """Markdown: per chain and household kind, fits and the medians of IOU, limit and IOU / limit.
+
+    Without household kinds, one row per chain.
+    """
+    lines = ["| chain | kind | fits | IOU M | Limit M | IOU/Limit M |", "|---|---|---|---|---|---|"]
+    for chain, entry in summary["chains"].items():
+        groups = entry.get("by_item") or {"all": {**entry}}
+        for item, e in groups.items():
+            lines.append(f"| {_chain_label(chain)} | {item} | {e['fits']} | {e['iou']['median']:.3f} | "
+                         f"{e['iou_limit']['median']:.3f} | {e['iou_over_limit']['median']:.3f} |")
+    return "\n".join(lines)
 
 
 def paper_comparison(summary):
@@ -115,10 +173,16 @@ def table_latex(summary):
         r"\texttt{Stages} &M&A&Std&M&A&Std&M&A&Std&M&A&Std \\",
         r"\midrule",
     ]
+    limited = _limited(summary)
+    if limited:  # medians of the representation limit and of IOU / limit after the rate
+        lines[3] = lines[3].replace("|c}", "|c|cc}")
+        lines[5] = lines[5].replace(r"&$\sigma$\\", r"&$\sigma$&Limit&IOU/Limit\\")
+        lines[6] = lines[6].replace(r"&M&A&Std \\", r"&M&A&Std &&M&M\\")
     for chain, entry in summary["chains"].items():
         vals = _row_values(entry)
         cells = "&".join(f"{v:.3f}" for v in vals[:-1])
-        lines.append(rf"\texttt{{{_chain_label(chain, tex=True)}}}&{cells}&${100 * vals[-1]:.0f}\,\%$\\")
+        extra = f"&{entry['iou_limit']['median']:.3f}&{entry['iou_over_limit']['median']:.3f}" if limited else ""
+        lines.append(rf"\texttt{{{_chain_label(chain, tex=True)}}}&{cells}&${100 * vals[-1]:.0f}\,\%${extra}\\")
     lines += [r"\bottomrule", r"\end{tabular}", r"\end{table*}"]
     return "\n".join(lines) + "\n"
 
@@ -127,11 +191,14 @@ def screen_summary(summary):
     """A compact one-screen text table: medians, success rate and errors per chain."""
     lines = [f"scene {summary['scene']}: {summary['trials']} trials (seed {summary['seed']}, "
              f"{summary['resampled']} re-sampled)",
-             f"{'chain':<14}{'IOU':>7}{'R-IOU':>8}{'R-IOU-M':>9}{'time ms':>9}{'success':>9}{'errors':>8}"]
+             f"{'chain':<14}{'IOU':>7}{'R-IOU':>8}{'R-IOU-M':>9}{'time ms':>9}{'success':>9}{'errors':>8}"
+             + (f"{'limit':>7}{'IOU/lim':>9}" if _limited(summary) else "")]
     for chain, e in summary["chains"].items():
         lines.append(f"{chain:<14}{e['iou']['median']:>7.3f}{e['r_iou']['median']:>8.3f}"
                      f"{e['r_iou_m']['median']:>9.3f}{1000 * e['time_s']['median']:>9.1f}"
-                     f"{100 * e['success_rate']:>8.0f}%{e['errors']:>8d}")
+                     f"{100 * e['success_rate']:>8.0f}%{e['errors']:>8d}"
+                     + (f"{e['iou_limit']['median']:>7.3f}{e['iou_over_limit']['median']:>9.3f}"
+                        if _limited(summary) else ""))
     lines.append("(medians; full table with means and std in table.md)")
     return "\n".join(lines)
 

@@ -29,6 +29,15 @@ fitted and true silhouettes in the true cameras; R-IOU-M = mean 2D IoU of the fi
 and the observation's hull of samples (paper), ``r_iou_m_contour`` the same against the full mask
 contour. A fit that produced no superquadric scores 0 everywhere and counts as an error.
 Intermediate stages are scored with a coarser 3D IoU grid (``STAGE_IOU_CELLS``, < 2 % error).
+
+Representation limit (``experiment.limit = true``, the default): each object whose ground truth is
+not a superquadric is searched once per trial for its best superquadric
+(:func:`sqsim.world.limit.object_limit`; cached per mesh and pose in memory and in ``DIR/limits/``),
+and every record of the object carries ``metrics.iou_limit`` (its 3D IoU with the mesh) and
+``limit`` (``iou``, ``params``, ``seconds``, ``cached``). A superquadric ground truth has the
+limit 1 by definition: nothing is searched or written (its records are unchanged). ``summary.json`` then adds ``iou_limit`` and ``iou_over_limit``
+(per-record IoU / limit) to each chain and, when the ground truths are household objects, the
+same per ``gt.item`` under ``by_item`` (:func:`sqsim.reports.experiment.summarize`).
 """
 
 from __future__ import annotations
@@ -177,7 +186,8 @@ def run_experiment(scene, output, *, trials=None, chains=None, seed=None, worker
     pending = {i: c for i, c in pending.items() if c}
     scene_dict = scene.to_dict()
 
-    new = _map_trials(scene_dict, pending, jsonl, workers, scheduler, progress)
+    limits = str(out / "limits") if scene.experiment.limit else None
+    new = _map_trials(scene_dict, pending, jsonl, workers, scheduler, progress, limits)
     records += new
     summary = write_reports(out, scene, chains, records, figures)
     if rerun is not None:
@@ -214,7 +224,7 @@ def record_rerun(path, scene, records, max_trials=None):
 
 
 
-def _map_trials(scene_dict, pending, jsonl, workers, scheduler, progress):
+def _map_trials(scene_dict, pending, jsonl, workers, scheduler, progress, limits=None):
     from tqdm import tqdm
 
     if not pending:
@@ -232,9 +242,9 @@ def _map_trials(scene_dict, pending, jsonl, workers, scheduler, progress):
         try:
             if scheduler is None and int(workers) == 1:
                 for index, chains in pending.items():
-                    write(fit_trial(scene_dict, index, chains))
+                    write(fit_trial(scene_dict, index, chains, limits))
             else:
-                _run_parallel(scene_dict, pending, workers, scheduler, write)
+                _run_parallel(scene_dict, pending, workers, scheduler, write, limits)
         except KeyboardInterrupt:
             bar.close()
             print(f"\ninterrupted: {len(new)} records saved; re-run the same command to resume", file=sys.stderr)
@@ -244,10 +254,10 @@ def _map_trials(scene_dict, pending, jsonl, workers, scheduler, progress):
     return new
 
 
-def _run_parallel(scene_dict, pending, workers, scheduler, write):
+def _run_parallel(scene_dict, pending, workers, scheduler, write, limits=None):
     from .parallel import map_unordered
 
-    args = ((scene_dict, i, c) for i, c in pending.items())
+    args = ((scene_dict, i, c, limits) for i, c in pending.items())
     for records in map_unordered(fit_trial, args, workers=workers, scheduler=scheduler):
         write(records)
 
@@ -260,10 +270,12 @@ def chain_seed(seed_sequence, chain):
     return np.random.SeedSequence(seed_sequence.entropy, spawn_key=tuple(seed_sequence.spawn_key) + (key,))
 
 
-def fit_trial(scene_dict, index, chains):
+def fit_trial(scene_dict, index, chains, limits=None):
     """Simulate trial ``index``, fit each chain to each object, and score every stage.
 
-    Runs in a worker; takes and returns plain data only.
+    Runs in a worker; takes and returns plain data only. With ``experiment.limit``, each object's
+    representation limit is found once (before its chains) and cached in ``limits`` (a
+    directory; default: this process's memory).
 
     Returns
     -------
@@ -283,8 +295,14 @@ def fit_trial(scene_dict, index, chains):
     options = {"polygon": scene.fit.polygon, "penalty_riou": scene.fit.penalty_riou,
                "penalty_analytic": scene.fit.penalty_analytic, "pose_sigma_deg": scene.fit.pose_sigma_deg,
                "occlusion_aware": scene.fit.occlusion_aware}
+    limit_cache = None
+    if scene.experiment.limit:
+        from ..world.limit import LimitCache, object_limit
+
+        limit_cache = LimitCache(limits) if limits is not None else None
     records = []
     for oi, obj in enumerate(sim.objects):
+        limit = object_limit(obj, limit_cache) if scene.experiment.limit and obj.superquadric is None else None
         gt_polygons = _ground_truth_polygons(obj, sim)
         try:
             obs = observations(sim, obj.id, scene)
@@ -311,10 +329,15 @@ def fit_trial(scene_dict, index, chains):
                     "visible_fraction": sim.visible_fraction[oi].round(4).tolist(),
                     "cut_fraction": sim.cut_fraction[oi].round(4).tolist(),
                     "border_cut": sim.border_cut[oi].tolist()}
+            limit_metrics = {}
+            if limit is not None:
+                limit_metrics = {"iou_limit": limit.iou}
+                base["limit"] = limit.to_dict()
             if obs_error is not None:
                 records.append({**base, "status": "bad_observation", "message": obs_error, "warnings": [],
                                 "params": None, "stages": [], "time_s": 0.0,
-                                "metrics": {**score(None, IOU_GRID_CELLS), "time_s": 0.0, "success": False}})
+                                "metrics": {**score(None, IOU_GRID_CELLS), **limit_metrics, "time_s": 0.0,
+                                            "success": False}})
                 continue
             result = sqfit.fit(obs, chain, rng=np.random.default_rng(chain_seed(seed, chain)), options=options)
             stages = []
@@ -329,7 +352,7 @@ def fit_trial(scene_dict, index, chains):
                             "warnings": list(result.warnings),
                             "params": None if result.superquadric is None else result.superquadric.to_vector().tolist(),
                             "stages": stages, "time_s": result.seconds,
-                            "metrics": {**final_metrics, "time_s": result.seconds,
+                            "metrics": {**final_metrics, **limit_metrics, "time_s": result.seconds,
                                         "success": bool(final_metrics["iou"] > 0)}})
     return records
 

@@ -46,6 +46,7 @@ class ExperimentConfig:
     seed: int = 0
     trials: int = 100
     chains: tuple = _PAPER_CHAINS
+    limit: bool = True  # score non-superquadric ground truths against their best superquadric (sqsim.world.limit)
 
 
 @dataclass(frozen=True)
@@ -139,7 +140,8 @@ class FitConfig:
 
 
 _CHECKS = {
-    "experiment": {"name": nonempty_string, "seed": integer(0), "trials": integer(1), "chains": nonempty_strings},
+    "experiment": {"name": nonempty_string, "seed": integer(0), "trials": integer(1), "chains": nonempty_strings,
+                   "limit": boolean},
     "camera": {"width": integer(1), "height": integer(1), "fx": number(0, lo_open=True),
                "fy": number(0, lo_open=True), "cx": number(), "cy": number()},
     "trajectory": {"kind": choice(TRAJECTORIES), "radius": number(0, lo_open=True), "views": integer(1),
