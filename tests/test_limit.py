@@ -6,6 +6,8 @@ import numpy as np
 import pytest
 import trimesh
 
+import sqfit
+
 from sqfit.geometry.superquadric import Superquadric, to_mesh, unit_volume, volume
 from sqfit.limit import best_superquadric, interior_points
 from sqfit.metrics import iou_3d
@@ -138,8 +140,8 @@ def test_experiment_records_and_summarises_the_limit_once_per_object(tmp_path):
         assert pair[0]["limit"] == pair[1]["limit"]  # one search per object, shared by its chains
         assert 0.5 < pair[0]["metrics"]["iou_limit"] <= 1.0
     assert len(list((tmp_path / "limits").glob("*.json"))) == 2
-    entry = summary["chains"]["1-2-3H"]
-    ratios = [r["metrics"]["iou"] / r["metrics"]["iou_limit"] for r in records if r["chain"] == "1-2-3H"]
+    entry = summary["chains"][sqfit.DEFAULT_CHAIN]
+    ratios = [r["metrics"]["iou"] / r["metrics"]["iou_limit"] for r in records if r["chain"] == sqfit.DEFAULT_CHAIN]
     assert entry["iou_over_limit"]["median"] == pytest.approx(np.median(ratios))
     assert set(entry["by_item"]) <= {"can", "mug"} and sum(e["fits"] for e in entry["by_item"].values()) == 2
     assert "iou_limit" in summary
