@@ -11,8 +11,8 @@ Quick start::
 
 Layers, each importing only from those before it (README, "Development"): :mod:`sqfit.geometry`,
 :mod:`sqfit.formats`, :mod:`sqfit.views`, :mod:`sqfit.fitting`, then :mod:`sqfit.metrics`,
-:mod:`sqfit.recording`, :mod:`sqfit.testing`, :mod:`sqfit.graph` (needs gtsam) and
-:mod:`sqfit.cli`.
+:mod:`sqfit.limit`, :mod:`sqfit.recording`, :mod:`sqfit.testing`, :mod:`sqfit.graph` (needs gtsam)
+and :mod:`sqfit.cli`.
 """
 
 from .fitting import DEFAULT_CHAIN, PAPER_CHAINS, STAGES, FitOptions, FitResult, StageRecord, fit
