@@ -41,12 +41,22 @@ def check_shape(x, shape, name, dtype=np.float64, finite=True):
     return arr
 
 
+def check_number(value, name, lo=None, lo_open=False):
+    """Return ``value`` as a float, raising ``ValueError`` unless it is a finite number ``>= lo``
+    (``> lo`` with ``lo_open``; no bound when ``lo`` is None)."""
+    try:
+        value = float(value)
+    except (TypeError, ValueError):
+        raise ValueError(f"{name} must be a finite number, got {value!r}") from None
+    if not np.isfinite(value) or (lo is not None and (value < lo or (lo_open and value == lo))):
+        bound = "" if lo is None else f" {'>' if lo_open else '>='} {lo}"
+        raise ValueError(f"{name} must be a finite number{bound}, got {value}")
+    return value
+
+
 def check_positive(value, name):
     """Return ``value`` as a float, raising unless it is finite and > 0."""
-    value = float(value)
-    if not np.isfinite(value) or value <= 0:
-        raise ValueError(f"{name} must be a finite number > 0, got {value}")
-    return value
+    return check_number(value, name, 0, lo_open=True)
 
 
 def check_choice(value, choices, name):

@@ -35,6 +35,8 @@ from __future__ import annotations
 import numpy as np
 from scipy import ndimage
 
+from sqfit._checks import check_number
+
 from .mask_ops import as_mask, mask_box
 
 __all__ = ["outline_contours", "smooth_outline", "signed_distance", "bias_boundary", "draw_bias",
@@ -57,17 +59,6 @@ HOLE_RIM_PX = 1.0
 
 
 # --- checks and the outline ------------------------------------------------------------------------
-
-def _check_number(x, name, lo=None, lo_open=False):
-    try:
-        x = float(x)
-    except (TypeError, ValueError):
-        raise ValueError(f"{name} must be a finite number, got {x!r}") from None
-    if not np.isfinite(x) or (lo is not None and (x < lo or (lo_open and x == lo))):
-        bound = "" if lo is None else f" {'>' if lo_open else '>='} {lo}"
-        raise ValueError(f"{name} must be a finite number{bound}, got {x}")
-    return x
-
 
 def outline_contours(mask):
     """The mask's outline: closed marching-squares contours at level 0.5.
@@ -208,7 +199,7 @@ def bias_boundary(mask, delta):
         A superset (``delta > 0``) or subset (``delta < 0``) of ``mask``.
     """
     mask = as_mask(mask)
-    delta = _check_number(delta, "boundary bias")
+    delta = check_number(delta, "boundary bias")
     if delta == 0 or not mask.any():
         return mask.copy()
     return _on_crop(mask, int(np.ceil(abs(delta))) + 2, lambda sub: _offset(sub, delta))
@@ -244,8 +235,8 @@ def draw_bias(mean, std, rng=None):
     -------
     delta : float
     """
-    mean = _check_number(mean, "boundary bias mean")
-    std = _check_number(std, "boundary bias std", lo=0)
+    mean = check_number(mean, "boundary bias mean")
+    std = check_number(std, "boundary bias std", lo=0)
     if std == 0:
         return mean
     return float(np.random.default_rng(rng).normal(mean, std))
@@ -281,8 +272,8 @@ def smooth_boundary_error(mask, amplitude, wavelength, rng=None):
     displaced : (h, w) bool
     """
     mask = as_mask(mask)
-    amplitude = _check_number(amplitude, "smooth boundary error", lo=0)
-    wavelength = _check_number(wavelength, "smooth boundary error wavelength", lo=0, lo_open=True)
+    amplitude = check_number(amplitude, "smooth boundary error", lo=0)
+    wavelength = check_number(wavelength, "smooth boundary error wavelength", lo=0, lo_open=True)
     rng = np.random.default_rng(rng)
     if amplitude == 0 or not mask.any():
         return mask.copy()
@@ -316,7 +307,7 @@ def remove_thin_parts(mask, width):
     import shapely
 
     mask = as_mask(mask)
-    width = _check_number(width, "thin-part width", lo=0)
+    width = check_number(width, "thin-part width", lo=0)
     if width == 0 or not mask.any():
         return mask.copy()
     radius = 0.5 * width
@@ -349,8 +340,8 @@ def punch_holes(mask, rate, radius, rng=None):
     holed : (h, w) bool
     """
     mask = as_mask(mask)
-    rate = _check_number(rate, "hole rate", lo=0)
-    radius = _check_number(radius, "hole radius", lo=0, lo_open=True)
+    rate = check_number(rate, "hole rate", lo=0)
+    radius = check_number(radius, "hole radius", lo=0, lo_open=True)
     rng = np.random.default_rng(rng)
     if rate == 0 or not mask.any():
         return mask.copy()

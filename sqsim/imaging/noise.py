@@ -29,7 +29,7 @@ import numpy as np
 from scipy import ndimage
 
 import sqfit
-from sqfit._checks import check_shape
+from sqfit._checks import check_number, check_shape
 
 from .mask_ops import as_mask, mask_box
 
@@ -103,13 +103,6 @@ def _check_px(k, name):
     return int(k)
 
 
-def _check_nonneg(x, name):
-    x = float(x)
-    if not np.isfinite(x) or x < 0:
-        raise ValueError(f"{name} must be a finite number >= 0, got {x}")
-    return x
-
-
 def _smooth_field(shape, scale, rng):
     """Zero-mean, unit-std Gaussian random field with correlation length ``scale`` px."""
     field = ndimage.gaussian_filter(rng.standard_normal(shape), scale, mode="wrap")
@@ -133,7 +126,7 @@ def jitter_boundary(mask, sigma, rng=None, scale=JITTER_SCALE_PX):
     jittered : (h, w) bool
     """
     mask = as_mask(mask)
-    sigma = _check_nonneg(sigma, "boundary jitter")
+    sigma = check_number(sigma, "boundary jitter", lo=0)
     rng = np.random.default_rng(rng)
     if sigma == 0 or not mask.any():
         return mask.copy()
@@ -297,8 +290,8 @@ def perturb_pose(pose, rotation_deg, translation_m, rng=None):
     from scipy.spatial.transform import Rotation
 
     pose = check_shape(pose, (4, 4), "pose")
-    rotation_deg = _check_nonneg(rotation_deg, "pose rotation noise")
-    translation_m = _check_nonneg(translation_m, "pose translation noise")
+    rotation_deg = check_number(rotation_deg, "pose rotation noise", lo=0)
+    translation_m = check_number(translation_m, "pose translation noise", lo=0)
     rng = np.random.default_rng(rng)
     rotvec = rng.normal(0.0, np.radians(rotation_deg), 3)
     shift = rng.normal(0.0, translation_m, 3)
