@@ -7,7 +7,8 @@ Trials are the paper's permutation experiment rendered without OpenGL (``sqfit.t
 ``sqfit.fit`` call, R-IOU-M evaluation included), median and mean 3D IoU against the ground truth,
 R-IOU (against the ground-truth silhouettes) and R-IOU-M, success rate (IoU > 0) and the paper's
 figures for comparison. ``--repeat N`` times every fit N times and keeps the fastest (the machine
-is shared: the minimum of a few runs is the least noisy per-trial figure). ``--options JSON`` passes
+is shared: the minimum of a few runs is the least noisy per-trial figure; every run fits fresh
+``Observation`` objects, so what one run cached on them does not speed up the next). ``--options JSON`` passes
 ``sqfit.FitOptions`` fields (e.g. ``'{"riou_jacobian": "numeric"}'`` for the paper's
 finite-difference R-IOU stages). ``--clock cpu`` times with ``time.process_time`` (this process's CPU time, less distorted when
 other jobs load the machine). ``--json PATH`` writes the per-trial figures. ``--profile CHAIN``
@@ -21,6 +22,7 @@ import json
 import os
 import platform
 import time
+from dataclasses import replace
 
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
@@ -44,8 +46,11 @@ GT_DIRECTIONS = 256
 def _run(trial, chain, repeat, options=None, clock=time.perf_counter):
     best = np.inf
     for _ in range(repeat):
+        # fresh Observation objects every time: nothing an earlier fit cached on them (hull, arc
+        # lengths) is reused, so each repetition times a first fit of new masks
+        observations = [replace(o) for o in trial.observations]
         t0 = clock()
-        result = sqfit.fit(trial.observations, chain, options=options)
+        result = sqfit.fit(observations, chain, options=options)
         best = min(best, clock() - t0)
     sq = result.superquadric
     if sq is None:

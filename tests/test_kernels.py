@@ -174,3 +174,105 @@ def test_compiled_path_is_the_default_when_numba_is_installed():
         code = "import sqfit.fitting.backend as b; print(b.kernels_name())"
         out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
         assert out.stdout.strip() == "numba"
+
+
+# ------------------------------------------------------------------------------------------------
+# R-IOU-M: silhouettes, convex IoU and hulls (sqfit.fitting.silhouette_kernels)
+
+
+def _perturbed_starts(seed, count=4):
+    trial = paper_trial(seed)
+    rng = np.random.default_rng(seed)
+    X = np.stack([trial.gt.to_vector() * np.r_[rng.uniform(0.7, 1.3, 5), np.ones(6)]
+                  + np.r_[np.zeros(5), rng.normal(0.0, 0.3, 6)] for _ in range(count)])
+    return trial, X
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_silhouettes_agree(kernels, seed):
+    from sqfit.geometry.silhouette import batch_silhouettes
+
+    trial, X = _perturbed_starts(seed)
+    obs = costs.ObservationSet(trial.observations)
+    (P_k, V_k), (P_n, V_n) = kernels(lambda: costs.silhouettes(X, obs))
+    assert np.array_equal(V_k, V_n) and V_n.any()
+    # each vertex stops at its own step below NEWTON_TOL (1e-7 px), the numpy batch when all do
+    assert np.abs(P_k - P_n)[V_n].max() < 1e-5
+    assert np.array_equal(P_n, batch_silhouettes(X, obs.rotations, obs.centers, obs.intrinsics)[0])
+
+
+def test_silhouettes_behind_the_camera_are_invalid(kernels):
+    trial, X = _perturbed_starts(0, 2)
+    obs = costs.ObservationSet(trial.observations)
+    X[1, 5:8] = obs.centers[0]  # the camera centre inside the superquadric: view 0 has no silhouette
+    (_, V_k), (_, V_n) = kernels(lambda: costs.silhouettes(X, obs))
+    assert np.array_equal(V_k, V_n) and not V_k[1, 0] and V_k[0].all()
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_r_iou_m_agrees(kernels, seed):
+    trial, X = _perturbed_starts(seed)
+
+    def score():
+        obs = costs.ObservationSet(trial.observations)  # fresh: targets (hulls) from each path
+        return costs.visible_iou(*costs.silhouettes(X, obs), obs)
+
+    iou_k, iou_n = kernels(score)
+    assert np.abs(iou_k - iou_n).max() < 1e-9 and iou_n.max() > 0.3
+
+
+def test_convex_iou_kernel_on_known_overlaps():
+    from sqfit.fitting.backend import compiled
+    from sqfit.geometry.polygon import MIN_EDGE, half_planes
+
+    k = compiled("silhouettes")
+    if k is None:
+        pytest.skip("numba kernels not selected")
+    square = np.array([[0.0, 0.0], [2.0, 0.0], [2.0, 2.0], [0.0, 2.0]])
+    target = np.vstack([square, square[-1:]])[None].repeat(3, 0)  # padded by repeating a vertex
+
+    def iou(polys):
+        return k.convex_iou(np.ascontiguousarray(polys[None]), np.ones((1, 3), dtype=bool), target,
+                            *half_planes(target), MIN_EDGE)[0]
+
+    # half overlapping (2 / 6), identical (shared edges counted once), disjoint
+    assert np.allclose(iou(np.stack([square + [1.0, 0.0], square, square + [5.0, 5.0]])), [1.0 / 3.0, 1.0, 0.0],
+                       atol=1e-12)
+    # a duplicate vertex (zero-length edge), a sliver inside, a square around the target
+    inner = np.array([[0.5, 0.5], [1.5, 0.5], [1.5, 0.5], [0.5, 1.5], [0.5, 1.5]])
+    around = np.array([[-1.0, -1.0], [3.0, -1.0], [3.0, 3.0], [-1.0, 3.0], [-1.0, 3.0]])
+    assert np.allclose(iou(np.stack([np.vstack([square, square[:1]]), inner, around])), [1.0, 0.125, 0.25],
+                       atol=1e-12)
+
+
+def test_convex_hull_kernel():
+    from scipy.spatial import ConvexHull
+
+    from sqfit.fitting.backend import compiled
+
+    k = compiled("silhouettes")
+    if k is None:
+        pytest.skip("numba kernels not selected")
+    rng = np.random.default_rng(4)
+    for n in (3, 10, 100, 1000):
+        points = rng.normal(size=(n, 2)) * [30.0, 5.0]
+        points[: n // 3] = np.round(points[: n // 3])  # ties in x and y
+        index = k.convex_hull(np.ascontiguousarray(points))
+        reference = ConvexHull(points).vertices
+        assert sorted(index) == sorted(reference)
+        hull = points[index]
+        edges = np.roll(hull, -1, axis=0) - hull
+        assert np.all(edges[:, 0] * np.roll(edges[:, 1], -1) - edges[:, 1] * np.roll(edges[:, 0], -1) > 0)  # CCW
+    square = np.array([[0.0, 0.0], [1.0, 0.0], [1.0, 1.0], [0.0, 1.0], [0.5, 0.0], [0.5, 0.5], [0.0, 0.0]])
+    assert sorted(k.convex_hull(square)) == [0, 1, 2, 3]  # collinear and repeated points dropped
+    assert len(k.convex_hull(np.array([[0.0, 0.0], [1.0, 1.0], [2.0, 2.0]]))) == 0  # collinear: no hull
+
+
+def test_compiled_parts_load_lazily():
+    code = ("import sys, sqfit.fitting.backend as b; b.compiled(); print('silhouette_kernels' in str(sys.modules)); "
+            "b.compiled('silhouettes'); print('sqfit.fitting.silhouette_kernels' in sys.modules)")
+    env = dict(os.environ, SQFIT_KERNELS="numba")
+    out = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, check=True)
+    assert out.stdout.split() == ["False", "True"]
+    with pytest.raises(ValueError, match="part must be one of"):
+        backend.compiled("fortran")

@@ -3,10 +3,9 @@ import pytest
 
 from sqfit import FitOptions, Observation, Superquadric
 from sqfit.fitting import stages as S
-from sqfit.fitting.costs import ObservationSet, sample_points
+from sqfit.fitting.costs import ObservationSet, sample_points, silhouettes
 from sqfit.fitting.lm import CONVERGED
 from sqfit.fitting.stages import r_iou_m, to_superquadric
-from sqfit.geometry.silhouette import batch_silhouettes
 from sqfit.geometry.superquadric import radial_distance
 from sqfit.testing import paper_cameras, paper_trial, polygon_mask
 
@@ -165,9 +164,9 @@ def test_r_iou_m_scores_each_superquadric_once_per_observation_set(monkeypatch, 
 
     def counted(xi, *args):
         calls.append(len(xi))
-        return batch_silhouettes(xi, *args)
+        return silhouettes(xi, *args)
 
-    monkeypatch.setattr(S, "batch_silhouettes", counted)
+    monkeypatch.setattr(S, "silhouettes", counted)
     again = r_iou_m([b, a], obs)
     np.testing.assert_array_equal(again, first[::-1])  # remembered: no evaluation at all
     assert calls == []

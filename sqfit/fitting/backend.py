@@ -3,7 +3,8 @@
 The ray minimisers and the 3G residuals and Jacobians (:mod:`sqfit.fitting.raycost`, used by stages 3G,
 3H, 3S and the factor graph) and the radial terms of G3-G5 (:mod:`sqfit.fitting.costs`) have two
 implementations that compute the same numbers: vectorised numpy, and per-ray loops compiled with
-numba (:mod:`sqfit.fitting.ray_kernels`). Small arrays make numpy pay its per-call overhead dozens of
+numba (:mod:`sqfit.fitting.ray_kernels`); so do the silhouettes, convex IoUs and hulls of R-IOU-M
+(:mod:`sqfit.fitting.silhouette_kernels`). Small arrays make numpy pay its per-call overhead dozens of
 times per evaluation; the compiled loops do not (README, "Fitter speed").
 
 Choice, first match wins:
@@ -20,14 +21,17 @@ from __future__ import annotations
 
 import os
 
-__all__ = ["KERNELS", "ENV_VAR", "set_kernels", "kernels_name", "compiled"]
+__all__ = ["KERNELS", "ENV_VAR", "PARTS", "set_kernels", "kernels_name", "compiled"]
 
 #: Accepted names of an implementation.
 KERNELS = ("auto", "numba", "numpy")
 #: Environment variable read when :func:`set_kernels` was not called.
 ENV_VAR = "SQFIT_KERNELS"
 
-_state = {"choice": None, "module": None, "resolved": None}
+#: The kernel modules by part, imported at first use.
+PARTS = ("rays", "silhouettes")
+
+_state = {"choice": None, "modules": {}, "resolved": None}
 
 
 def set_kernels(name):
@@ -61,11 +65,27 @@ def _requested():
     return name
 
 
-def compiled():
-    """The compiled kernels module (:mod:`sqfit.fitting.ray_kernels`), or None for the numpy path."""
+def compiled(part="rays"):
+    """A compiled kernels module, or None for the numpy path.
+
+    ``part``: ``"rays"`` (:mod:`sqfit.fitting.ray_kernels`) or ``"silhouettes"``
+    (:mod:`sqfit.fitting.silhouette_kernels`); each is imported (and its kernels loaded) at the
+    first call that asks for it.
+    """
     if _state["resolved"] is None:
         _state["resolved"] = _resolve(_requested())
-    return _state["module"] if _state["resolved"] == "numba" else None
+    if _state["resolved"] != "numba":
+        return None
+    module = _state["modules"].get(part)
+    if module is None:
+        if part == "rays":
+            from . import ray_kernels as module
+        elif part == "silhouettes":
+            from . import silhouette_kernels as module
+        else:
+            raise ValueError(f"part must be one of {PARTS}, got {part!r}")
+        _state["modules"][part] = module
+    return module
 
 
 def kernels_name():
@@ -77,7 +97,7 @@ def kernels_name():
 def _resolve(name):
     if name == "numpy":
         return "numpy"
-    if _state["module"] is None:
+    if "rays" not in _state["modules"]:
         try:
             from . import ray_kernels
         except ImportError as exc:
@@ -85,5 +105,5 @@ def _resolve(name):
                 raise ImportError(f"kernels 'numba' were requested ({ENV_VAR} or set_kernels) but numba "
                                   f"does not import: {exc}") from exc
             return "numpy"
-        _state["module"] = ray_kernels
+        _state["modules"]["rays"] = ray_kernels
     return "numba"

@@ -40,13 +40,14 @@ from .. import constants as C
 from .backend import compiled
 from ..geometry.camera import bearings
 from ..views.observation import Observation
-from ..geometry.polygon import batch_iou, convex_iou_jacobian, half_planes
-from ..geometry.silhouette import DEFAULT_DIRECTIONS, NEWTON_TOL, batch_silhouettes, camera_arrays, silhouette_gradient
-from ..geometry.superquadric import rotation_and_derivatives
+from ..geometry.polygon import MIN_EDGE, batch_iou, convex_iou_jacobian, half_planes
+from ..geometry.silhouette import (DEFAULT_DIRECTIONS, E_RANGE, MAX_NEWTON, NEWTON_TOL, ZNEAR, batch_silhouettes,
+                                   camera_arrays, silhouette_gradient)
+from ..geometry.superquadric import euler_to_matrix, rotation_and_derivatives
 from ..views.visibility import BORDER
 from ..geometry.visible_iou import clipped_convex_iou_jacobian, hidden_counts, image_rectangles, points_in_convex
 
-__all__ = ["ObservationSet", "penalty", "penalty_jacobian", "riou_residuals", "visible_iou", "hidden_at",
+__all__ = ["ObservationSet", "penalty", "penalty_jacobian", "riou_residuals", "silhouettes", "visible_iou", "hidden_at",
            "radial_terms",
            "rotation_and_derivatives",
            "g5_residuals", "LOWER_BOUNDS", "UPPER_BOUNDS"]
@@ -170,11 +171,18 @@ class ObservationSet:
 
 def _hull(observation):
     """Convex hull of the samples, CCW: the same polygon as ``Observation.polygon("hull")`` (up to
-    collinear points), by qhull, which is ~50x faster than the pure-Python hull there."""
+    collinear points and the first vertex), by the compiled monotone chain
+    (:func:`sqfit.fitting.silhouette_kernels.convex_hull`, ~5 us) or qhull (~0.1 ms; both ~50x faster
+    than the pure-Python hull there); collinear samples fall back to that hull."""
+    samples = np.ascontiguousarray(observation.samples, dtype=np.float64)
+    kernels = compiled("silhouettes")
+    if kernels is not None:
+        index = kernels.convex_hull(samples) if len(samples) else np.zeros(0, dtype=np.int64)
+        return samples[index] if len(index) >= 3 else np.asarray(observation.polygon("hull"))
     from scipy.spatial import ConvexHull, QhullError
 
     try:
-        return observation.samples[ConvexHull(observation.samples).vertices]
+        return samples[ConvexHull(samples).vertices]
     except (QhullError, ValueError):
         return np.asarray(observation.polygon("hull"))
 
@@ -295,6 +303,20 @@ def hidden_at(xi, obs, polygon="hull", n_directions=DEFAULT_DIRECTIONS, tol=NEWT
     return obs.partial_views(polys, polygon)[2:]
 
 
+def silhouettes(xi, obs):
+    """Silhouette polygons ``(b, v, K, 2)`` and ``valid`` ``(b, v)`` of parameter vectors ``xi``
+    ``(b, 11)`` in the cameras of ``obs``, as :func:`sqfit.geometry.silhouette.batch_silhouettes` with
+    its defaults (no warm start): compiled (:func:`sqfit.fitting.silhouette_kernels.silhouettes`) when
+    the kernels are (:mod:`sqfit.fitting.backend`)."""
+    xi = np.ascontiguousarray(np.atleast_2d(xi), dtype=np.float64)
+    kernels = compiled("silhouettes")
+    if kernels is None:
+        return batch_silhouettes(xi, obs.rotations, obs.centers, obs.intrinsics)[:2]
+    R = np.ascontiguousarray(euler_to_matrix(xi[:, 8:11]).reshape(len(xi), 3, 3))
+    return kernels.silhouettes(xi, R, obs.rotations, obs.centers, obs.intrinsics, DEFAULT_DIRECTIONS,
+                               NEWTON_TOL, MAX_NEWTON, ZNEAR, *E_RANGE)
+
+
 def visible_iou(polys, valid, obs, polygon="hull", hidden=None):
     """IoU of batched silhouettes with the observation polygons, over the visible image part.
 
@@ -316,7 +338,12 @@ def visible_iou(polys, valid, obs, polygon="hull", hidden=None):
     iou : (b, v) float
     """
     targets, convex, planes = obs.targets(polygon)
-    iou = batch_iou(polys, valid, targets, convex, planes)
+    kernels = compiled("silhouettes") if convex else None
+    if kernels is not None:
+        iou = kernels.convex_iou(np.ascontiguousarray(polys, dtype=np.float64), np.ascontiguousarray(valid), targets,
+                                 *planes, MIN_EDGE)
+    else:
+        iou = batch_iou(polys, valid, targets, convex, planes)
     if not (obs.border_views.any() or obs.occluded_views.any()):
         return iou
     if hidden is None:

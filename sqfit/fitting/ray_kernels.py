@@ -22,7 +22,7 @@ import math
 import numpy as np
 from numba import njit
 
-__all__ = ["gauge_minima", "ray_rows", "posed_rows", "radial_rows", "g5_rows", "log_gauge_rows", "screen_lm"]
+__all__ = ["nan_max", "nan_min", "gauge_minima", "ray_rows", "posed_rows", "radial_rows", "g5_rows", "log_gauge_rows", "screen_lm"]
 
 _TINY = 1e-300
 _LOGE2 = math.log(2.0)
@@ -33,12 +33,14 @@ _JIT = dict(cache=True, error_model="numpy", nogil=True)
 
 
 @njit(**_JIT)
-def _maximum(a, b):
+def nan_max(a, b):
+    """``np.maximum`` of two floats (a NaN wins)."""
     return a if (a >= b or a != a) else b
 
 
 @njit(**_JIT)
-def _minimum(a, b):
+def nan_min(a, b):
+    """``np.minimum`` of two floats (a NaN wins)."""
     return a if (a <= b or a != a) else b
 
 
@@ -76,9 +78,9 @@ def _line_value(q0x, q0y, q0z, ux, uy, uz, d, e1, e2):
     qx, qy, qz = _nz(q0x + d * ux), _nz(q0y + d * uy), _nz(q0z + d * uz)
     p1, p2 = 2.0 / e1, 2.0 / e2
     sx, sy, sz = math.log(abs(qx)), math.log(abs(qy)), math.log(abs(qz))
-    XY = p2 * _maximum(sx, sy) + math.log1p(math.exp(-abs(p2 * (sx - sy))))
+    XY = p2 * nan_max(sx, sy) + math.log1p(math.exp(-abs(p2 * (sx - sy))))
     A, Bz = (p1 / p2) * XY, p1 * sz
-    return (_maximum(A, Bz) + math.log1p(math.exp(-abs(A - Bz)))) / p1
+    return (nan_max(A, Bz) + math.log1p(math.exp(-abs(A - Bz)))) / p1
 
 
 @njit(**_JIT)
@@ -91,7 +93,7 @@ def _line_slope(q0x, q0y, q0z, ux, uy, uz, d, e1, e2):
     dx = p2 * (sx - sy)
     t = math.exp(-abs(dx))
     wx = 1.0 / (1.0 + t) if dx >= 0 else t / (1.0 + t)
-    XY = p2 * _maximum(sx, sy) + math.log1p(t)
+    XY = p2 * nan_max(sx, sy) + math.log1p(t)
     dA = (p1 / p2) * XY - p1 * sz
     t = math.exp(-abs(dA))
     wA = 1.0 / (1.0 + t) if dA >= 0 else t / (1.0 + t)
@@ -112,14 +114,14 @@ def _solve_ray(q0x, q0y, q0z, ux, uy, uz, r0x, r0y, r0z, lx, ly, lz, ratio, e1, 
     cx, cy, cz = r0x + dc * lx, r0y + dc * ly, r0z + dc * lz
     rho = math.sqrt(cx * cx + cy * cy + cz * cz)
     half = 1.01 * 3.0 * rho * ratio / math.sqrt(bb) + 1e-9 * (abs(dc) + 1.0)
-    lo = _maximum(dc - half, znear)
-    hi = _maximum(dc + half, 2.0 * znear)
+    lo = nan_max(dc - half, znear)
+    hi = nan_max(dc + half, 2.0 * znear)
     tol = rtol * (abs(dc) + 1.0)
     cold = True
     if warm:
         dw = lo if d0 < lo else (hi if d0 > hi else d0)
         delta = warm_bracket * (abs(dw) + 1.0)
-        plo, phi = _maximum(dw - delta, lo), _minimum(dw + delta, hi)
+        plo, phi = nan_max(dw - delta, lo), nan_min(dw + delta, hi)
         s_lo = _line_slope(q0x, q0y, q0z, ux, uy, uz, plo, e1, e2)[0]
         s_hi = _line_slope(q0x, q0y, q0z, ux, uy, uz, phi, e1, e2)[0]
         if s_lo <= 0 and s_hi >= 0:
@@ -299,7 +301,7 @@ def g5_rows(xi, depths, origins, rays, scaled, weight, lower, upper):
             g3 = g3 * scale
         r[i], D[i] = g3, Di
     for j in range(11):  # the penalty rows and the diagonal of their Jacobian (as _penalty_rows)
-        r[n + j] = weight * (_maximum(lower[j] - xi[j], 0.0) + _maximum(xi[j] - upper[j], 0.0))
+        r[n + j] = weight * (nan_max(lower[j] - xi[j], 0.0) + nan_max(xi[j] - upper[j], 0.0))
         P[j] = weight * ((1.0 if xi[j] > upper[j] else 0.0) - (1.0 if xi[j] < lower[j] else 0.0))
     return r, A, D, P
 
@@ -355,7 +357,7 @@ def _ray_block(xi, origins, directions, weights, kind, d0, warm, rtol, max_newto
     """
     R, dR = _rotation(xi[8:11])
     log_a = np.log(np.abs(xi[0:3]))
-    ax, ay, az = _maximum(abs(xi[0]), _TINY), _maximum(abs(xi[1]), _TINY), _maximum(abs(xi[2]), _TINY)
+    ax, ay, az = nan_max(abs(xi[0]), _TINY), nan_max(abs(xi[1]), _TINY), nan_max(abs(xi[2]), _TINY)
     ratio = max(ax, ay, az) / min(ax, ay, az)
     d_g3, d_point = np.empty(11), np.empty(3)
     for i in range(origins.shape[0]):
@@ -374,7 +376,7 @@ def _ray_block(xi, origins, directions, weights, kind, d0, warm, rtol, max_newto
         log_m = _log_gauge_point(xi, log_a, R, dR, origins[i, 0] + di * bx, origins[i, 1] + di * by,
                                  origins[i, 2] + di * bz, J[i], d_g3, d_point)
         if log_m < 0:
-            phi, dphi = math.exp(_minimum(log_m, 0.0)) - 1.0, math.exp(_minimum(log_m, 0.0))
+            phi, dphi = math.exp(nan_min(log_m, 0.0)) - 1.0, math.exp(nan_min(log_m, 0.0))
         else:
             phi, dphi = log_m, 1.0
         k = kind[i]
@@ -389,7 +391,7 @@ def _ray_block(xi, origins, directions, weights, kind, d0, warm, rtol, max_newto
 @njit(**_JIT)
 def _penalty_rows(xi, weight, lower, upper, r, J, row):
     for j in range(11):
-        r[row + j] = weight * (_maximum(lower[j] - xi[j], 0.0) + _maximum(xi[j] - upper[j], 0.0))
+        r[row + j] = weight * (nan_max(lower[j] - xi[j], 0.0) + nan_max(xi[j] - upper[j], 0.0))
         J[row + j, j] = weight * ((1.0 if xi[j] > upper[j] else 0.0) - (1.0 if xi[j] < lower[j] else 0.0))
 
 

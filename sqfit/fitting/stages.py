@@ -52,9 +52,10 @@ import numpy as np
 
 from .. import constants as C
 from ..geometry.superquadric import Superquadric
-from .costs import g5_residuals, hidden_at, penalty_jacobian, riou_residuals, rotation_and_derivatives, visible_iou
+from .costs import (g5_residuals, hidden_at, penalty_jacobian, riou_residuals, rotation_and_derivatives, silhouettes,
+                    visible_iou)
 from .lm import DenseJacobian, SchurJacobian, levenberg_marquardt
-from ..geometry.silhouette import NEWTON_TOL, ZNEAR, batch_silhouettes
+from ..geometry.silhouette import NEWTON_TOL, ZNEAR
 
 __all__ = ["FitState", "StageError", "STAGES", "register", "default_state", "view_depths_of", "rotation_to_euler", "trusted_views",
            "TRUSTED_SILHOUETTE_FRACTION", "NUMERICAL_ERRORS", "to_superquadric", "r_iou_m"]
@@ -151,7 +152,7 @@ def r_iou_m(superquadrics, obs, polygon="hull"):
     keys = [(polygon, x.tobytes()) for x in xi]
     todo = [i for i, key in enumerate(keys) if key not in memo]
     if todo:
-        polys, valid, _ = batch_silhouettes(xi[todo], obs.rotations, obs.centers, obs.intrinsics)
+        polys, valid = silhouettes(xi[todo], obs)
         for i, score in zip(todo, visible_iou(polys, valid, obs, polygon).mean(axis=1)):
             memo[keys[i]] = score
     return np.array([memo[key] for key in keys], dtype=np.float64)

@@ -14,10 +14,10 @@ import numpy as np
 from .._checks import check_shape
 
 __all__ = ["polygon_area", "polygon_moments", "batch_polygon_moments", "is_convex", "half_planes", "convex_iou", "convex_iou_jacobian", "polygon_iou",
-           "batch_iou"]
+           "batch_iou", "MIN_EDGE"]
 
 #: Polygon edges shorter than this (pixels) do not act as clipping half-planes.
-_MIN_EDGE = 1e-7
+MIN_EDGE = 1e-7
 
 
 def polygon_area(polygon):
@@ -119,7 +119,7 @@ def half_planes(Q):
     Returns
     -------
     n : (..., m, 2) float
-        Outward edge normals scaled by the edge lengths. Edges shorter than :data:`_MIN_EDGE` get
+        Outward edge normals scaled by the edge lengths. Edges shorter than :data:`MIN_EDGE` get
         ``n = 0`` (no constraint): their direction is rounding noise.
     cross : (..., m) float
         ``cross(q_j, q_(j+1) - q_j)``, twice the area each edge contributes (Green's theorem).
@@ -127,7 +127,7 @@ def half_planes(Q):
         Shoelace areas.
     """
     e = np.roll(Q, -1, axis=-2) - Q
-    use = np.hypot(e[..., 0], e[..., 1]) > _MIN_EDGE
+    use = np.hypot(e[..., 0], e[..., 1]) > MIN_EDGE
     n = np.stack([e[..., 1], -e[..., 0]], axis=-1) * use[..., None]
     cross = Q[..., 0] * e[..., 1] - Q[..., 1] * e[..., 0]
     return n, cross, 0.5 * np.sum(cross, axis=-1)
@@ -162,7 +162,7 @@ def convex_overlap(S, Q, q_planes):
     denominators (``n^Q_j . d^S_i = cross(d^S_i, d^Q_j) = -n^S_i . d^Q_j``). An edge lying on
     the other polygon's boundary and running the same way counts as inside in the first pass
     (S's edges) and outside in the second, so a shared edge is counted once; running the opposite
-    way (polygons touching from outside) it counts in neither. Edges shorter than :data:`_MIN_EDGE` constrain
+    way (polygons touching from outside) it counts in neither. Edges shorter than :data:`MIN_EDGE` constrain
     nothing (their direction is rounding noise): Q's have ``n = 0`` (:func:`half_planes`); S's
     get numerator 1, so with a denominator below ``1e-7 |d^Q|`` in magnitude they only yield
     ``t < 0`` or ``t > 1``.
@@ -198,7 +198,7 @@ def convex_overlap(S, Q, q_planes):
         t_hi = np.min(np.where(neg, 1.0, t), axis=-1, initial=1.0)
         # Q's edges against S's half-planes n_i = (dy_i, -dx_i): numerator n_i . (s_i - q_j),
         # minus tiny (strict), or 1 for a short edge of S (no constraint).
-        free = np.where(dx * dx + dy * dy > _MIN_EDGE ** 2, -1e-300, 1.0)[..., :, None]
+        free = np.where(dx * dx + dy * dy > MIN_EDGE ** 2, -1e-300, 1.0)[..., :, None]
         den = -2e-300 - den
         t = (dx[..., :, None] * Dy - dy[..., :, None] * Dx + free) / den
         neg = den < 0

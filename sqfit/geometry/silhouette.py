@@ -36,17 +36,17 @@ import numpy as np
 from .superquadric import euler_to_matrix, rotation_and_derivatives
 
 __all__ = ["silhouette", "batch_silhouettes", "SilhouetteStart", "vertex_velocities", "silhouette_gradient",
-           "camera_arrays", "ZNEAR", "DEFAULT_DIRECTIONS"]
+           "camera_arrays", "ZNEAR", "DEFAULT_DIRECTIONS", "E_RANGE", "NEWTON_TOL", "MAX_NEWTON"]
 
 #: Minimum camera depth (metres) of every superquadric point for a silhouette to exist.
 ZNEAR = 1e-3
 #: Directions (polygon vertices) of a silhouette by default.
 DEFAULT_DIRECTIONS = 64
 #: Shape exponents are clamped to this range inside the support function (q = 2 / (2 - e)).
-_E_RANGE = (0.01, 1.99)
-#: Newton on the support line: stop when every step is below this (pixels), or after _MAX_NEWTON.
+E_RANGE = (0.01, 1.99)
+#: Newton on the support line: stop when every step is below this (pixels), or after MAX_NEWTON.
 NEWTON_TOL = 1e-7
-_MAX_NEWTON = 40
+MAX_NEWTON = 40
 #: :meth:`SilhouetteStart.refreshed` re-adapts directions past this change of aspect ratio.
 REFRESH_DISTORTION = 1.1
 _TINY = 1e-300
@@ -300,7 +300,7 @@ def batch_silhouettes(xi, rotations, centers, intrinsics, n_directions=DEFAULT_D
     """
     xi = np.atleast_2d(xi)
     a = np.abs(xi[:, 0:3])
-    e = np.minimum(np.maximum(xi[:, 3:5], _E_RANGE[0]), _E_RANGE[1])
+    e = np.minimum(np.maximum(xi[:, 3:5], E_RANGE[0]), E_RANGE[1])
     q1 = (2.0 / (2.0 - e[:, 0]))[:, None, None]
     q2 = (2.0 / (2.0 - e[:, 1]))[:, None, None]
     R_sq = euler_to_matrix(xi[:, 8:11])  # (b, 3, 3)
@@ -348,7 +348,7 @@ def batch_silhouettes(xi, rotations, centers, intrinsics, n_directions=DEFAULT_D
         cz = np.where(valid, c[..., 2], 1.0)[..., None]  # (b, v, 1)
         all_valid = bool(valid.all())
         wz_col = np.swapaxes(wz, -1, -2)  # (b, v, 3, 1)
-        for it in range(_MAX_NEWTON):
+        for it in range(MAX_NEWTON):
             if it:
                 hs, grad = dual_support(w0 - h[..., None] * wz, q1, q2)
             # g(h) = n(h) . c + h_sq; g'(h) = -z* (depth of the touching point).
@@ -466,7 +466,7 @@ def vertex_velocities(xi, unit_points, points, rotations, intrinsics):
     out = np.empty(points.shape[:3] + (2, 11))
     sign = np.where(xi[:, 0:3] < 0, -1.0, 1.0)[:, None, None, None, :]
     out[..., 0:3] = rows_sq * (unit_points[..., None, :] * sign)
-    e = np.minimum(np.maximum(xi[:, 3:5], _E_RANGE[0]), _E_RANGE[1])
+    e = np.minimum(np.maximum(xi[:, 3:5], E_RANGE[0]), E_RANGE[1])
     inside = (e == xi[:, 3:5])[:, None, None, :, None]
     ds = _unit_point_shape_derivatives(unit_points, e) * a[:, None, None, None, :] * inside
     out[..., 3:5] = rows_sq @ np.swapaxes(ds, -1, -2)
@@ -549,7 +549,7 @@ def silhouette_gradient(xi, weights, unit_points, points, rotations, intrinsics)
         sign = np.where(xi[:, 0:3] < 0, -1.0, 1.0)[:, None, :]
         out[..., 0:3] = np.sum(H * unit_points, axis=-2) * sign
         # Shape: the derivatives of s of _unit_point_shape_derivatives, contracted with a * H.
-        e = np.minimum(np.maximum(xi[:, 3:5], _E_RANGE[0]), _E_RANGE[1])
+        e = np.minimum(np.maximum(xi[:, 3:5], E_RANGE[0]), E_RANGE[1])
         s = unit_points
         log_a, slog = _shape_logs(s, e)
         Ha = H * a[:, None, None, :]

@@ -77,10 +77,13 @@ class Superquadric:
     rotation: tuple = (0.0, 0.0, 0.0)
 
     def __post_init__(self):
-        fields = {"size": 3, "shape": 2, "position": 3, "rotation": 3}
-        for name, n in fields.items():
-            arr = check_shape(getattr(self, name), (n,), name)
-            object.__setattr__(self, name, tuple(float(v) for v in arr))
+        for name, n in (("size", 3), ("shape", 2), ("position", 3), ("rotation", 3)):
+            value = getattr(self, name)
+            # tuples of finite Python floats (from_vector, the fitter's snapshots) need no numpy
+            if not (type(value) is tuple and len(value) == n
+                    and all(type(v) is float and math.isfinite(v) for v in value)):
+                arr = check_shape(value, (n,), name)
+                object.__setattr__(self, name, tuple(float(v) for v in arr))
         for label, value in zip(C.PARAMETER_NAMES[C.SIZE], self.size):
             if value <= 0:
                 raise ValueError(f"size {label} must be > 0 metres, got {value}")
@@ -96,8 +99,8 @@ class Superquadric:
     @classmethod
     def from_vector(cls, xi):
         """Build from a ``(11,) float`` parameter vector in the paper's order."""
-        xi = check_shape(xi, (C.N_PARAMS,), "xi")
-        return cls(xi[C.SIZE], xi[C.SHAPE], xi[C.POSITION], xi[C.ROTATION])
+        values = check_shape(xi, (C.N_PARAMS,), "xi").tolist()
+        return cls(tuple(values[0:3]), tuple(values[3:5]), tuple(values[5:8]), tuple(values[8:11]))
 
     @property
     def rotation_matrix(self):

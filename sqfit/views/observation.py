@@ -186,10 +186,17 @@ class Observation:
         )
 
     @cached_property
+    def contour_arc(self):
+        """``(segments (m,), cumulative (m + 1,))`` float: the closed contour's edge lengths and
+        arc length at each vertex (0 first, the perimeter last), for :func:`polyline_points`;
+        computed once per observation (every fit draws its outline rays from them)."""
+        return arc_lengths(self.contour)
+
+    @cached_property
     def silhouette_fraction(self):
         """``float``: fraction of the outline's length that is true silhouette (``background``
         at both ends); 1 for an object seen whole, 0 when all of it is occluded or truncated."""
-        return silhouette_fraction(self.contour, self.contour_labels)
+        return silhouette_fraction(self.contour, self.contour_labels) if self.partial else 1.0
 
     @property
     def partial(self):
@@ -350,7 +357,18 @@ def sample_polyline(polygon, n, rng, return_index=False):
     return polyline_points(polygon, n, rng.random(), return_index)
 
 
-def polyline_points(polygon, n, phase, return_index=False):
+def arc_lengths(polygon):
+    """Edge lengths ``(m,)`` of a closed polygon ``(m, 2)`` and the arc length at each vertex
+    ``(m + 1,)`` (0 first, the perimeter last); see :func:`polyline_points`."""
+    polygon = np.asarray(polygon, dtype=np.float64)
+    d = np.empty_like(polygon)
+    np.subtract(polygon[1:], polygon[:-1], out=d[:-1])
+    np.subtract(polygon[:1], polygon[-1:], out=d[-1:])
+    seg = np.sqrt(d[:, 0] * d[:, 0] + d[:, 1] * d[:, 1])  # np.linalg.norm's sums, without its overhead
+    return _readonly(seg), _readonly(np.concatenate([[0.0], np.cumsum(seg)]))
+
+
+def polyline_points(polygon, n, phase, return_index=False, arc=None):
     """``n`` points evenly spaced by arc length around a closed polygon, starting at ``phase``.
 
     Parameters
@@ -362,6 +380,8 @@ def polyline_points(polygon, n, phase, return_index=False):
         vertex 0.
     return_index : bool
         Also return the edge of each point (edge ``k`` runs from vertex ``k`` to ``k + 1``).
+    arc : tuple, optional
+        :func:`arc_lengths` of ``polygon`` if already known (``Observation.contour_arc``).
 
     Returns
     -------
@@ -369,13 +389,15 @@ def polyline_points(polygon, n, phase, return_index=False):
     index : (n,) int
         Only with ``return_index``.
     """
-    closed = np.vstack([polygon, polygon[:1]])
-    seg = np.linalg.norm(np.diff(closed, axis=0), axis=1)
-    cum = np.concatenate([[0.0], np.cumsum(seg)])
+    polygon = np.asarray(polygon, dtype=np.float64)
+    seg, cum = arc_lengths(polygon) if arc is None else arc
     s = (phase + np.arange(n)) / n * cum[-1]
     idx = np.clip(np.searchsorted(cum, s, side="right") - 1, 0, len(seg) - 1)
     frac = (s - cum[idx]) / np.where(seg[idx] > 0, seg[idx], 1.0)
-    points = closed[idx] + frac[:, None] * (closed[idx + 1] - closed[idx])
+    following = idx + 1
+    following[following == len(seg)] = 0
+    start = polygon[idx]
+    points = start + frac[:, None] * (polygon[following] - start)
     return (points, idx) if return_index else points
 
 

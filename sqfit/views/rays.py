@@ -163,7 +163,8 @@ def _contour_phase():
 
 
 def _view_points(observation, n_contour, band_px, n_inside):
-    on, edges = polyline_points(observation.contour, n_contour, _contour_phase(), return_index=True)
+    on, edges = polyline_points(observation.contour, n_contour, _contour_phase(), return_index=True,
+                                arc=observation.contour_arc)
     sided = point_labels(observation.contour_labels, edges) == BACKGROUND
     if band_px > 0:
         # Normals at the sample points: those of the nearest contour vertices.

@@ -1,0 +1,317 @@
+"""Compiled (numba) kernels of R-IOU-M: silhouettes, convex IoU and the samples' hull.
+
+Every fit scores its snapshots by R-IOU-M (:func:`sqfit.fitting.stages.r_iou_m`) and stage 3H
+decides its rescue on it; the numpy code for that (:func:`sqfit.geometry.silhouette.batch_silhouettes`,
+:func:`sqfit.geometry.polygon.convex_iou`, scipy's qhull for the hull observations) costs ~1.2 ms of
+the default chain's ~11 ms, nearly all per-call overhead on ``(b, v, 64)`` arrays. These kernels
+compute the same numbers per view and per vertex:
+
+- :func:`silhouettes` is :func:`~sqfit.geometry.silhouette.batch_silhouettes` without a warm start
+  (``start=None``, ``touching=False``): the same quadric-ellipse start, adapted directions, dual
+  support function and Newton iteration, but each vertex stops when its own step is below the
+  tolerance (the numpy loop stops the batch when every step is), so vertices agree within that
+  tolerance (1e-7 px; tested to 1e-6 px) and a score no longer depends on the batch it is in;
+- :func:`convex_iou` is :func:`~sqfit.geometry.polygon.convex_overlap`'s IoU (Cyrus-Beck clipping of
+  both boundaries, Green's theorem), with the same tie rules for shared and degenerate edges;
+- :func:`convex_hull` is Andrew's monotone chain, counter-clockwise without collinear vertices: the
+  polygon qhull returns for ``sqfit.fitting.costs``' hull observations, maybe from another first vertex.
+
+Sums run in index order (numpy's pairwise sums and BLAS may round differently: IoUs agree to
+1e-12). No ``fastmath``. Importing this module imports numba; :mod:`sqfit.fitting.backend` does that
+lazily, and the kernels are cached next to this file (``cache=True``). Constants of the numpy code
+(tolerances, exponent range, minimum edge) are passed in as arguments, never copied here.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numba import njit
+
+from .ray_kernels import nan_max, nan_min
+
+__all__ = ["silhouettes", "convex_iou", "convex_hull"]
+
+_TINY = 1e-300
+_JIT = dict(cache=True, error_model="numpy", nogil=True)
+
+
+@njit(**_JIT)
+def _matmul(A, B):
+    """``A @ B`` of small matrices, summed in index order."""
+    out = np.zeros((A.shape[0], B.shape[1]))
+    for i in range(A.shape[0]):
+        for j in range(B.shape[1]):
+            acc = 0.0
+            for k in range(A.shape[1]):
+                acc += A[i, k] * B[k, j]
+            out[i, j] = acc
+    return out
+
+
+# ------------------------------------------------------------------------------------------------
+# silhouettes (sqfit.geometry.silhouette.batch_silhouettes, start=None)
+
+
+@njit(**_JIT)
+def _pnorm2(x, y, q):
+    """``sqfit.geometry.silhouette._pnorm2``: the norm and the weight of ``x``."""
+    big = nan_max(x, y)
+    t = nan_min(x, y)
+    t /= big + _TINY
+    tq = t ** q
+    total = tq + 1.0
+    norm = total ** (1.0 / q)
+    norm *= big
+    w_small = tq / total
+    return norm, (1.0 - w_small if x >= y else w_small)
+
+
+@njit(**_JIT)
+def _support(w0, w1, w2, q1, q2, grad):
+    """``sqfit.geometry.silhouette.dual_support`` of one direction; the gradient into ``grad`` (3,)."""
+    s, rho1 = _pnorm2(abs(w0), abs(w1), q2)
+    h, sig_s = _pnorm2(s, abs(w2), q1)
+    hs = h * sig_s
+    grad[0] = hs * rho1
+    grad[1] = hs - grad[0]
+    grad[2] = h - hs
+    grad[0] /= w0 + math.copysign(_TINY, w0)
+    grad[1] /= w1 + math.copysign(_TINY, w1)
+    grad[2] /= w2 + math.copysign(_TINY, w2)
+    return h
+
+
+@njit(**_JIT)
+def _ellipse(R, a, p, Rt, center, fx, fy, cx, cy, out):
+    """Silhouette ellipse of the quadric (``e = 1``) in one camera (``_silhouette_ellipses``):
+    ``out = [x0u, x0v, L00, L10, L11]``; returns whether it exists."""
+    T = np.zeros((4, 4))
+    for i in range(3):
+        for j in range(3):
+            T[i, j] = R[i, j] * a[j]
+        T[i, 3] = p[i]
+    T[3, 3] = 1.0
+    Q = np.empty((4, 4))
+    for i in range(4):
+        for j in range(4):
+            Q[i, j] = T[i, 0] * T[j, 0] + T[i, 1] * T[j, 1] + T[i, 2] * T[j, 2] - T[i, 3] * T[j, 3]
+    P = np.zeros((3, 4))  # K [Rt | -Rt c]
+    E = np.empty((3, 4))
+    for i in range(3):
+        for j in range(3):
+            E[i, j] = Rt[i, j]
+        E[i, 3] = -(Rt[i, 0] * center[0] + Rt[i, 1] * center[1] + Rt[i, 2] * center[2])
+    for j in range(4):
+        P[0, j] = fx * E[0, j] + cx * E[2, j]
+        P[1, j] = fy * E[1, j] + cy * E[2, j]
+        P[2, j] = E[2, j]
+    C = _matmul(_matmul(P, Q), P.T.copy())  # the dual conic P Q* P^T
+    lam = -C[2, 2]
+    x0u, x0v = -C[0, 2] / lam, -C[1, 2] / lam
+    s00 = C[0, 0] / lam + x0u * x0u
+    s10 = C[1, 0] / lam + x0v * x0u
+    s11 = C[1, 1] / lam + x0v * x0v
+    l00 = math.sqrt(s00) if s00 >= 0 else np.nan
+    l10 = s10 / l00
+    r = s11 - l10 * l10
+    l11 = math.sqrt(r) if r >= 0 else np.nan
+    out[0], out[1], out[2], out[3], out[4] = x0u, x0v, l00, l10, l11
+    return (lam > 0 and np.isfinite(l00) and np.isfinite(l10) and np.isfinite(l11) and l00 > 0 and l11 > 0)
+
+
+@njit(**_JIT)
+def silhouettes(xi, R_sq, rotations, centers, intrinsics, k, tol, max_newton, znear, e_min, e_max):
+    """:func:`sqfit.geometry.silhouette.batch_silhouettes` without a start.
+
+    ``xi`` ``(b, 11)``, ``R_sq`` ``(b, 3, 3)`` (``euler_to_matrix(xi[:, 8:11])``), cameras as
+    ``camera_arrays`` -> ``polygons`` ``(b, v, k, 2)``, ``valid`` ``(b, v)`` bool.
+    """
+    b, v = xi.shape[0], rotations.shape[0]
+    polys = np.empty((b, v, k, 2))
+    valid = np.zeros((b, v), dtype=np.bool_)
+    # per (b, v): the camera-frame rotation M, centre c, wz = a * M[2]; per vertex: n0, w0, n0 . c, h
+    M = np.empty((b, v, 3, 3))
+    c = np.empty((b, v, 3))
+    wz = np.empty((b, v, 3))
+    n0 = np.empty((b, v, k, 3))
+    w0 = np.empty((b, v, k, 3))
+    n0c = np.empty((b, v, k))
+    h = np.empty((b, v, k))
+    cz = np.empty((b, v))
+    a = np.empty((b, 3))
+    q1, q2 = np.empty(b), np.empty(b)
+    ell = np.empty(5)
+    grad = np.empty(3)
+    Rt = np.empty((3, 3))
+    for s in range(b):
+        for j in range(3):
+            a[s, j] = abs(xi[s, j])
+        e1 = nan_min(nan_max(xi[s, 3], e_min), e_max)
+        e2 = nan_min(nan_max(xi[s, 4], e_min), e_max)
+        q1[s], q2[s] = 2.0 / (2.0 - e1), 2.0 / (2.0 - e2)
+        for t in range(v):
+            for i in range(3):
+                for j in range(3):
+                    Rt[i, j] = rotations[t, j, i]
+            fx, fy, cx, cy = intrinsics[t, 0], intrinsics[t, 1], intrinsics[t, 2], intrinsics[t, 3]
+            for i in range(3):
+                for j in range(3):
+                    M[s, t, i, j] = Rt[i, 0] * R_sq[s, 0, j] + Rt[i, 1] * R_sq[s, 1, j] + Rt[i, 2] * R_sq[s, 2, j]
+                dp0, dp1, dp2 = xi[s, 5] - centers[t, 0], xi[s, 6] - centers[t, 1], xi[s, 7] - centers[t, 2]
+                c[s, t, i] = Rt[i, 0] * dp0 + Rt[i, 1] * dp1 + Rt[i, 2] * dp2
+            for j in range(3):
+                wz[s, t, j] = a[s, j] * M[s, t, 2, j]
+            ok = _ellipse(R_sq[s], a[s], xi[s, 5:8], Rt, centers[t], fx, fy, cx, cy, ell)
+            x0u, x0v, l00, l10, l11 = ell[0], ell[1], ell[2], ell[3], ell[4]
+            for m in range(k):
+                theta = 2.0 * np.pi * m / k
+                bu, bv = math.cos(theta), math.sin(theta)
+                if ok:  # L^-T u: evenly spread around the ellipse (_adapted_directions)
+                    uu, uv = l11 * bu - l10 * bv, l00 * bv
+                    norm = math.sqrt(uu * uu + uv * uv)
+                    uu, uv = uu / norm, uv / norm
+                else:
+                    uu, uv = bu, bv
+                n = n0[s, t, m]
+                n[0], n[1], n[2] = uu * fx, uv * fy, uu * cx + uv * cy
+                for j in range(3):
+                    w0[s, t, m, j] = (n[0] * M[s, t, 0, j] + n[1] * M[s, t, 1, j] + n[2] * M[s, t, 2, j]) * a[s, j]
+                n0c[s, t, m] = n[0] * c[s, t, 0] + n[1] * c[s, t, 1] + n[2] * c[s, t, 2]
+                if ok:
+                    p0, p1 = uu * l00 + uv * l10, uv * l11
+                    h[s, t, m] = uu * x0u + uv * x0v + math.sqrt(p0 * p0 + p1 * p1)
+                else:
+                    h[s, t, m] = np.nan
+                if not np.isfinite(h[s, t, m]):
+                    h[s, t, m] = n0c[s, t, m] / (c[s, t, 2] if c[s, t, 2] > 0 else 1.0)
+            zmin = c[s, t, 2] - _support(wz[s, t, 0], wz[s, t, 1], wz[s, t, 2], q1[s], q2[s], grad)
+            valid[s, t] = np.isfinite(zmin) and zmin > znear
+            cz[s, t] = c[s, t, 2] if valid[s, t] else 1.0
+    # Newton on each support value until its step is below tol (the numpy code stops the whole
+    # batch at once, when every step is: a vertex may take more steps there, moving it by < tol)
+    touch = np.empty((b, v, k, 3))
+    all_valid = True
+    for s in range(b):
+        for t in range(v):
+            all_valid = all_valid and valid[s, t]
+            wzx, wzy, wzz = wz[s, t, 0], wz[s, t, 1], wz[s, t, 2]
+            for m in range(k):
+                hm = h[s, t, m]
+                for it in range(max_newton):
+                    hs = _support(w0[s, t, m, 0] - hm * wzx, w0[s, t, m, 1] - hm * wzy, w0[s, t, m, 2] - hm * wzz,
+                                  q1[s], q2[s], grad)
+                    touch[s, t, m, 0], touch[s, t, m, 1], touch[s, t, m, 2] = grad[0], grad[1], grad[2]
+                    if not valid[s, t]:  # invalid silhouettes take no steps (their g may be NaN)
+                        break
+                    g = n0c[s, t, m] - hm * cz[s, t] + hs
+                    step = g / (cz[s, t] + (grad[0] * wzx + grad[1] * wzy + grad[2] * wzz))
+                    hm = hm + step
+                    if not abs(step) > tol:
+                        break
+                h[s, t, m] = hm
+    # vertices: the touching points of the last support values but one (as the numpy code)
+    for s in range(b):
+        for t in range(v):
+            fx, fy, cx, cy = intrinsics[t, 0], intrinsics[t, 1], intrinsics[t, 2], intrinsics[t, 3]
+            finite = True
+            for m in range(k):
+                g0, g1, g2 = touch[s, t, m, 0] * a[s, 0], touch[s, t, m, 1] * a[s, 1], touch[s, t, m, 2] * a[s, 2]
+                px = c[s, t, 0] + (g0 * M[s, t, 0, 0] + g1 * M[s, t, 0, 1] + g2 * M[s, t, 0, 2])
+                py = c[s, t, 1] + (g0 * M[s, t, 1, 0] + g1 * M[s, t, 1, 1] + g2 * M[s, t, 1, 2])
+                pz = c[s, t, 2] + (g0 * M[s, t, 2, 0] + g1 * M[s, t, 2, 1] + g2 * M[s, t, 2, 2])
+                z = pz if (all_valid or valid[s, t]) else 1.0
+                polys[s, t, m, 0] = (fx * px + cx * pz) / z
+                polys[s, t, m, 1] = (fy * py + cy * pz) / z
+                finite = finite and np.isfinite(polys[s, t, m, 0]) and np.isfinite(polys[s, t, m, 1])
+            valid[s, t] = valid[s, t] and finite
+    return polys, valid
+
+
+# ------------------------------------------------------------------------------------------------
+# convex IoU (sqfit.geometry.polygon.convex_overlap) and the hull observations
+
+
+@njit(**_JIT)
+def _overlap(S, Q, nq, cross_q, area_q, min_edge, lo_q, hi_q):
+    """IoU of one convex CCW polygon ``S`` ``(k, 2)`` with ``Q`` ``(m, 2)`` (half-planes ``nq``,
+    shoelace terms ``cross_q``, area ``area_q``); ``lo_q``, ``hi_q`` ``(m,)`` are scratch."""
+    k, m = S.shape[0], Q.shape[0]
+    for j in range(m):
+        lo_q[j], hi_q[j] = 0.0, 1.0
+    area2_s = 0.0
+    inter_s = 0.0
+    for i in range(k):
+        sx, sy = S[i, 0], S[i, 1]
+        nxt = i + 1 if i + 1 < k else 0
+        dx, dy = S[nxt, 0] - sx, S[nxt, 1] - sy
+        cross_s = sx * dy - sy * dx
+        area2_s += cross_s
+        free = -_TINY if dx * dx + dy * dy > min_edge * min_edge else 1.0
+        t_lo, t_hi = 0.0, 1.0
+        for j in range(m):
+            Dx, Dy = Q[j, 0] - sx, Q[j, 1] - sy
+            nqx, nqy = nq[j, 0], nq[j, 1]
+            den = dx * nqx + dy * nqy - _TINY
+            anti = nan_min(dy * nqx - dx * nqy, 0.0)
+            t = (nqx * Dx + nqy * Dy + _TINY * anti) / den
+            if den < 0:
+                t_lo = nan_max(t_lo, t)
+            else:
+                t_hi = nan_min(t_hi, t)
+            den2 = -2e-300 - den
+            t2 = (dx * Dy - dy * Dx + free) / den2
+            if den2 < 0:
+                lo_q[j] = nan_max(lo_q[j], t2)
+            else:
+                hi_q[j] = nan_min(hi_q[j], t2)
+        inter_s += nan_max(t_hi - t_lo, 0.0) * cross_s
+    inter_q = 0.0
+    for j in range(m):
+        inter_q += nan_max(hi_q[j] - lo_q[j], 0.0) * cross_q[j]
+    inter = 0.5 * (inter_s + inter_q)
+    union = 0.5 * area2_s + area_q - inter
+    iou = inter / union if union > 0 else 0.0
+    return nan_min(nan_max(iou, 0.0), 1.0) if np.isfinite(iou) else 0.0
+
+
+@njit(**_JIT)
+def convex_iou(polys, valid, targets, nq, cross_q, area_q, min_edge):
+    """:func:`sqfit.geometry.polygon.batch_iou` (convex path): ``polys`` ``(b, v, k, 2)``, ``valid``
+    ``(b, v)``, ``targets`` ``(v, m, 2)`` with their :func:`~sqfit.geometry.polygon.half_planes`
+    -> IoU ``(b, v)``, 0 where not valid or not finite."""
+    b, v, m = polys.shape[0], polys.shape[1], targets.shape[1]
+    out = np.zeros((b, v))
+    lo_q, hi_q = np.empty(m), np.empty(m)
+    for s in range(b):
+        for t in range(v):
+            if valid[s, t]:
+                out[s, t] = _overlap(polys[s, t], targets[t], nq[t], cross_q[t], area_q[t], min_edge, lo_q, hi_q)
+    return out
+
+
+@njit(**_JIT)
+def convex_hull(points):
+    """Counter-clockwise convex hull of ``(n, 2)`` points without collinear vertices (Andrew's
+    monotone chain) -> indices into ``points`` (fewer than 3 when the points are collinear)."""
+    n = points.shape[0]
+    by_y = np.argsort(points[:, 1], kind="mergesort")
+    order = by_y[np.argsort(points[by_y, 0], kind="mergesort")]  # by x, then y
+    hull = np.empty(2 * n + 1, dtype=np.int64)
+    size = 0
+    for sweep in range(2):
+        base = size
+        for step in range(n):
+            i = order[step] if sweep == 0 else order[n - 1 - step]
+            while size >= base + 2:
+                o, a = hull[size - 2], hull[size - 1]
+                cross = ((points[a, 0] - points[o, 0]) * (points[i, 1] - points[o, 1])
+                         - (points[a, 1] - points[o, 1]) * (points[i, 0] - points[o, 0]))
+                if cross > 0:
+                    break
+                size -= 1
+            hull[size] = i
+            size += 1
+        size -= 1  # each chain's last point starts the other chain
+    return hull[:size].copy() if size >= 3 else hull[:0].copy()
