@@ -59,7 +59,10 @@ def add_arguments(parser):
     tum.add_argument("--max-time-diff", type=float, default=None, metavar="SECONDS",
                      help=f"largest time between an image and its pose (default {DEFAULT_MAX_TIME_DIFF})")
     parser.add_argument("-o", "--output", required=True, help="JSON-lines file to write")
-    parser.add_argument("--chain", default=DEFAULT_CHAIN, help="stages joined by '-', e.g. 1-2-3D-3A")
+    parser.add_argument("--chain", default=DEFAULT_CHAIN,
+                        help="stages joined by '-', e.g. 1-2-3D-3A; or 'default', 'hull' (the visual-hull baseline), "
+                             "'tolerant' (the default, then G2 on the mask contours where no superquadric grazes "
+                             "the outline: objects with legs, handles, stands)")
     parser.add_argument("--samples", type=int, default=C.DEFAULT_SAMPLES, help="samples N per observation")
     parser.add_argument("--sampling", default="uniform", choices=SAMPLING_METHODS)
     parser.add_argument("--polygon", default="hull", choices=POLYGON_KINDS,

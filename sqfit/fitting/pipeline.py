@@ -30,7 +30,7 @@ from ..geometry.superquadric import Superquadric
 from ..views.visibility import BORDER
 
 __all__ = ["fit", "FitOptions", "FitResult", "StageRecord", "PAPER_CHAINS", "DEFAULT_CHAIN",
-           "INITIAL_CHAIN", "HULL_CHAIN", "CHAIN_ALIASES", "parse_chain"]
+           "INITIAL_CHAIN", "HULL_CHAIN", "TOLERANT_CHAIN", "CHAIN_ALIASES", "parse_chain"]
 
 #: The 13 chains of the paper's Table II, in its row order.
 PAPER_CHAINS = ("3A", "3B", "1-3A", "1-2-3A", "1-2-3B", "3E", "1-3E", "1-2-3C", "1-2-3D", "1-2-3E",
@@ -39,9 +39,13 @@ DEFAULT_CHAIN = "1-2M-3H"  # measured: README "Beyond the paper", sqfit.fitting.
 #: Chain of :func:`fit` when a starting superquadric is given (``initial=``) and no chain is: a
 #: local refinement from it.
 INITIAL_CHAIN = "3G"
+#: The default followed by stage 3T (:mod:`sqfit.fitting.outline`): G2 on the mask contours where no
+#: superquadric grazes the outline (objects with legs, handles, stands); opt-in, measured in the
+#: README ("Real objects").
+TOLERANT_CHAIN = DEFAULT_CHAIN + "-3T"
 #: Names that stand for a whole chain wherever a chain is given (:func:`parse_chain`); ``hull`` is the
-#: visual-hull baseline (:data:`sqfit.fitting.hull.HULL_CHAIN`).
-CHAIN_ALIASES = {"default": DEFAULT_CHAIN, "hull": HULL_CHAIN}
+#: visual-hull baseline (:data:`sqfit.fitting.hull.HULL_CHAIN`), ``tolerant`` :data:`TOLERANT_CHAIN`.
+CHAIN_ALIASES = {"default": DEFAULT_CHAIN, "hull": HULL_CHAIN, "tolerant": TOLERANT_CHAIN}
 #: Stages that compute their start from the masks alone and would discard ``initial``.
 _SELF_STARTING = ("1", "2", "HULL")
 
@@ -320,7 +324,8 @@ def fit(observations, chain=None, *, initial=None, rng=None, options=None):
         One per view, >= 2 (fewer gives status ``too_few_views``).
     chain : str or list of str, optional
         Stage names joined by ``-`` (see :mod:`sqfit.fitting.stages`), e.g. ``"1-2-3D-3A"``, or a name of
-        :data:`CHAIN_ALIASES` (``"default"``, ``"hull"``: the visual-hull baseline). Default
+        :data:`CHAIN_ALIASES` (``"default"``, ``"hull"``: the visual-hull baseline, ``"tolerant"``: the
+        default then stage 3T). Default
         :data:`DEFAULT_CHAIN`, or :data:`INITIAL_CHAIN` when ``initial`` is given.
     initial : Superquadric or (11,) float, optional
         Start of the first stage instead of the default guess (a unit sphere at the origin): e.g.

@@ -324,7 +324,11 @@ def batch_iou(polys, valid, targets, convex, q_planes=None):
         sil = shapely.polygons(polys.reshape(b * v, -1, 2))
         tgt = np.array([shapely.make_valid(shapely.Polygon(t)) for t in targets], dtype=object)
         tgt = np.tile(tgt, b)
-        inter = shapely.area(shapely.intersection(sil, tgt))
+        try:
+            inter = shapely.area(shapely.intersection(sil, tgt))
+        except shapely.errors.GEOSException:  # a self-intersecting silhouette (far off the image)
+            sil = shapely.make_valid(sil)
+            inter = shapely.area(shapely.intersection(sil, tgt))
         union = shapely.area(sil) + shapely.area(tgt) - inter
         with np.errstate(divide="ignore", invalid="ignore"):
             iou = np.where(union > 0, inter / union, 0.0).reshape(b, v)
