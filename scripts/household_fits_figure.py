@@ -119,7 +119,8 @@ def main(argv=None):
             ax.set_title(kind if name == "mesh" else f"{name}: IoU {iou:.2f}", fontsize=8)
             ax.set_axis_off()
     renderer.delete()
-    fig.suptitle(f"{args.run_dir}: mesh, best superquadric (limit), fits (median object of each kind)", fontsize=9)
+    fig.suptitle(f"{Path(args.run_dir).name}: mesh, best superquadric (limit), fits (median object of each kind)",
+                 fontsize=9)
     fig.tight_layout(rect=(0, 0, 1, 1 - 0.4 / fig.get_figheight()))
     fig.savefig(args.output, dpi=100)
     print(f"wrote {args.output} ({len(picked)} kinds)")
