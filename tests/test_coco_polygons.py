@@ -144,7 +144,8 @@ def test_generate_writes_polygons_in_each_convention(datasets):
                     np.testing.assert_array_equal(got[name][track], mask)
 
 
-def test_fit_coco_reads_both_conventions(datasets):
+def test_fit_coco_reads_both_conventions_when_rasterising(datasets):
+    # --polygon-convention raster: pycocotools' reading, exact for skimage outlines, not for OpenCV's.
     pytest.importorskip("pycolmap")
     from sqfit.cli import main as sqfit_main
 
@@ -152,7 +153,8 @@ def test_fit_coco_reads_both_conventions(datasets):
     for encoding in ("rle", "opencv", "skimage"):
         out = datasets / f"{encoding}.jsonl"
         assert sqfit_main(["fit", "--coco", str(datasets / encoding / "annotations.json"), "--poses",
-                           str(datasets / encoding / "sparse" / "0"), "-o", str(out), "--no-progress"]) == 0
+                           str(datasets / encoding / "sparse" / "0"), "-o", str(out), "--no-progress",
+                           "--polygon-convention", "raster"]) == 0
         fits[encoding] = {r["track_id"]: r for r in map(json.loads, out.read_text().splitlines())}
     assert fits["rle"].keys() == fits["opencv"].keys() == fits["skimage"].keys() and len(fits["rle"]) == 4
     for track, ref in fits["rle"].items():

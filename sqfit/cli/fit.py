@@ -3,7 +3,8 @@
 ``sqfit fit --coco annotations.json --poses sparse/0 -o fits.jsonl`` fits a user's COCO masks
 with COLMAP or JSON poses instead, or with a TUM trajectory (``--poses traj.tum --intrinsics
 "fx fy cx cy width height"``, images matched by timestamp; :mod:`sqfit.views.imported`,
-:mod:`sqfit.formats.trajectory`; same records).
+:mod:`sqfit.formats.trajectory`; same records). Polygon segmentations are read as outlines, not
+rasterised (``--polygon-convention``, :mod:`sqfit.formats.coco_polygons`); RLE ones as masks.
 
 The dataset is read with :mod:`sqfit.views.dataset` (written by ``sqsim generate``, or a user's own
 ``cameras.json`` + ``masks/view_VV.png``). Objects are the ``gt.json`` records (``"id"``) when
@@ -28,6 +29,7 @@ from .. import constants as C
 
 
 def add_arguments(parser):
+    from ..formats.coco_polygons import POLYGON_READINGS
     from ..views.imported import POSE_FORMATS, TRAJECTORY_FORMATS
     from ..formats.trajectory import DEFAULT_MAX_TIME_DIFF, INTRINSICS_CONVENTIONS
     from ..views.observation import POLYGON_KINDS, SAMPLING_METHODS
@@ -42,6 +44,15 @@ def add_arguments(parser):
                         "('t tx ty tz qx qy qz qw' per line, camera -> world; needs --intrinsics)")
     parser.add_argument("--pose-format", default="auto", choices=["auto", *POSE_FORMATS, *TRAJECTORY_FORMATS],
                         help="format of --poses (auto: a directory is COLMAP, *.json is JSON, *.tum / *.txt is TUM)")
+    parser.add_argument("--polygon-convention", default=POLYGON_READINGS[0], choices=POLYGON_READINGS,
+                        help="what the vertices of --coco polygon segmentations are. pixel-centres: centres of the "
+                        "mask's boundary pixels (cv2.findContours + 0.5, as detectron2 writes them), half a pixel "
+                        "step inside the outline: grown by it; outline: on the object's outline "
+                        "(skimage.measure.find_contours at 0.5, a labelling tool's edge clicks): taken as they are; "
+                        "both used as outlines, not rasterised. raster: rasterised by pycocotools and traced as a "
+                        "mask (sqfit's reading before; loses about half the boundary pixels of a pixel-centre polygon). "
+                        "auto (default): pixel-centres when every polygon vertex of the file has half-integer x "
+                        "and y (x - 0.5 and y - 0.5 whole numbers), else outline. RLE masks are masks either way")
     tum = parser.add_argument_group(
         "TUM trajectory poses", "A TUM file has no intrinsics and no image names: give the intrinsics, and each "
         "COCO image gets the pose nearest in time (as TUM's associate.py). An image's time is its file name stem "
@@ -173,13 +184,18 @@ def _too_few_views_message(record, views, result):
 
 def fit_import(coco_path, poses_path, output, chain, samples=C.DEFAULT_SAMPLES, sampling="uniform", polygon="hull",
                seed=0, progress=True, cleanup=True, pose_format="auto", intrinsics=None, image_times=None,
-               max_time_diff=None, intrinsics_convention=None):
+               max_time_diff=None, intrinsics_convention=None, polygon_convention="auto", notify=None):
     """Fit every track of a COCO file with cameras from a pose source; write ``fits.jsonl``.
 
     Parameters
     ----------
     coco_path, poses_path, pose_format, intrinsics, image_times, max_time_diff, intrinsics_convention
-        As :func:`sqfit.views.imported.load_import` (the last four for a TUM trajectory only).
+        As :func:`sqfit.views.imported.load_import` (the four after ``pose_format`` for a TUM
+        trajectory only).
+    polygon_convention : {"auto", "pixel-centres", "outline", "raster"}
+        How polygon segmentations are read (:func:`sqfit.views.imported.load_import`).
+    notify : callable, optional
+        ``str -> None``, told once how the file's polygons are read (when it has any).
     output : str or os.PathLike
         JSON-lines file (one record per track; module docstring).
     chain, samples, sampling, polygon, seed, progress, cleanup
@@ -205,7 +221,9 @@ def fit_import(coco_path, poses_path, output, chain, samples=C.DEFAULT_SAMPLES, 
     parse_chain(chain)
     options = FitOptions(polygon=polygon)
     scene = load_import(coco_path, poses_path, pose_format, intrinsics, image_times, max_time_diff,
-                        intrinsics_convention)
+                        intrinsics_convention, polygon_convention)
+    if notify is not None and scene.polygon_note:
+        notify(scene.polygon_note)
     out_path = Path(output)
     out_path.parent.mkdir(parents=True, exist_ok=True)
     n_records = n_errors = 0
@@ -232,11 +250,14 @@ def run(args):
                                args.polygon, args.seed, progress=not args.no_progress, cleanup=args.cleanup,
                                pose_format=args.pose_format, intrinsics=args.intrinsics,
                                image_times=args.image_times, max_time_diff=args.max_time_diff,
-                               intrinsics_convention=args.intrinsics_convention)
+                               intrinsics_convention=args.intrinsics_convention,
+                               polygon_convention=args.polygon_convention, notify=print)
         print(_summary_line(n, errors, args.output))
         return 0
     if args.dataset is None:
         raise ValueError("give a DATASET directory, or --coco FILE with --poses PATH")
+    if args.polygon_convention != "auto":
+        raise ValueError("--polygon-convention reads the polygons of a --coco file; a DATASET holds masks")
     n, errors = fit_dataset(args.dataset, args.output, args.chain, args.samples, args.sampling, args.polygon,
                             args.seed, progress=not args.no_progress, cleanup=args.cleanup, rerun=args.rerun,
                             rerun_trials=args.rerun_trials)

@@ -24,7 +24,8 @@ import numpy as np
 
 from .jsonfile import read_json
 
-__all__ = ["TRACK_KEY", "CocoImage", "CocoInstances", "read_coco", "decode_segmentation", "encode_mask"]
+__all__ = ["TRACK_KEY", "CocoImage", "CocoInstances", "read_coco", "decode_segmentation", "polygon_rings",
+           "encode_mask"]
 
 #: Annotation field that groups instances of one object across images.
 TRACK_KEY = "track_id"
@@ -66,11 +67,21 @@ class CocoInstances:
     images: dict
     tracks: dict
 
+    def describe(self, annotation):
+        """``"FILE: annotation ID (IMAGE FILE NAME)"``: where an annotation is, for messages."""
+        return f"{self.path}: annotation {annotation.get('id')} ({self.images[annotation['image_id']].file_name})"
+
     def mask(self, annotation):
-        """``(height, width) bool`` mask of one annotation of this file."""
+        """``(height, width) bool`` mask of one annotation of this file (polygons rasterised by pycocotools)."""
         image = self.images[annotation["image_id"]]
         return decode_segmentation(annotation.get("segmentation"), image.height, image.width,
-                                   f"{self.path}: annotation {annotation.get('id')} ({image.file_name})")
+                                   self.describe(annotation))
+
+    def polygons(self, annotation):
+        """The polygons of an annotation as ``(k, 2)`` vertex arrays (:func:`polygon_rings`), or None
+        when its segmentation is not a polygon list (RLE)."""
+        segmentation = annotation.get("segmentation")
+        return polygon_rings(segmentation, self.describe(annotation)) if isinstance(segmentation, list) else None
 
 
 def read_coco(path):
@@ -196,11 +207,7 @@ def decode_segmentation(segmentation, height, width, where="segmentation"):
         else:
             raise ValueError(f"{where}: RLE 'counts' must be a string or a list of run lengths")
     elif isinstance(segmentation, list):
-        polygons = [p for p in segmentation if isinstance(p, list)]
-        if len(polygons) != len(segmentation) or any(len(p) < 6 or len(p) % 2 for p in polygons) \
-                or not all(isinstance(x, (int, float)) and np.isfinite(x) for p in polygons for x in p):
-            raise ValueError(f"{where}: polygons must be lists of >= 3 finite (x, y) pairs "
-                             "[x0, y0, x1, y1, ...]")
+        polygons = [ring.ravel().tolist() for ring in polygon_rings(segmentation, where)]
         if not polygons:
             return np.zeros((height, width), dtype=bool)
         rle = mask_utils.merge(mask_utils.frPyObjects(polygons, height, width))
@@ -218,6 +225,35 @@ def decode_segmentation(segmentation, height, width, where="segmentation"):
         raise ValueError(f"{where}: malformed compressed RLE (its runs do not cover height * width = "
                          f"{height * width} pixels)")
     return mask.astype(bool)
+
+
+def polygon_rings(segmentation, where="segmentation"):
+    """The polygons of a polygon segmentation as vertex arrays.
+
+    Parameters
+    ----------
+    segmentation : list of list of float
+        Flat ``[x0, y0, x1, y1, ...]`` lists, image coordinates (module docstring).
+    where : str
+        Prefix of error messages.
+
+    Returns
+    -------
+    rings : list of (k, 2) float
+        One per polygon, k >= 3; empty for an empty list.
+
+    Raises
+    ------
+    ValueError
+        Not a list of lists of >= 3 finite (x, y) pairs.
+    """
+    polygons = [p for p in segmentation if isinstance(p, list)] if isinstance(segmentation, list) else None
+    if polygons is None or len(polygons) != len(segmentation) or any(len(p) < 6 or len(p) % 2 for p in polygons) \
+            or not all(isinstance(x, (int, float)) and not isinstance(x, bool) and np.isfinite(x)
+                       for p in polygons for x in p):
+        raise ValueError(f"{where}: polygons must be lists of >= 3 finite (x, y) pairs "
+                         "[x0, y0, x1, y1, ...]")
+    return [np.asarray(p, dtype=np.float64).reshape(-1, 2) for p in polygons]
 
 
 def encode_mask(mask):

@@ -19,16 +19,35 @@ Tools trace a binary mask in one of two conventions (:data:`POLYGON_CONVENTIONS`
 Both write every contour the tool returns, one polygon per outer outline (several for several
 components) and one per hole outline; pycocotools merges a segmentation's polygons as a union,
 so holes come back filled (COCO polygons cannot express holes).
+
+Reading them back (``sqfit fit --coco --polygon-convention``, :data:`POLYGON_READINGS`): as
+``"pixel-centres"`` (the OpenCV convention: grown half a pixel step to the outline) or
+``"outline"`` (the skimage convention, and a labelling tool's polygon drawn along the object's
+edge: taken as it is), both without rasterising (:mod:`sqfit.geometry.outline`,
+:meth:`sqfit.Observation.from_outline`); as ``"raster"``, rasterised by pycocotools and traced
+as a mask (sqfit's reading before the polygon route); ``"auto"`` detects the convention from the
+vertices of the whole file (:func:`detect_polygon_convention`): pixel-centres when every vertex
+has half-integer ``x`` and ``y`` (``x - 0.5`` and ``y - 0.5`` whole numbers, within
+:data:`CENTRE_TOLERANCE`), which is what ``cv2.findContours`` + 0.5 writes; else outline
+(skimage's vertices have one whole and one half-integer coordinate, hand-drawn ones anything).
 """
 
 from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["POLYGON_CONVENTIONS", "mask_to_polygons", "encode_polygons"]
+__all__ = ["POLYGON_CONVENTIONS", "POLYGON_READINGS", "READING_OF", "CENTRE_TOLERANCE", "mask_to_polygons",
+           "encode_polygons", "detect_polygon_convention", "polygon_reading"]
 
 #: Ways of tracing a mask into COCO polygons (module docstring).
 POLYGON_CONVENTIONS = ("opencv", "skimage")
+#: Ways of reading COCO polygons (module docstring); the first is the default.
+POLYGON_READINGS = ("auto", "pixel-centres", "outline", "raster")
+#: The reading that is faithful to each tracing convention.
+READING_OF = {"opencv": "pixel-centres", "skimage": "outline"}
+#: Largest distance (px) of a coordinate from a half-integer that still counts as a pixel centre
+#: (JSON keeps detectron2's ``x + 0.5`` exactly; this leaves room for float32 and rounding).
+CENTRE_TOLERANCE = 1e-4
 
 #: Offset (px) from a pixel's integer index to its centre in image coordinates.
 PIXEL_CENTRE = 0.5
@@ -100,3 +119,59 @@ def encode_polygons(mask, convention):
         return [], 0.0, [0.0, 0.0, 0.0, 0.0]
     rle = mask_utils.merge(mask_utils.frPyObjects(polygons, *mask.shape))
     return polygons, float(mask_utils.area(rle)), [float(x) for x in mask_utils.toBbox(rle)]
+
+
+def detect_polygon_convention(rings):
+    """The convention of polygon vertices, from their coordinates (module docstring).
+
+    Parameters
+    ----------
+    rings : iterable of (k, 2) float
+        Polygons, image coordinates.
+
+    Returns
+    -------
+    convention : {"pixel-centres", "outline"} or None
+        None when there is no vertex.
+    reason : str
+        Why, for a message.
+    """
+    vertices = np.concatenate([np.asarray(r, dtype=np.float64).reshape(-1, 2) for r in rings] or [np.zeros((0, 2))])
+    if not len(vertices):
+        return None, "no polygon"
+    off = np.abs(vertices - PIXEL_CENTRE - np.round(vertices - PIXEL_CENTRE)).max(axis=1) > CENTRE_TOLERANCE
+    if not off.any():
+        return "pixel-centres", (f"all {len(vertices)} polygon vertices lie on pixel centres (x - 0.5 and y - 0.5 "
+                                 "whole numbers), as cv2.findContours + 0.5 writes them (detectron2)")
+    return "outline", f"{int(off.sum())} of {len(vertices)} polygon vertices lie off pixel centres"
+
+
+def polygon_reading(rings, reading="auto"):
+    """How to read a file's polygons: ``reading`` checked, or detected from ``rings`` if "auto".
+
+    Parameters
+    ----------
+    rings : iterable of (k, 2) float
+        Every polygon of the file.
+    reading : {"auto", "pixel-centres", "outline", "raster"}
+
+    Returns
+    -------
+    reading : {"pixel-centres", "outline", "raster"} or None
+        None when the file holds no polygon.
+    note : str
+        A sentence saying how the polygons are read and why ("" without polygons).
+    """
+    if reading not in POLYGON_READINGS:
+        raise ValueError(f"polygon convention must be one of {list(POLYGON_READINGS)}, got {reading!r}")
+    rings = list(rings)
+    if not rings:
+        return None, ""
+    if reading != "auto":
+        return reading, f"{len(rings)} COCO polygon(s) {_HOW[reading]} (--polygon-convention {reading})"
+    found, reason = detect_polygon_convention(rings)
+    return found, f"{len(rings)} COCO polygon(s) {_HOW[found]} (auto: {reason})"
+
+
+_HOW = {"pixel-centres": "read as outlines through boundary pixels' centres, grown half a pixel step",
+        "outline": "read as outlines, taken as they are", "raster": "rasterised by pycocotools"}

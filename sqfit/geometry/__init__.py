@@ -6,7 +6,9 @@ The lowest layer of sqfit: pure functions over arrays, importing only :mod:`sqfi
 - :mod:`.superquadric` — the 11 parameters, inside-outside function, volume, sampling, mesh;
 - :mod:`.camera` — intrinsics, ``T_world_camera`` poses, projection and back-projection;
 - :mod:`.polygon` — polygon area, convexity and IoU (convex, with its Jacobian; shapely otherwise);
-- :mod:`.raster` — exact scanline filling of convex polygons into masks;
+- :mod:`.raster` — exact scanline filling of convex polygons into masks, even-odd filling of any;
+- :mod:`.outline` — objects given as outline polygons (a COCO file's): the region they bound (pixel-centre
+  polygons grown half a pixel step), its outline, pixels and uniform samples;
 - :mod:`.silhouette` — the projected outline of a superquadric, batched and warm-started;
 - :mod:`.visible_iou` — IoU of outlines restricted to what a view can show.
 """

@@ -40,6 +40,7 @@ import numpy as np
 
 from .._checks import check_shape
 from ..geometry.camera import project
+from ..geometry.raster import fill_polygon  # re-exported (it lived here)
 from .observation import Observation
 from .visibility import OCCLUDER_REACH_PX
 
@@ -133,37 +134,6 @@ def object_pixels(observation):
         reach = 2 * OCCLUDER_REACH_PX + 1
         unknown |= ndimage.binary_dilation(hide, np.ones((reach, reach), dtype=bool))
     return unknown
-
-
-def fill_polygon(polygon, shape):
-    """Pixels whose centre lies inside a closed polygon (even-odd rule), by scanlines.
-
-    Parameters
-    ----------
-    polygon : (m, 2) float
-        Vertices ``(x, y)`` = (column, row) with pixel centres at whole numbers.
-    shape : (2,) int
-        ``(height, width)``.
-
-    Returns
-    -------
-    inside : (height, width) bool
-        Undefined for a centre exactly on an edge (none is, for a mask's contour).
-    """
-    polygon = check_shape(polygon, (None, 2), "polygon")
-    h, w = shape
-    x0, y0 = polygon.T
-    x1, y1 = np.roll(x0, -1), np.roll(y0, -1)
-    lo, hi = np.minimum(y0, y1), np.maximum(y0, y1)
-    first = np.maximum(np.ceil(lo), 0).astype(np.int64)
-    count = np.maximum(np.minimum(np.ceil(hi), h) - first, 0).astype(np.int64)  # rows in [lo, hi)
-    edge = np.repeat(np.arange(len(polygon)), count)
-    rows = first[edge] + np.arange(len(edge)) - np.repeat(np.cumsum(count) - count, count)
-    t = (rows - y0[edge]) / (y1[edge] - y0[edge])
-    xs = x0[edge] + t * (x1[edge] - x0[edge])
-    toggles = np.zeros((h, w + 1), dtype=np.int64)
-    np.add.at(toggles, (rows, np.clip(np.ceil(xs), 0, w).astype(np.int64)), 1)
-    return (np.cumsum(toggles[:, :w], axis=1) % 2).astype(bool)
 
 
 def known_background(observation):

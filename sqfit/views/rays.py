@@ -18,6 +18,7 @@ import numpy as np
 
 from .._checks import check_shape
 from ..geometry.camera import bearings
+from ..geometry.outline import outward_normals  # re-exported: the normals of 3G's band rays
 from .observation import Observation, polyline_points
 from .visibility import BACKGROUND, point_labels
 
@@ -25,7 +26,6 @@ __all__ = ["RaySet", "CONTOUR", "INSIDE", "OUTSIDE", "contour_rays", "outward_no
 
 #: Ray modes (see the module docstring).
 CONTOUR, INSIDE, OUTSIDE = 0, 1, 2
-_TINY = 1e-300
 
 
 @dataclass(frozen=True)
@@ -82,32 +82,6 @@ class RaySet:
 
     def __len__(self):
         return len(self.origins)
-
-
-def outward_normals(contour):
-    """Unit outward normals at the vertices of a counter-clockwise image polygon.
-
-    Image coordinates have ``v`` pointing down, and "counter-clockwise" means a positive shoelace
-    area in ``(u, v)`` (as :attr:`sqfit.Observation.contour`); for such a polygon the outward normal
-    of an edge with direction ``(du, dv)`` is ``(dv, -du)``.
-
-    Parameters
-    ----------
-    contour : (m, 2) float
-
-    Returns
-    -------
-    normals : (m, 2) float
-        Average of the two adjacent edge normals, normalised.
-    """
-    contour = check_shape(contour, (None, 2), "contour")
-    if len(contour) < 3:
-        raise ValueError(f"contour must have at least 3 vertices, got {len(contour)}")
-    edge = np.roll(contour, -1, axis=0) - contour
-    edge_n = np.stack([edge[:, 1], -edge[:, 0]], axis=1)
-    edge_n /= np.maximum(np.linalg.norm(edge_n, axis=1, keepdims=True), _TINY)
-    normal = edge_n + np.roll(edge_n, 1, axis=0)
-    return normal / np.maximum(np.linalg.norm(normal, axis=1, keepdims=True), _TINY)
 
 
 def contour_rays(observations, n_contour=64, band_px=0.0, n_inside=0):

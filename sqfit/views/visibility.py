@@ -18,6 +18,11 @@ Rules (pinned by tests/test_visibility.py):
    the midpoint of two 4-adjacent pixel centres, one in the mask and one not; that second pixel is
    the one "across" the vertex. If it is outside the image the label is ``BORDER``; else if the
    dilated "may hide" mask holds there it is ``INSTANCE``; else ``BACKGROUND``.
+   An outline given as a polygon (:meth:`sqfit.Observation.from_outline`) has vertices anywhere;
+   there the pixel across a vertex is the one holding the point half a pixel outward along the
+   vertex's normal (:func:`polygon_labels`). On a marching-squares outline both rules give the
+   same label (every vertex of 30 random silhouettes, truncated and occluded ones included:
+   tests/test_polygon_route.py).
 2. The "may hide" mask is, from an instance-id image, every pixel of another instance (id not 0
    and not the object's); from a binary mask, what the user passes (none: nothing hides it). It
    is dilated by :data:`OCCLUDER_REACH_PX` (a square) before the lookup, so a one- or two-pixel
@@ -40,8 +45,10 @@ from __future__ import annotations
 
 import numpy as np
 
+from ..geometry.outline import outward_normals
+
 __all__ = ["BACKGROUND", "INSTANCE", "BORDER", "INTERIOR", "LABEL_NAMES", "OCCLUDER_REACH_PX",
-           "outline_labels", "point_labels", "silhouette_fraction", "hiding_pixels"]
+           "outline_labels", "polygon_labels", "point_labels", "silhouette_fraction", "hiding_pixels"]
 
 BACKGROUND, INSTANCE, BORDER, INTERIOR = 0, 1, 2, 3
 LABEL_NAMES = {BACKGROUND: "background", INSTANCE: "instance", BORDER: "border", INTERIOR: "interior"}
@@ -79,15 +86,49 @@ def outline_labels(contour, mask, occluder=None, reach_px=OCCLUDER_REACH_PX):
     in_a = _lookup(mask, r_a, c_a)
     # The pixel across is the one of the pair that is not in the mask.
     r_out, c_out = np.where(in_a, r_b, r_a), np.where(in_a, c_b, c_a)
-    outside = (r_out < 0) | (r_out >= h) | (c_out < 0) | (c_out >= w)
-    labels = np.full(len(contour), BACKGROUND, dtype=np.int8)
+    return _labels_across(r_out, c_out, (h, w), occluder, reach_px)
+
+
+def polygon_labels(contour, shape, occluder=None, reach_px=OCCLUDER_REACH_PX):
+    """Labels of the vertices of an outline polygon with vertices anywhere (rule 1, polygons).
+
+    Parameters
+    ----------
+    contour : (m, 2) float
+        Outline vertices ``(u, v)``, counter-clockwise in image coordinates (positive shoelace
+        area), m >= 3.
+    shape : (2,) int
+        ``(height, width)`` of the image.
+    occluder : (h, w) bool, optional
+        Pixels that may hide the object (not the object's own); None: nothing hides it.
+    reach_px : int
+        Dilation radius of ``occluder``, pixels, >= 0.
+
+    Returns
+    -------
+    labels : (m,) int8
+        Per vertex, the label of the pixel holding ``vertex + normal / 2``
+        (:func:`sqfit.geometry.outline.outward_normals`): :data:`BORDER` outside the image, else
+        :data:`INSTANCE` in the dilated occluder, else :data:`BACKGROUND`.
+    """
+    contour = np.asarray(contour, dtype=np.float64)
+    across = contour + 0.5 * outward_normals(contour)
+    cols, rows = np.floor(across).astype(np.int64).T
+    return _labels_across(rows, cols, tuple(int(n) for n in shape), occluder, reach_px)
+
+
+def _labels_across(rows, cols, shape, occluder, reach_px):
+    """Labels from the pixel across each outline point (``rows``, ``cols``; may lie outside the image)."""
+    h, w = shape
+    outside = (rows < 0) | (rows >= h) | (cols < 0) | (cols >= w)
+    labels = np.full(len(rows), BACKGROUND, dtype=np.int8)
     if occluder is not None:
         hide = np.asarray(occluder, dtype=bool)
         if reach_px > 0 and hide.any():
             from scipy import ndimage
 
             hide = ndimage.binary_dilation(hide, np.ones((2 * reach_px + 1,) * 2, dtype=bool))
-        labels[_lookup(hide, r_out, c_out)] = INSTANCE
+        labels[_lookup(hide, rows, cols)] = INSTANCE
     labels[outside] = BORDER
     return labels
 
