@@ -31,3 +31,15 @@ def assert_bad_file(path, text, reader, match, error=ValueError):
     path.write_text(text)
     with pytest.raises(error, match=match):
         reader(path)
+
+
+def mask_shapes():
+    """Small masks with known outlines: a rectangle, an L (a concave corner), a block in the image's
+    top-right corner (touches the border)."""
+    square = np.zeros((40, 50), bool)
+    square[5:20, 10:30] = True
+    ell = square.copy()
+    ell[20:35, 10:16] = True  # a concave corner
+    border = np.zeros((30, 30), bool)
+    border[:12, 20:] = True  # touches the image border, corner included
+    return {"square": square, "ell": ell, "border": border}

@@ -10,6 +10,7 @@ from sqfit.formats import decode_segmentation, encode_polygons, mask_to_polygons
 from sqfit.views.dataset import load_trial, trial_dirs
 
 from _datasets import small_scene  # noqa: E402
+from _helpers import mask_shapes  # noqa: E402
 
 
 def disc(radius, centre=(60.3, 80.6), shape=(120, 160)):
@@ -23,15 +24,8 @@ def rim(mask):
 
 
 def shapes():
-    square = np.zeros((40, 50), bool)
-    square[5:20, 10:30] = True
-    ell = square.copy()
-    ell[20:35, 10:16] = True  # a concave corner
-    border = np.zeros((30, 30), bool)
-    border[:12, 20:] = True  # touches the image border
     two = disc(8.0, (20.0, 20.0), (40, 80)) | disc(10.0, (20.0, 55.0), (40, 80))
-    return {"disc5": disc(5.3), "disc12": disc(12.0), "disc35": disc(35.0), "square": square, "ell": ell,
-            "border": border, "two": two}
+    return {"disc5": disc(5.3), "disc12": disc(12.0), "disc35": disc(35.0), **mask_shapes(), "two": two}
 
 
 @pytest.mark.parametrize("name", list(shapes()))

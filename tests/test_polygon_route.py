@@ -21,6 +21,8 @@ from sqfit.views.imported import load_import, observe_track, track_rng
 from sqfit.views.observation import clean_mask, outer_contour
 from sqfit.views.visibility import BACKGROUND, BORDER, INSTANCE, outline_labels, polygon_labels
 
+from _helpers import mask_shapes  # noqa: E402
+
 
 def camera(shape):
     h, w = shape
@@ -49,19 +51,12 @@ def superellipse(seed, shape=(120, 160), centre=None):
 
 
 def shapes():
-    square = np.zeros((40, 50), bool)
-    square[5:20, 10:30] = True
-    ell = square.copy()
-    ell[20:35, 10:16] = True  # a concave corner
-    border = np.zeros((30, 30), bool)
-    border[:12, 20:] = True  # touches the image border, corner included
     line = np.zeros((20, 30), bool)
     line[10, 5:25] = True  # one pixel wide: the OpenCV polygon has no area
-    spur = square.copy()
+    spur = mask_shapes()["square"].copy()
     spur[12, 30:40] = True  # a one-pixel-wide spur
     cut = superellipse(3, centre=(60.0, 5.0))  # truncated by the left border
-    return {"square": square, "ell": ell, "border": border, "line": line, "spur": spur, "cut": cut,
-            **{f"sq{k}": superellipse(k) for k in range(6)}}
+    return {**mask_shapes(), "line": line, "spur": spur, "cut": cut, **{f"sq{k}": superellipse(k) for k in range(6)}}
 
 
 # --- the pixel-centre convention --------------------------------------------------------------------------

@@ -215,16 +215,9 @@ class Observation:
             Pixels that may hide the object, as :meth:`from_mask` (the region's own pixels are
             left out of it).
 
-        Returns
-        -------
-        observation : Observation
-
-        Raises
-        ------
-        ValueError
-            Malformed polygons or occluder, an unknown convention, a region outside the image or
-            smaller than a single pixel's outline (:func:`sqfit.geometry.outline.visible_region`),
-            or covering the whole image.
+        Returns an :class:`Observation`; raises ``ValueError`` on malformed polygons or occluder, an
+        unknown convention, a region outside the image or smaller than a single pixel's outline
+        (:func:`sqfit.geometry.outline.visible_region`), or one covering the whole image.
         """
         _check_view(camera, n_samples, sampling)
         check_choice(convention, ol.OUTLINE_CONVENTIONS, "polygon convention")
