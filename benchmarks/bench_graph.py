@@ -55,8 +55,10 @@ def _row(method, result, seq):
     return row
 
 
-def _scene_sequence(path, seed, index=0):
-    """Sequence ``index`` of ``seed`` of a sequence scene, with observations as ``sqsim slam`` makes them."""
+def _scene_sequence(path, seed, index=0, frames=None):
+    """Sequence ``index`` of ``seed`` of a sequence scene, with observations as ``sqsim slam`` makes them;
+    ``frames``: the trajectory's frame count instead of the scene's (same path, denser or sparser)."""
+    from dataclasses import replace
     from types import SimpleNamespace
 
     from sqsim.world.scene import child_seed, load_scene, trial_seed
@@ -64,6 +66,8 @@ def _scene_sequence(path, seed, index=0):
     from sqsim.runs.slam import OBSERVATION_STREAM
 
     scene = load_scene(path)
+    if frames is not None:
+        scene = replace(scene, trajectory=replace(scene.trajectory, frames=int(frames)))
     seq = simulate_sequence(scene, seed=seed, index=index)
     rng = np.random.default_rng(child_seed(trial_seed(seed, index), OBSERVATION_STREAM))
     observations = graph.observations_from_instances(seq.intrinsics, seq.odometry_poses, seq.images,
@@ -88,6 +92,8 @@ def main(argv=None):
                         "synthetic sequences")
     parser.add_argument("--repeat", type=int, default=1, help="runs per method and sequence; the least CPU time is "
                         "kept")
+    parser.add_argument("--scene-frames", type=int, default=None, help="with --scene: the trajectory's frame "
+                        "count instead of the scene's (growth with sequence length)")
     parser.add_argument("--sequences", type=int, default=1, help="with --scene: sequences 0..N-1 of each seed")
     parser.add_argument("--perturb", type=int, default=1, help="runs per sequence with silhouette_sigma scaled by "
                         "1 + k 1e-9, k = 0..N-1: the spread of the results under a negligible change")
@@ -102,7 +108,7 @@ def main(argv=None):
     rows = []
     for seed in range(args.seed, args.seed + args.seeds):
         for index in range(args.sequences if args.scene else 1):
-            seq = (_scene_sequence(args.scene, seed, index) if args.scene
+            seq = (_scene_sequence(args.scene, seed, index, args.scene_frames) if args.scene
                    else synthetic_sequence(seed, args.frames, args.objects))
             for k in range(args.perturb):
                 options = {**base, "silhouette_sigma": sigma * (1.0 + k * 1e-9)} if k else (base or None)
@@ -113,7 +119,8 @@ def main(argv=None):
                         raise RuntimeError(f"seed {seed}, {m}: repeated runs disagree: {runs}")
                     rows.append({"seed": seed, "sequence": index, "perturbation": k, "views": len(seq.observations),
                                  "repeat": args.repeat, **min(runs, key=lambda r: r["cpu_seconds"])})
-    what = (f"{args.scene} (sequences 0..{args.sequences - 1} of each seed)" if args.scene
+    at = '' if args.scene_frames is None else f' at {args.scene_frames} frames'
+    what = (f"{args.scene}{at} (sequences 0..{args.sequences - 1} of each seed)" if args.scene
             else f"{args.frames} frames, {args.objects} objects")
     if args.perturb > 1:
         what += f", {args.perturb} runs per sequence (silhouette_sigma x (1 + k 1e-9))"

@@ -79,6 +79,13 @@ class GraphOptions(Options):
         Levenberg-Marquardt from the previous solution (0: all frames at once from the odometry).
         Measured: from dead-reckoned odometry, late frames' silhouettes miss their objects by more
         than the objects' size and one solve of the whole sequence can end in a wrong minimum.
+    batch_free_frames : int
+        The window solves before the last re-optimise only the poses of the last
+        ``batch_free_frames`` frames (the new window's included) and the landmarks those frames see;
+        the earlier poses and the other landmarks stay at their estimate, the older views of the
+        re-optimised landmarks enter linearised (:func:`sqfit.graph.fixedlag.condition_on_past`), so
+        a window's cost does not grow with the frames before it. The last window solves the whole
+        graph. 0: every window solves the whole graph (the cost grows with the square of the length).
     window_relative_tolerance : float
         Relative error decrease at which the solves of the windows before the last stop: they only
         bring the new frames near (measured, 3 seeds of the benchmark: 0.03 instead of 1e-3 cut the
@@ -90,6 +97,10 @@ class GraphOptions(Options):
         landmark whose silhouettes barely overlap its masks (R-IOU-M below
         ``sqfit.constants.POOR_FIT_R_IOU_M``: 3G's "far, huge" minimum, whose misfit is low), kept
         if it overlaps more; 0 disables both.
+    refit_max_frames : int
+        The overlap test and the re-initialising fit of the re-fit use at most this many of the
+        landmark's frames, evenly spread over them (their cost then does not grow with the
+        sequence); 0: all its frames.
     isam2_relinearize_threshold : float
         iSAM2 relinearises a variable when its update exceeds this (tangent-space norm).
     isam2_dogleg : bool
@@ -117,8 +128,10 @@ class GraphOptions(Options):
     shape_prior_sigma: float = 10.0
     box_sigma_px: float = 2.0
     batch_window: int = 10
+    batch_free_frames: int = 20
     window_relative_tolerance: float = 0.03
     refit_misfit: float = 0.5
+    refit_max_frames: int = 12
     isam2_relinearize_threshold: float = 0.01
     isam2_dogleg: bool = False
     max_iterations: int = 50
@@ -127,7 +140,8 @@ class GraphOptions(Options):
     WHAT = "graph"
 
     def __post_init__(self):
-        check_fields(self, integers={"n_contour": 3, "init_frames": MIN_FRAMES, "max_iterations": 1, "batch_window": 0},
+        check_fields(self, integers={"n_contour": 3, "init_frames": MIN_FRAMES, "max_iterations": 1, "batch_window": 0,
+                                         "batch_free_frames": 0, "refit_max_frames": 0},
                      positive=("silhouette_sigma", "huber_k", "odometry_sigma_deg", "odometry_sigma_m",
                                "prior_sigma_deg", "prior_sigma_m", "landmark_prior_sigma_deg", "init_parallax_deg",
                                "isam2_relinearize_threshold", "window_relative_tolerance", "landmark_prior_sigma_m",

@@ -36,6 +36,7 @@ from .. import constants as C
 from ..fitting import pipeline
 from ..fitting.stages import r_iou_m
 from .factors import SilhouetteFactors, bounds_factor, box_factor, silhouette_factor
+from .fixedlag import condition_on_past
 from .landmark import camera_rays, landmark_to_superquadric, superquadric_to_landmark
 from .problem import GraphOptions, SlamResult, check_inputs, observation_at, ready_to_initialise
 from .quadric import initialise_quadric, observation_box, quadric_to_superquadric
@@ -261,7 +262,8 @@ class _Growth:
 
 def _batch(problem, options):
     """Levenberg-Marquardt over growing windows of ``batch_window`` frames, each solve started from
-    the previous one's solution (GraphOptions)."""
+    the previous one's solution; the windows before the last solve with the past held fixed
+    (``batch_free_frames``, :func:`_window_solve`), the last one the whole graph (GraphOptions)."""
     clock, n = _Clock(), problem.n_frames
     result = SlamResult("graph", problem.odometry_poses.copy(), skipped=dict(problem.skipped),
                         warnings=list(problem.warnings))
@@ -270,16 +272,18 @@ def _batch(problem, options):
     window = options.batch_window or n
     try:
         for start in range(0, n, window):
-            new_graph, new_values = growth.add(range(start, min(start + window, n)))
+            end = min(start + window, n)
+            new_graph, new_values = growth.add(range(start, end))
             for k in range(new_graph.size()):
                 graph.add(new_graph.at(k))
             values.insert(new_values)
-            result.error_initial = graph.error(values)
-            final = start + window >= n
-            values, iterations = _lm(graph, values, options if final else
-                                     replace(options, relative_tolerance=options.window_relative_tolerance))
+            if end >= n:
+                result.error_initial = graph.error(values)
+                values, iterations = _lm(graph, values, options)
+            else:
+                iterations = _window_solve(graph, values, growth, end, options)
             result.iterations += iterations
-            growth.update(values, min(start + window, n))
+            growth.update(values, end)
         if _refit(problem, values, growth.added, options, result, growth.rays):
             values, iterations = _lm(graph, values, options)
             result.iterations += iterations
@@ -293,6 +297,26 @@ def _batch(problem, options):
     return result
 
 
+def _window_solve(graph, values, growth, end, options):
+    """Solve a window before the last (frames ``0 .. end-1`` in ``graph``) to
+    ``window_relative_tolerance``, updating ``values`` in place: only the poses of the last
+    ``batch_free_frames`` frames and the landmarks they see move (all of them with 0). Returns the
+    iterations."""
+    coarse = replace(options, relative_tolerance=options.window_relative_tolerance)
+    first = end - options.batch_free_frames
+    if options.batch_free_frames == 0 or first <= 0:
+        out, iterations = _lm(graph, values, coarse)
+        values.update(out)
+        return iterations
+    active = {X(f) for f in range(first, end)}
+    active |= {key for f in range(first, end) for oid in growth.by_frame.get(f, []) if oid in growth.added
+               for key in (L(oid), S(oid))}
+    sub_graph, sub_values = condition_on_past(graph, values, active)
+    out, iterations = _lm(sub_graph, sub_values, coarse)
+    values.update(out)
+    return iterations
+
+
 def _object_misfit(problem, values, oid, options, rays_cache=None):
     """RMS whitened ray residual of object ``oid``'s silhouette factors at ``values`` (1: a typical
     ray one ``silhouette_sigma`` off)."""
@@ -303,13 +327,21 @@ def _object_misfit(problem, values, oid, options, rays_cache=None):
     return float(np.sqrt(2.0 * sub.error(values) / rows))
 
 
-def _object_overlap(problem, values, oid, poses):
-    """R-IOU-M of object ``oid``'s landmark against its observations at ``poses``: how much its
-    silhouettes overlap its masks (``sqfit.fitting.stages.r_iou_m``; 3G's "far, huge" minimum has a low
-    misfit but almost no overlap)."""
+def _spread(frames, most):
+    """At most ``most`` of ``frames`` (all with 0), evenly spread, the first and the last kept."""
+    if most == 0 or len(frames) <= most:
+        return list(frames)
+    return [frames[i] for i in np.unique(np.round(np.linspace(0, len(frames) - 1, most)).astype(int))]
+
+
+def _object_overlap(problem, values, oid, poses, frames=None):
+    """R-IOU-M of object ``oid``'s landmark against its observations at ``poses`` in ``frames``
+    (default: all that see it): how much its silhouettes overlap its masks
+    (``sqfit.fitting.stages.r_iou_m``; 3G's "far, huge" minimum has a low misfit but almost no overlap)."""
     from ..fitting.costs import ObservationSet
 
-    obs = ObservationSet([observation_at(problem.observations[f, oid], poses[f]) for f in problem.frames[oid]])
+    frames = problem.frames[oid] if frames is None else frames
+    obs = ObservationSet([observation_at(problem.observations[f, oid], poses[f]) for f in frames])
     sq = landmark_to_superquadric(values.atPose3(L(oid)).matrix(), values.atVector(S(oid)))
     return float(r_iou_m([sq], obs)[0])
 
@@ -319,30 +351,32 @@ def _refit(problem, values, oids, options, result, rays_cache=None):
     the solved poses: those whose silhouettes disagree (misfit above ``refit_misfit``; a refit is
     kept if its misfit is lower) and those whose silhouettes barely overlap their masks (R-IOU-M
     below ``sqfit.constants.POOR_FIT_R_IOU_M``, 3G's "far, huge" minimum, whose misfit is low; a
-    refit is kept if it overlaps more). Returns whether a landmark changed. ``rays_cache``:
+    refit is kept if it overlaps more). The overlap and the fit use at most ``refit_max_frames`` of
+    the landmark's frames (:func:`_spread`). Returns whether a landmark changed. ``rays_cache``:
     :func:`_silhouette`."""
     if options.refit_misfit <= 0:
         return False
     poses = _poses(values, problem.n_frames)
     changed = False
     for oid in oids:
+        frames = _spread(problem.frames[oid], options.refit_max_frames)
         before = _object_misfit(problem, values, oid, options, rays_cache)
-        overlap = _object_overlap(problem, values, oid, poses)
+        overlap = _object_overlap(problem, values, oid, poses, frames)
         disjoint = overlap < C.POOR_FIT_R_IOU_M
         if before <= options.refit_misfit and not disjoint:
             continue
-        landmark, _ = _initial_fit(problem, oid, problem.frames[oid], poses, options)
+        landmark, _ = _initial_fit(problem, oid, frames, poses, options)
         if landmark is None:
             continue
         trial = gtsam.Values(values)
         trial.update(L(oid), gtsam.Pose3(landmark[0]))
         trial.update(S(oid), np.asarray(landmark[1], dtype=np.float64))
         after = _object_misfit(problem, trial, oid, options, rays_cache)
-        overlap_after = _object_overlap(problem, trial, oid, poses)
+        overlap_after = _object_overlap(problem, trial, oid, poses, frames)
         if (overlap_after > overlap) if disjoint else (after < before):
             values.update(L(oid), gtsam.Pose3(landmark[0]))
             values.update(S(oid), np.asarray(landmark[1], dtype=np.float64))
-            result.warnings.append(f"object {oid}: re-initialised from all {len(problem.frames[oid])} frames "
+            result.warnings.append(f"object {oid}: re-initialised from {len(frames)} of its {len(problem.frames[oid])} frames "
                                    f"(misfit {before:.2f} -> {after:.2f}, R-IOU-M {overlap:.2f} -> "
                                    f"{overlap_after:.2f})")
             changed = True
