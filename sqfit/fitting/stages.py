@@ -141,9 +141,10 @@ def r_iou_m(superquadrics, obs, polygon="hull"):
 
     Scores are remembered per observation set (while it lives) by exact parameter vector, so a
     superquadric scored twice -- 3H's rescue check and then :func:`sqfit.fit`'s per-stage
-    R-IOU-M of the same snapshot -- is evaluated once; the others are evaluated as one batch.
-    A batch's silhouette solver stops when its slowest member converged, so a score can differ
-    from the same superquadric's score in another batch by rounding (measured <= 1e-15).
+    R-IOU-M of the same snapshot -- is evaluated once; the others are evaluated as one batch
+    (:func:`sqfit.fitting.costs.silhouettes`). On the numpy path a batch's silhouette solver stops
+    when its slowest member converged, so a score can differ from the same superquadric's score in
+    another batch by rounding (measured <= 1e-15); the compiled path stops each vertex on its own.
     """
     xi = np.stack([sq.to_vector() for sq in superquadrics])
     memo = _R_IOU_M_MEMO.get(obs)
