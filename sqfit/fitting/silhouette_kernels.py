@@ -131,26 +131,15 @@ def silhouettes(xi, R_sq, rotations, centers, intrinsics, k, tol, max_newton, zn
     b, v = xi.shape[0], rotations.shape[0]
     polys = np.empty((b, v, k, 2))
     valid = np.zeros((b, v), dtype=np.bool_)
-    # per (b, v): the camera-frame rotation M, centre c, wz = a * M[2]; per vertex: n0, w0, n0 . c, h
-    M = np.empty((b, v, 3, 3))
-    c = np.empty((b, v, 3))
-    wz = np.empty((b, v, 3))
-    n0 = np.empty((b, v, k, 3))
-    w0 = np.empty((b, v, k, 3))
-    n0c = np.empty((b, v, k))
-    h = np.empty((b, v, k))
-    cz = np.empty((b, v))
-    a = np.empty((b, 3))
-    q1, q2 = np.empty(b), np.empty(b)
-    ell = np.empty(5)
-    grad = np.empty(3)
-    Rt = np.empty((3, 3))
+    M, Rt = np.empty((3, 3)), np.empty((3, 3))  # superquadric -> camera rotation, camera <- world
+    a, c, wz = np.empty(3), np.empty(3), np.empty(3)
+    ell, grad = np.empty(5), np.empty(3)
     for s in range(b):
         for j in range(3):
-            a[s, j] = abs(xi[s, j])
+            a[j] = abs(xi[s, j])
         e1 = nan_min(nan_max(xi[s, 3], e_min), e_max)
         e2 = nan_min(nan_max(xi[s, 4], e_min), e_max)
-        q1[s], q2[s] = 2.0 / (2.0 - e1), 2.0 / (2.0 - e2)
+        q1, q2 = 2.0 / (2.0 - e1), 2.0 / (2.0 - e2)
         for t in range(v):
             for i in range(3):
                 for j in range(3):
@@ -158,13 +147,18 @@ def silhouettes(xi, R_sq, rotations, centers, intrinsics, k, tol, max_newton, zn
             fx, fy, cx, cy = intrinsics[t, 0], intrinsics[t, 1], intrinsics[t, 2], intrinsics[t, 3]
             for i in range(3):
                 for j in range(3):
-                    M[s, t, i, j] = Rt[i, 0] * R_sq[s, 0, j] + Rt[i, 1] * R_sq[s, 1, j] + Rt[i, 2] * R_sq[s, 2, j]
+                    M[i, j] = Rt[i, 0] * R_sq[s, 0, j] + Rt[i, 1] * R_sq[s, 1, j] + Rt[i, 2] * R_sq[s, 2, j]
                 dp0, dp1, dp2 = xi[s, 5] - centers[t, 0], xi[s, 6] - centers[t, 1], xi[s, 7] - centers[t, 2]
-                c[s, t, i] = Rt[i, 0] * dp0 + Rt[i, 1] * dp1 + Rt[i, 2] * dp2
+                c[i] = Rt[i, 0] * dp0 + Rt[i, 1] * dp1 + Rt[i, 2] * dp2
             for j in range(3):
-                wz[s, t, j] = a[s, j] * M[s, t, 2, j]
-            ok = _ellipse(R_sq[s], a[s], xi[s, 5:8], Rt, centers[t], fx, fy, cx, cy, ell)
+                wz[j] = a[j] * M[2, j]
+            # nearest depth of the superquadric in this camera: c_z - h(-e_z)
+            zmin = c[2] - _support(wz[0], wz[1], wz[2], q1, q2, grad)
+            ok_view = np.isfinite(zmin) and zmin > znear
+            cz = c[2] if ok_view else 1.0
+            ok = _ellipse(R_sq[s], a, xi[s, 5:8], Rt, centers[t], fx, fy, cx, cy, ell)
             x0u, x0v, l00, l10, l11 = ell[0], ell[1], ell[2], ell[3], ell[4]
+            finite = True
             for m in range(k):
                 theta = 2.0 * np.pi * m / k
                 bu, bv = math.cos(theta), math.sin(theta)
@@ -174,58 +168,38 @@ def silhouettes(xi, R_sq, rotations, centers, intrinsics, k, tol, max_newton, zn
                     uu, uv = uu / norm, uv / norm
                 else:
                     uu, uv = bu, bv
-                n = n0[s, t, m]
-                n[0], n[1], n[2] = uu * fx, uv * fy, uu * cx + uv * cy
-                for j in range(3):
-                    w0[s, t, m, j] = (n[0] * M[s, t, 0, j] + n[1] * M[s, t, 1, j] + n[2] * M[s, t, 2, j]) * a[s, j]
-                n0c[s, t, m] = n[0] * c[s, t, 0] + n[1] * c[s, t, 1] + n[2] * c[s, t, 2]
+                n0, n1, n2 = uu * fx, uv * fy, uu * cx + uv * cy
+                w0 = (n0 * M[0, 0] + n1 * M[1, 0] + n2 * M[2, 0]) * a[0]
+                w1 = (n0 * M[0, 1] + n1 * M[1, 1] + n2 * M[2, 1]) * a[1]
+                w2 = (n0 * M[0, 2] + n1 * M[1, 2] + n2 * M[2, 2]) * a[2]
+                n0c = n0 * c[0] + n1 * c[1] + n2 * c[2]
+                h = np.nan
                 if ok:
                     p0, p1 = uu * l00 + uv * l10, uv * l11
-                    h[s, t, m] = uu * x0u + uv * x0v + math.sqrt(p0 * p0 + p1 * p1)
-                else:
-                    h[s, t, m] = np.nan
-                if not np.isfinite(h[s, t, m]):
-                    h[s, t, m] = n0c[s, t, m] / (c[s, t, 2] if c[s, t, 2] > 0 else 1.0)
-            zmin = c[s, t, 2] - _support(wz[s, t, 0], wz[s, t, 1], wz[s, t, 2], q1[s], q2[s], grad)
-            valid[s, t] = np.isfinite(zmin) and zmin > znear
-            cz[s, t] = c[s, t, 2] if valid[s, t] else 1.0
-    # Newton on each support value until its step is below tol (the numpy code stops the whole
-    # batch at once, when every step is: a vertex may take more steps there, moving it by < tol)
-    touch = np.empty((b, v, k, 3))
-    all_valid = True
-    for s in range(b):
-        for t in range(v):
-            all_valid = all_valid and valid[s, t]
-            wzx, wzy, wzz = wz[s, t, 0], wz[s, t, 1], wz[s, t, 2]
-            for m in range(k):
-                hm = h[s, t, m]
+                    h = uu * x0u + uv * x0v + math.sqrt(p0 * p0 + p1 * p1)
+                if not np.isfinite(h):
+                    h = n0c / (c[2] if c[2] > 0 else 1.0)
+                # Newton on the support value until its own step is below tol (the numpy code stops
+                # the whole batch when every step is: a vertex may take more steps there, moving it
+                # by < tol); the vertex is the touching point of the last support value but one
                 for it in range(max_newton):
-                    hs = _support(w0[s, t, m, 0] - hm * wzx, w0[s, t, m, 1] - hm * wzy, w0[s, t, m, 2] - hm * wzz,
-                                  q1[s], q2[s], grad)
-                    touch[s, t, m, 0], touch[s, t, m, 1], touch[s, t, m, 2] = grad[0], grad[1], grad[2]
-                    if not valid[s, t]:  # invalid silhouettes take no steps (their g may be NaN)
+                    hs = _support(w0 - h * wz[0], w1 - h * wz[1], w2 - h * wz[2], q1, q2, grad)
+                    if not ok_view:  # an invalid silhouette takes no steps (its g may be NaN)
                         break
-                    g = n0c[s, t, m] - hm * cz[s, t] + hs
-                    step = g / (cz[s, t] + (grad[0] * wzx + grad[1] * wzy + grad[2] * wzz))
-                    hm = hm + step
+                    g = n0c - h * cz + hs
+                    step = g / (cz + (grad[0] * wz[0] + grad[1] * wz[1] + grad[2] * wz[2]))
+                    h = h + step
                     if not abs(step) > tol:
                         break
-                h[s, t, m] = hm
-    # vertices: the touching points of the last support values but one (as the numpy code)
-    for s in range(b):
-        for t in range(v):
-            fx, fy, cx, cy = intrinsics[t, 0], intrinsics[t, 1], intrinsics[t, 2], intrinsics[t, 3]
-            finite = True
-            for m in range(k):
-                g0, g1, g2 = touch[s, t, m, 0] * a[s, 0], touch[s, t, m, 1] * a[s, 1], touch[s, t, m, 2] * a[s, 2]
-                px = c[s, t, 0] + (g0 * M[s, t, 0, 0] + g1 * M[s, t, 0, 1] + g2 * M[s, t, 0, 2])
-                py = c[s, t, 1] + (g0 * M[s, t, 1, 0] + g1 * M[s, t, 1, 1] + g2 * M[s, t, 1, 2])
-                pz = c[s, t, 2] + (g0 * M[s, t, 2, 0] + g1 * M[s, t, 2, 1] + g2 * M[s, t, 2, 2])
-                z = pz if (all_valid or valid[s, t]) else 1.0
+                g0, g1, g2 = grad[0] * a[0], grad[1] * a[1], grad[2] * a[2]
+                px = c[0] + (g0 * M[0, 0] + g1 * M[0, 1] + g2 * M[0, 2])
+                py = c[1] + (g0 * M[1, 0] + g1 * M[1, 1] + g2 * M[1, 2])
+                pz = c[2] + (g0 * M[2, 0] + g1 * M[2, 1] + g2 * M[2, 2])
+                z = pz if ok_view else 1.0
                 polys[s, t, m, 0] = (fx * px + cx * pz) / z
                 polys[s, t, m, 1] = (fy * py + cy * pz) / z
                 finite = finite and np.isfinite(polys[s, t, m, 0]) and np.isfinite(polys[s, t, m, 1])
-            valid[s, t] = valid[s, t] and finite
+            valid[s, t] = ok_view and finite
     return polys, valid
 
 
