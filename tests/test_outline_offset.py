@@ -212,7 +212,9 @@ def test_3g_recovers_a_boundary_bias(delta):
 def test_offset_stays_near_zero_on_clean_masks():
     trial = paper_trial(1)
     result = sqfit.fit(trial.observations)
-    assert abs(grazing.read_offsets(result.stages[-1].message)[0]) < 0.2
+    assert result.outline_offset_px == grazing.read_offsets(result.stages[-1].message).tolist()
+    assert result.to_dict()["outline_offset_px"] == result.outline_offset_px
+    assert abs(result.outline_offset_px[0]) < 0.2
     assert iou_3d(result.superquadric, trial.gt) > 0.98
 
 
@@ -228,7 +230,7 @@ def test_default_chain_reports_the_offset_per_view_on_request():
 def test_offsets_can_be_switched_off():
     trial = paper_trial(1)
     result = sqfit.fit(trial.observations, options={"outline_offset_sigma_px": 0.0})
-    assert grazing.read_offsets(result.stages[-1].message) is None
+    assert grazing.read_offsets(result.stages[-1].message) is None and result.outline_offset_px is None
 
 
 def test_read_offsets_round_trip():

@@ -23,6 +23,7 @@ from .. import constants as C
 from .._checks import Options, check_fields
 from .costs import ObservationSet
 from ..views.observation import POLYGON_KINDS, Observation
+from .grazing import read_offsets
 from .hull import HULL_CHAIN
 from .stages import (NUMERICAL_ERRORS, STAGES, FitState, StageError, default_state, ellipsoid_depths, r_iou_m,
                      to_superquadric)
@@ -226,6 +227,10 @@ class FitResult:
         Wall time of the whole call, R-IOU-M evaluation included.
     chain : str
     warnings : list of str
+    outline_offset_px : list of float or None
+        The masks' outline offset estimated by the last stage that estimates it (3G, 3H; px, > 0:
+        the outlines lie outside the silhouettes; one value per object or per view,
+        ``FitOptions.outline_offset``); None if no stage did.
     """
 
     superquadric: Superquadric | None
@@ -237,6 +242,7 @@ class FitResult:
     seconds: float = 0.0
     chain: str = ""
     warnings: list = field(default_factory=list)
+    outline_offset_px: list | None = None
 
     @property
     def ok(self):
@@ -253,6 +259,7 @@ class FitResult:
             "r_iou_m": self.r_iou_m,
             "seconds": self.seconds,
             "warnings": list(self.warnings),
+            "outline_offset_px": None if self.outline_offset_px is None else list(self.outline_offset_px),
             "stages": [s.to_dict() for s in self.stages],
         }
 
@@ -410,6 +417,9 @@ def fit(observations, chain=None, *, initial=None, rng=None, options=None):
         state = new
         snapshots.append(sq)
         result.superquadric, result.cost = sq, new.cost
+        offsets = read_offsets(new.message)
+        if offsets is not None:
+            result.outline_offset_px = offsets.tolist()
     if snapshots:
         scores = r_iou_m(snapshots, obs, options.polygon)
         for rec, s in zip((r for r in result.stages if r.superquadric is not None), scores):

@@ -11,7 +11,8 @@ Output directory:
   into the same directory must use the same scene and seed; it then fits only the
   (trial, chain) pairs missing from ``trials.jsonl`` (resume after Ctrl-C or a kill).
 - ``trials.jsonl``: one record per (trial, object, chain): ground truth, fitted parameters and
-  metrics after every stage, seconds, status, and per view the object's ``visible_fraction``
+  metrics after every stage, seconds, status, the estimated outline offset
+  (``outline_offset_px``, :attr:`sqfit.FitResult.outline_offset_px`), and per view the object's ``visible_fraction``
   (pixels seen / pixels rendered alone), ``cut_fraction`` (projected area outside the image) and
   ``border_cut`` (its mask touches the border; :mod:`sqsim.imaging.trial`). A line cut short by a kill is
   dropped on resume.
@@ -353,6 +354,7 @@ def fit_trial(scene_dict, index, chains, limits=None):
                             "warnings": list(result.warnings),
                             "params": None if result.superquadric is None else result.superquadric.to_vector().tolist(),
                             "stages": stages, "time_s": result.seconds,
+                            "outline_offset_px": result.outline_offset_px,
                             "metrics": {**final_metrics, **limit_metrics, "time_s": result.seconds,
                                         "success": bool(final_metrics["iou"] > 0)}})
     return records
