@@ -205,7 +205,7 @@ def minimise(rays, x0, options, sigma, offset_sigma=0.0, groups=None):
                 r[-g:] = x[-g:] / scale
                 J[-g:, -g:] = np.eye(g) / scale
         warm["d"] = d
-        return r, DenseJacobian(J * unit)
+        return r, DenseJacobian(J * unit if g else J)
 
     res = levenberg_marquardt(model, x0 / unit, max_iterations=options.max_iterations_analytic,
                               ftol=options.ftol_analytic, xtol=options.xtol, gtol=options.gtol)

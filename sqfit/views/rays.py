@@ -29,7 +29,7 @@ import numpy as np
 
 from .._checks import check_shape
 from ..geometry.camera import bearings
-from .observation import Observation, polyline_points
+from .observation import Observation
 from .visibility import BACKGROUND, point_labels
 
 __all__ = ["RaySet", "CONTOUR", "INSIDE", "OUTSIDE", "NORMAL_ARC_PX", "MIN_RADIUS_PX", "contour_rays",
@@ -46,8 +46,6 @@ NORMAL_ARC_PX = 3.0
 #: stretches, slivers) get this.
 MIN_RADIUS_PX = 1.0
 _TINY = 1e-300
-#: Points averaged per contour point when ``smooth_px > 0`` (:func:`contour_rays`).
-_SMOOTH_SAMPLES = 9
 
 
 @dataclass(frozen=True)
@@ -171,28 +169,43 @@ def arc_normals(contour, arc_lengths, half_arc=NORMAL_ARC_PX):
         raise ValueError(f"contour must have at least 3 vertices, got {len(contour)}")
     if not (np.isfinite(half_arc) and half_arc > 0):
         raise ValueError(f"half_arc must be a finite number > 0, got {half_arc}")
-    at, perimeter = _arc_sampler(contour)
+    at, _, perimeter = _arc_sampler(contour)
     half = min(float(half_arc), 0.25 * perimeter)
     s = np.asarray(arc_lengths, dtype=np.float64)
-    chord = at(s + half) - at(s - half)
+    return _chord_normals(at(s + half)[0] - at(s - half)[0])
+
+
+def _chord_normals(chord):
+    """Unit outward normals ``(n, 2)`` of chords ``(n, 2)`` of a counter-clockwise polygon."""
     normal = np.stack([chord[:, 1], -chord[:, 0]], axis=1)
     return normal / np.maximum(np.linalg.norm(normal, axis=1, keepdims=True), _TINY)
 
 
 def _arc_sampler(polygon):
-    """``(at, perimeter)``: ``at(s)`` gives the points ``(n, 2)`` of a closed polygon ``(m, 2)`` at arc
-    lengths ``s`` from vertex 0 (taken modulo the perimeter)."""
-    closed = np.vstack([polygon, polygon[:1]])
-    seg = np.linalg.norm(np.diff(closed, axis=0), axis=1)
+    """``(at, integral, perimeter)`` of a closed polygon ``(m, 2)``, arc lengths from vertex 0 taken
+    modulo the perimeter: ``at(s)`` gives the points ``(n, 2)`` at arc lengths ``s`` and the edge of
+    each (edge ``k`` runs from vertex ``k`` to ``k + 1``); ``integral(s, points, edges)`` the integral
+    of the point along the polygon from arc length 0 to ``s`` (``(n, 2)``; ``points, edges = at(s)``),
+    exact on the straight edges."""
+    closed = np.concatenate([polygon, polygon[:1]])
+    edge = np.diff(closed, axis=0)
+    seg = np.hypot(edge[:, 0], edge[:, 1])
     cum = np.concatenate([[0.0], np.cumsum(seg)])
+    inverse = 1.0 / np.where(seg > 0, seg, 1.0)
+    last = len(seg) - 1
 
     def at(s):
         s = np.mod(s, cum[-1])
-        idx = np.clip(np.searchsorted(cum, s, side="right") - 1, 0, len(seg) - 1)
-        frac = (s - cum[idx]) / np.where(seg[idx] > 0, seg[idx], 1.0)
-        return closed[idx] + frac[:, None] * (closed[idx + 1] - closed[idx])
+        idx = np.minimum(np.searchsorted(cum, s, side="right") - 1, last)
+        return closed[idx] + ((s - cum[idx]) * inverse[idx])[:, None] * edge[idx], idx
 
-    return at, cum[-1]
+    def integral(s, points, idx):
+        area = np.concatenate([[[0.0, 0.0]], np.cumsum(seg[:, None] * 0.5 * (closed[:-1] + closed[1:]), axis=0)])
+        turns = np.floor(s / cum[-1])
+        rest = s - turns * cum[-1]
+        return turns[:, None] * area[-1] + area[idx] + (rest - cum[idx])[:, None] * 0.5 * (closed[idx] + points)
+
+    return at, integral, cum[-1]
 
 
 def contour_rays(observations, n_contour=64, band_px=0.0, n_inside=0, smooth_px=0.0):
@@ -212,9 +225,8 @@ def contour_rays(observations, n_contour=64, band_px=0.0, n_inside=0, smooth_px=
         Extra :data:`INSIDE` rays per view through the observation's samples (the first
         ``n_inside``; all of them if fewer), >= 0.
     smooth_px : float
-        > 0: each contour point is the mean of the outline over ``smooth_px`` px of arc on each
-        side (:data:`_SMOOTH_SAMPLES` points evenly spaced), which averages the pixel staircase of
-        a mask's outline; >= 0.
+        > 0: each contour point is the mean point of the outline over ``smooth_px`` px of arc on
+        each side, which averages the pixel staircase of a mask's outline; >= 0.
 
     Returns
     -------
@@ -237,13 +249,14 @@ def contour_rays(observations, n_contour=64, band_px=0.0, n_inside=0, smooth_px=
             raise TypeError(f"observations[{i}] must be a sqfit.Observation, got {type(o).__name__}")
         points, modes, two_sided, normals = _view_points(o, int(n_contour), float(band_px), int(n_inside),
                                                          float(smooth_px))
-        outline = np.any(normals != 0, axis=1)
-        radii = np.where(outline, np.maximum(np.einsum("ij,ij->i", points - o.centroid, normals), MIN_RADIUS_PX),
-                         np.inf)
+        radii = np.maximum(np.einsum("ij,ij->i", points - o.centroid, normals), MIN_RADIUS_PX)
+        if n_inside:  # interior samples: no outline, no offset
+            radii[len(points) - min(int(n_inside), len(o.samples)):] = np.inf
         cam = o.camera
-        directions = bearings(cam, points) @ cam.rotation.T
+        rotation = cam.rotation
+        directions = bearings(cam, points) @ rotation.T
         k = cam.intrinsics
-        offsets = np.stack([-normals[:, 0] / k.fx, -normals[:, 1] / k.fy, np.zeros(len(points))], 1) @ cam.rotation.T
+        offsets = (normals * [-1.0 / k.fx, -1.0 / k.fy]) @ rotation[:, :2].T
         weights = np.full(len(points), 1.0 / np.sqrt(len(points)))
         parts.append((np.broadcast_to(cam.center, directions.shape), directions, modes, weights,
                       np.full(len(points), i), two_sided, offsets, radii))
@@ -262,13 +275,22 @@ def _contour_phase():
 def _view_points(observation, n_contour, band_px, n_inside, smooth_px):
     """Image points, modes, two-sidedness and outline normals (0 for interior samples) of one view."""
     contour = observation.contour
-    on, edges = polyline_points(contour, n_contour, _contour_phase(), return_index=True)
-    sided = point_labels(observation.contour_labels, edges) == BACKGROUND
-    at, perimeter = _arc_sampler(contour)
+    at, integral, perimeter = _arc_sampler(contour)
     arc = (_contour_phase() + np.arange(n_contour)) / n_contour * perimeter
-    if smooth_px > 0:  # the mean of the outline over +-smooth_px of arc
-        on = np.mean([at(arc + t) for t in np.linspace(-smooth_px, smooth_px, _SMOOTH_SAMPLES)], axis=0)
-    normal_at = arc_normals(contour, arc)
+    half = min(NORMAL_ARC_PX, 0.25 * perimeter)
+    # sampled at once: the points (as sqfit.views.observation.polyline_points), the ends of their
+    # normals' chords, and the ends of the arcs they are averaged over
+    shifts = np.array([0.0, -half, half, -smooth_px, smooth_px] if smooth_px > 0 else [0.0, -half, half])
+    where = (arc[None, :] + shifts[:, None]).ravel()
+    points, edges = at(where)
+    if smooth_px > 0:  # the mean point of the outline over the arc
+        ends = integral(where[3 * n_contour:], points[3 * n_contour:], edges[3 * n_contour:])
+        on = (ends[n_contour:] - ends[:n_contour]) / (2.0 * smooth_px)
+    else:
+        on = points[:n_contour]
+    points = points.reshape(len(shifts), n_contour, 2)
+    sided = point_labels(observation.contour_labels, edges[:n_contour]) == BACKGROUND
+    normal_at = _chord_normals(points[2] - points[1])
     if band_px > 0:
         # Normals at the sample points: those of the nearest contour vertices.
         normals = outward_normals(observation.contour)
