@@ -81,7 +81,8 @@ def main(argv=None):
     options = {"polygon": scene.fit.polygon, "penalty_riou": scene.fit.penalty_riou,
                "penalty_analytic": scene.fit.penalty_analytic, "pose_sigma_deg": scene.fit.pose_sigma_deg,
                "occlusion_aware": scene.fit.occlusion_aware,
-               "outline_offset_sigma_px": scene.fit.outline_offset_sigma_px, "outline_offset": scene.fit.outline_offset}
+               "outline_offset_sigma_px": scene.fit.outline_offset_sigma_px, "outline_offset": scene.fit.outline_offset,
+               "outline_offset_view_sigma_px": scene.fit.outline_offset_view_sigma_px}
     options.update(_parse_option(o) for o in args.option)
     sqfit.FitOptions.coerce(options)  # an unknown key or a bad value fails here, before any fit
     renderer = get_renderer(scene.masks.renderer, scene.intrinsics)

@@ -143,10 +143,14 @@ def test_offset_residuals_agree(kernels, pose, per_view):
     x = np.r_[xi, rng.normal(size=9) * 0.01 if pose else [], rng.normal(size=3 if per_view else 1)]
     sigma = 0.5 if pose else 0.0
 
+    # per view: a correlated prior (sqfit.fitting.grazing.offset_prior), as the views' offsets share the object's
+    prior = np.linalg.inv(np.linalg.cholesky(np.ones((3, 3)) + 0.25 * np.eye(3))) if per_view else None
+
     def evaluate():
-        r, J, d = raycost.posed_ray_residuals(x, rays, sigma, offset_sigma_px=1.5, offset_groups=groups)
+        r, J, d = raycost.posed_ray_residuals(x, rays, sigma, offset_sigma_px=1.5, offset_groups=groups,
+                                              offset_prior=prior)
         return (r, J, d) + raycost.posed_ray_residuals(x * 1.001, rays, sigma, d0=d, offset_sigma_px=1.5,
-                                                       offset_groups=groups)
+                                                       offset_groups=groups, offset_prior=prior)
 
     fast, slow = kernels(evaluate)
     for k, (a, b) in enumerate(zip(fast, slow)):

@@ -188,10 +188,28 @@ def test_offset_groups_are_checked(trial):
         posed_ray_residuals(np.ones(12), rays, 0.0, offset_sigma_px=1.0, offset_groups=-np.ones(24))
 
 
-def test_prior_scale_follows_the_residual_noise():
+def test_prior_follows_the_residual_noise():
     r = np.full(100, 0.01)
-    assert grazing.offset_prior_scale(1.0, r) == pytest.approx(100.0)
-    assert grazing.offset_prior_scale(2.0, 3 * r) == pytest.approx(200.0 / 3)
+    np.testing.assert_allclose(grazing.offset_prior(1.0, r), [[0.01]])
+    np.testing.assert_allclose(grazing.offset_prior(2.0, 3 * r), [[0.015]])
+
+
+def test_views_prior_is_the_inverse_covariance():
+    r = np.full(100, 0.01)
+    W = grazing.offset_prior(1.0, r, 3, 0.5)
+    cov = np.ones((3, 3)) + 0.25 * np.eye(3)
+    np.testing.assert_allclose(W.T @ W, np.linalg.inv(cov) * 1e-4, rtol=1e-12)
+
+
+def test_offset_prior_matrix_gives_the_prior_rows(trial):
+    rays = contour_rays(trial.observations, 8)
+    W = np.array([[2.0, 0.0, 0.0], [1.0, 3.0, 0.0], [0.5, 0.5, 4.0]])
+    x = np.r_[trial.gt.to_vector(), 0.1, -0.2, 0.3]
+    r, J, _ = posed_ray_residuals(x, rays, 0.0, offset_sigma_px=1.0, offset_groups=rays.view, offset_prior=W)
+    np.testing.assert_allclose(r[-3:], W @ x[-3:])
+    np.testing.assert_array_equal(J[-3:, -3:], W)
+    with pytest.raises(ValueError, match=r"offset_prior must have shape \(3, 3\)"):
+        posed_ray_residuals(x, rays, 0.0, offset_sigma_px=1.0, offset_groups=rays.view, offset_prior=np.eye(2))
 
 
 # --------------------------------------------------------------------------- estimator
@@ -242,6 +260,7 @@ def test_read_offsets_round_trip():
 @pytest.mark.parametrize("options, match", [
     ({"outline_offset_sigma_px": -1.0}, "outline_offset_sigma_px must be a finite number >= 0"),
     ({"outline_offset": "pixel"}, "outline_offset must be one of"),
+    ({"outline_offset_view_sigma_px": 0.0}, "outline_offset_view_sigma_px must be a finite number > 0"),
 ])
 def test_options_validation(options, match):
     with pytest.raises(ValueError, match=match):

@@ -30,7 +30,7 @@ Nuisance unknowns: after the plain run above converges, a second run estimates, 
 The offset is observable because a constant pixel offset is not a change of size: a size change
 moves the outline by ``f da / z`` px, less in the far views, and the paper's cameras are 5-15 m
 from the objects. With views at equal distances the two are nearly the same, and the offset is
-held by its prior (see :func:`offset_prior_scale`). Its estimate is only as good as the outline:
+held by its prior (see :func:`offset_prior`). Its estimate is only as good as the outline:
 marching-squares outlines of a binary mask step by a pixel, so each ray's point is the mean of
 the outline over :data:`SMOOTH_PX` of arc on each side.
 """
@@ -49,7 +49,7 @@ from ..views.rays import RaySet, contour_rays
 from .stages import StageError, register
 
 __all__ = ["N_CONTOUR", "BAND_PX", "SMOOTH_PX", "OFFSET_UNIT_PX", "silhouette_stage", "silhouette_fit", "minimise",
-           "camera_corrections", "offset_groups", "offset_prior_scale", "shifted_rays", "describe_values",
+           "camera_corrections", "offset_groups", "offset_prior", "shifted_rays", "describe_values",
            "describe_offsets", "read_offsets"]
 
 #: Contour points (rays) per view.
@@ -151,38 +151,47 @@ def shifted_rays(rays, offsets, groups=None):
                   rays.view, rays.two_sided, rays.offsets, rays.radii)
 
 
-def offset_prior_scale(sigma_px, ray_residuals_):
-    """Scale of the outline offsets' prior rows ``o / scale`` for a Gaussian prior of ``sigma_px`` px.
+def offset_prior(sigma_px, ray_residuals_, groups=1, view_sigma_px=0.0):
+    """The outline offsets' prior rows ``W o`` (``W`` ``(g, g)``, in the cost's units) for a Gaussian
+    prior of ``sigma_px`` px on an object's offset.
 
     The 3G residuals are weighted logs of scales, not pixels, and their noise depends on the
     object (its size in pixels, how well a superquadric fits it). With ``n`` rays whose residuals
     ``r`` (weights ``1 / sqrt(rays per view)`` included) have the noise seen at the start of the run,
-    ``tau^2 = sum r^2 / views``, the negative log posterior ``sum phi^2 / (2 tau^2) + o^2 / (2
-    sigma^2)`` in the cost's units is ``0.5 sum r^2 + 0.5 (o / scale)^2`` with ``scale = sigma_px
-    sqrt(n / sum r^2)``. So the prior holds the offset harder where the fit is poor (a wrong basin,
-    whose misfit the offset would otherwise absorb) and leaves it to the data where the outline
-    fits well.
+    ``tau^2 = sum r^2 / views``, the negative log posterior ``sum phi^2 / (2 tau^2) + o^T S^-1 o / 2``
+    in the cost's units is ``0.5 sum r^2 + 0.5 |W o|^2`` with ``W^T W = S^-1 sum r^2 / n``. So the
+    prior holds the offset harder where the fit is poor (a wrong basin, whose misfit the offset
+    would otherwise absorb) and leaves it to the data where the outline fits well.
 
     Parameters
     ----------
     sigma_px : float
-        Prior standard deviation, px, > 0.
+        Prior standard deviation of the object's offset, px, > 0.
     ray_residuals_ : (n,) float
         The ray rows of the residuals at the start of the run.
+    groups : int
+        ``g``: 1 (one offset for the object) or the number of views (one each).
+    view_sigma_px : float
+        With ``g > 1``: the standard deviation of each view's offset about the object's, px, > 0;
+        the prior covariance is ``S = sigma_px^2 1 1^T + view_sigma_px^2 I``.
 
     Returns
     -------
-    scale : float
+    W : (g, g) float
+        ``L^-1 sqrt(sum r^2 / n)`` with ``S = L L^T``.
     """
     r = np.asarray(ray_residuals_, dtype=np.float64)
-    return float(sigma_px) * np.sqrt(len(r) / max(float(np.dot(r, r)), 1e-300))
+    cov = np.full((groups, groups), float(sigma_px) ** 2) + np.eye(groups) * (float(view_sigma_px) ** 2 if groups > 1
+                                                                                else 0.0)
+    noise = np.sqrt(max(float(np.dot(r, r)), 1e-300) / len(r))
+    return np.linalg.inv(np.linalg.cholesky(cov)) * noise
 
 
 def minimise(rays, x0, options, sigma, offset_sigma=0.0, groups=None):
     """LM on the 3G residuals of ``rays`` (:func:`sqfit.views.rays.contour_rays`) from ``x0``:
     ``(11,)`` if ``sigma == offset_sigma == 0``, else ``(11 + p + g,)`` with ``3 v`` pose corrections
     (prior scale ``sigma``, radians; none if 0) and one outline offset per group of ``groups`` (a
-    Gaussian prior of ``offset_sigma`` px, :func:`offset_prior_scale` at ``x0``; none if 0), as
+    Gaussian prior of ``offset_sigma`` px, :func:`offset_prior` at ``x0``; none if 0), as
     :func:`sqfit.fitting.raycost.posed_ray_residuals`; the offsets are optimised in units of
     :data:`OFFSET_UNIT_PX`. Returns the :class:`sqfit.fitting.lm.LMResult` (``x`` in pixels); used by
     3G and by 3S (:mod:`sqfit.fitting.restarts`) to screen candidates on its own rays."""
@@ -198,12 +207,12 @@ def minimise(rays, x0, options, sigma, offset_sigma=0.0, groups=None):
         if not nuisance:
             r, J, d = ray_residuals(x, rays, options.penalty_analytic, warm.get("d"))
         else:
-            r, J, d = posed_ray_residuals(x, rays, sigma, options.penalty_analytic, warm.get("d"),
-                                          warm.get("scale", offset_sigma), groups)
-            if g and "scale" not in warm:  # the first evaluation, at x0, sets the prior's scale
-                warm["scale"] = scale = offset_prior_scale(offset_sigma, r[:len(rays)])
-                r[-g:] = x[-g:] / scale
-                J[-g:, -g:] = np.eye(g) / scale
+            r, J, d = posed_ray_residuals(x, rays, sigma, options.penalty_analytic, warm.get("d"), offset_sigma,
+                                          groups, warm.get("prior"))
+            if g and "prior" not in warm:  # the first evaluation, at x0, sets the prior (its noise level)
+                warm["prior"] = prior = offset_prior(offset_sigma, r[:len(rays)], g, options.outline_offset_view_sigma_px)
+                r[-g:] = prior @ x[-g:]
+                J[-g:, -g:] = prior
         warm["d"] = d
         return r, DenseJacobian(J * unit if g else J)
 

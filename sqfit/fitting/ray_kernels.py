@@ -411,10 +411,11 @@ def ray_rows(X, origins, directions, weights, kind, d0, warm, rtol, max_newton, 
 @njit(**_JIT)
 def posed_rows(x, origins, directions, offsets, weights, radii, kind, view, group, n_pose, d0, warm, rtol,
                max_newton, max_warm, grid, znear, warm_bracket, newton_power, weight, lower, upper, sigma,
-               offset_sigma):
+               offset_prior):
     """:func:`sqfit.fitting.raycost.posed_ray_residuals`: ``x`` ``(11 + p + g,)`` (``n_pose = p``, 0 or
-    ``3 v``; ``g`` outline offsets), ``offsets`` ``(n, 3)``, ``radii`` ``(n,)``, ``view`` and ``group``
-    ``(n,) int64`` -> ``r`` ``(n + 11 + p + g,)``, ``J`` ``(n + 11 + p + g, 11 + p + g)``, ``d`` ``(n,)``."""
+    ``3 v``; ``g`` outline offsets, prior rows ``offset_prior @ o``, ``(g, g)``), ``offsets`` ``(n, 3)``,
+    ``radii`` ``(n,)``, ``view`` and ``group`` ``(n,) int64`` -> ``r`` ``(n + 11 + p + g,)``, ``J``
+    ``(n + 11 + p + g, 11 + p + g)``, ``d`` ``(n,)``."""
     n, k = origins.shape[0], 11
     m = x.shape[0] - k
     n_off = m - n_pose
@@ -462,10 +463,15 @@ def posed_rows(x, origins, directions, offsets, weights, radii, kind, view, grou
                 J[i, j] *= factor
             J[i, col] -= r[i] / radii[i]
     _penalty_rows(x[:k], weight, lower, upper, r, J, n)
-    for j in range(m):
-        s = sigma if j < n_pose else offset_sigma
-        r[n + k + j] = x[k + j] / s
-        J[n + k + j, k + j] = 1.0 / s
+    for j in range(n_pose):
+        r[n + k + j] = x[k + j] / sigma
+        J[n + k + j, k + j] = 1.0 / sigma
+    for j in range(n_off):
+        acc = 0.0
+        for col in range(n_off):
+            acc += offset_prior[j, col] * x[k + n_pose + col]
+            J[n + k + n_pose + j, k + n_pose + col] = offset_prior[j, col]
+        r[n + k + n_pose + j] = acc
     return r, J, d
 
 

@@ -449,7 +449,7 @@ def batch_log_gauge_jacobian(X, points):
 
 
 def posed_ray_residuals(x, rays, sigma_rad, weight=C.PENALTY_ANALYTIC, d0=None, offset_sigma_px=0.0,
-                        offset_groups=None):
+                        offset_groups=None, offset_prior=None):
     """3G residuals with nuisance unknowns -- a small rotation correction per view and an outline
     offset per group of rays -- and their analytic Jacobian.
 
@@ -487,6 +487,10 @@ def posed_ray_residuals(x, rays, sigma_rad, weight=C.PENALTY_ANALYTIC, d0=None, 
     offset_groups : (n,) int, optional
         Offset group of each ray, ``0 .. g - 1`` (``g = offset_groups.max() + 1``); default all 0
         (one offset for the object). ``rays.view`` gives one per view.
+    offset_prior : (g, g) float, optional
+        The offsets' prior rows are ``offset_prior @ o`` instead of ``o / offset_sigma_px`` (a
+        square root of the prior's information matrix, px^-1: correlated offsets, such as views'
+        offsets that share the object's).
 
     Returns
     -------
@@ -507,6 +511,8 @@ def posed_ray_residuals(x, rays, sigma_rad, weight=C.PENALTY_ANALYTIC, d0=None, 
     groups = offset_groups_of(rays, offset_groups)
     g = int(groups.max()) + 1 if offset_sigma_px > 0 else 0
     x = check_shape(x, (k + p + g,), "x")
+    prior = np.eye(g) / offset_sigma_px if offset_prior is None or not g else check_shape(offset_prior, (g, g),
+                                                                                          "offset_prior")
     kernels = compiled()
     if kernels is not None:
         f = np.ascontiguousarray
@@ -515,7 +521,7 @@ def posed_ray_residuals(x, rays, sigma_rad, weight=C.PENALTY_ANALYTIC, d0=None, 
                                   f(rays.radii), ray_kind(rays), f(rays.view), groups, p,
                                   f(d0, dtype=np.float64) if warm else _NO_WARM,
                                   warm, *solver_args(_D_RTOL, _MAX_NEWTON), float(weight), *RAY_BOUNDS,
-                                  float(sigma_rad), float(offset_sigma_px))
+                                  float(sigma_rad), f(prior, dtype=np.float64).reshape(g, g))
     xi, w, o = x[:k], x[k:k + p].reshape(-1, 3), x[k + p:]
     b = rays.directions + o[groups][:, None] * rays.offsets if g else rays.directions
     directions = b + np.cross(w[rays.view], b) if p else b
@@ -534,9 +540,9 @@ def posed_ray_residuals(x, rays, sigma_rad, weight=C.PENALTY_ANALYTIC, d0=None, 
         J[:n] *= factor[:, None]
         J[rows, k + p + groups] -= r_rays / rays.radii
     J[n:n + k, :k] = np.diag(penalty_jacobian(xi, weight, *RAY_BOUNDS))
-    scale = np.r_[np.full(p, float(sigma_rad)), np.full(g, float(offset_sigma_px))]
-    J[n + k:, k:] = np.diag(1.0 / scale)
-    r = np.concatenate([r_rays, penalty(xi, weight, *RAY_BOUNDS), x[k:] / scale])
+    J[n + k:n + k + p, k:k + p] = np.eye(p) / sigma_rad if p else 0.0
+    J[n + k + p:, k + p:] = prior
+    r = np.concatenate([r_rays, penalty(xi, weight, *RAY_BOUNDS), w.ravel() / sigma_rad if p else [], prior @ o])
     return r, J, d
 
 

@@ -140,6 +140,7 @@ class FitConfig:
     occlusion_aware: bool = sqfit.FitOptions.occlusion_aware
     outline_offset_sigma_px: float = sqfit.FitOptions.outline_offset_sigma_px
     outline_offset: str = sqfit.FitOptions.outline_offset
+    outline_offset_view_sigma_px: float = sqfit.FitOptions.outline_offset_view_sigma_px
 
 
 _CHECKS = {
@@ -169,7 +170,7 @@ _CHECKS = {
     "fit": {"polygon": choice(POLYGON_KINDS), "penalty_riou": number(0, lo_open=True),
             "penalty_analytic": number(0, lo_open=True), "pose_sigma_deg": number(0),
             "occlusion_aware": boolean, "outline_offset_sigma_px": number(0),
-            "outline_offset": choice(OUTLINE_OFFSETS)},
+            "outline_offset": choice(OUTLINE_OFFSETS), "outline_offset_view_sigma_px": number(0, lo_open=True)},
 }
 _SECTIONS = {"experiment": ExperimentConfig, "camera": CameraConfig, "trajectory": TrajectoryConfig,
              "objects": ObjectsConfig, "masks": MasksConfig, "noise": NoiseConfig, "fit": FitConfig}
