@@ -217,7 +217,7 @@ def test_offset_prior_matrix_gives_the_prior_rows(trial):
 
 @pytest.mark.parametrize("delta", [1.0, -1.0])
 def test_3g_recovers_a_boundary_bias(delta):
-    trial = paper_trial(1)
+    trial = paper_trial(2)
     obs = _biased(trial, delta)
     fixed = sqfit.fit(obs, "3G", initial=trial.gt, options={"outline_offset_sigma_px": 0.0})
     free = sqfit.fit(obs, "3G", initial=trial.gt)

@@ -147,7 +147,7 @@ class FitOptions(Options):
     silhouette_directions: int = 48
     pose_sigma_deg: float = 50.0
     occlusion_aware: bool = True
-    outline_offset_sigma_px: float = 1.0
+    outline_offset_sigma_px: float = 0.5
     outline_offset: str = "object"
     outline_offset_view_sigma_px: float = 0.5
 
