@@ -58,18 +58,23 @@ N_CONTOUR = 64
 BAND_PX = 0.0
 #: Each ray's image point is the mean of the outline over this many px of arc on each side
 #: (:func:`sqfit.views.rays.contour_rays`); also 3H's and 3S's screening rays. A marching-squares
-#: outline is a staircase whose points lie up to 0.5 px off the silhouette; the offset's estimate
-#: averages those errors over few rays (its own uncertainty, ~0.1 px, costs thin objects most).
-#: Measured with the outline offset (100 paper trials, seeds 0 / 1, default chain, median / 10th
-#: percentile of IoU; README "Real masks"): 1 px: clean 0.993 / 0.901, 0.994 / 0.924; 1 px bias
-#: 0.990 / 0.862, 0.990 / 0.927; 2 px: clean 0.994 / 0.898, 0.996 / 0.938; bias 0.992 / 0.875,
-#: 0.993 / 0.916 (the 2 px rows with a prior of 2 px).
+#: outline is a staircase whose points lie up to 0.5 px off the silhouette, and the outline
+#: offset's estimate (uncertain by ~0.1 px on clean masks, which costs thin objects most) averages
+#: those errors over few rays. Measured while the estimator was built (100 paper trials, default
+#: chain with the outline offset, median / 10th percentile of IoU, seed 0; seed 1; the prior as
+#: given): 0 px (prior 2 px): clean 0.993 / 0.831; 0.992 / 0.903, 1 px bias 0.987 / 0.825; 0.989
+#: / 0.897; 1 px (prior 1 px): clean 0.993 / 0.901; 0.994 / 0.924, bias 0.990 / 0.862; 0.990 /
+#: 0.927; 2 px (prior 1 px): clean 0.994 / 0.898; 0.996 / 0.939, bias 0.991 / 0.870; 0.993 / 0.915;
+#: 3 px (prior 2 px): clean 0.994 / 0.900; 0.995 / 0.921, bias 0.990 / 0.837; 0.993 / 0.924. On
+#: its own (no offset) 2 px left clean masks as they were (0.996 / 0.876; 0.996 / 0.924 against
+#: 0.994 / 0.857; 0.995 / 0.914).
 SMOOTH_PX = 2.0
 #: The refinement optimises the outline offset in units of this many px. Levenberg-Marquardt's
 #: damping is ``lam I``: a pixel of offset moves the residuals ~40x less than a metre of size or
 #: position, so in pixels the offset was damped long after the shape had converged, and the run
 #: stopped (``REFINE_FTOL``) with the offset where the screen had left it. Measured (100 paper
-#: trials, 1 px bias, seed 0, median IoU): 1 px units 0.980, 30 px units 0.990.
+#: trials, 1 px bias, median IoU, seeds 0 / 1; outlines smoothed over 1 px, prior 2 px): 1 px
+#: units 0.980 / 0.988, 30 px units 0.989 / 0.991 (clean: 0.995 / 0.995 against 0.994 / 0.994).
 OFFSET_UNIT_PX = 30.0
 
 _RAYS = weakref.WeakKeyDictionary()

@@ -109,23 +109,26 @@ class FitOptions(Options):
         Stages 3G and 3H: > 0 estimates the masks' outline offset (px; > 0: the outline lies
         outside the silhouette, a segmenter's over-segmentation) with the superquadric, under a
         Gaussian prior of this standard deviation, px, relative to the noise of the fit's residuals
-        (:func:`sqfit.fitting.grazing.offset_prior`); 0 trusts the outlines. The estimate is
-        in 3G's (3H's) stage message. Default 1: measured on the paper scene with 1 px of bias
-        either way and clean (100 trials, seeds 0 and 1, README "Real masks"): median IoU of the
-        default chain 0.991-0.993 on the biased masks and 0.994-0.996 on clean ones at 1 px;
-        0.991-0.993 / 0.994-0.996 at 2 px (10th percentiles within 0.04 of each other).
+        (:func:`sqfit.fitting.grazing.offset_prior`); 0 trusts the outlines. The estimate is in
+        3G's (3H's) stage message and in :attr:`FitResult.outline_offset_px`. Default 0.5, measured
+        (100 paper trials, default chain, median IoU, seeds 0 / 1; README "Real masks"): 1 px
+        over-segmentation 0.991 / 0.992 (prior 1 px: 0.991 / 0.993; no offset: 0.927 / 0.943),
+        1 px under-segmentation 0.989 / 0.991 (1 px: 0.992 / 0.992, 10th percentile 0.748 / 0.864
+        against 0.812 / 0.874), clean 0.995 / 0.996 (1 px: 0.994 / 0.996); the smaller prior lets
+        random outline noise move the offset less (2 px jitter, seed 0: 0.886 against 0.878 at 1 px
+        and 0.904 without the offset; 2 px jitter + 1 deg pose noise: 0.768 against 0.757).
     outline_offset : {"object", "view"}
         One outline offset per object (default), or one per view about the object's (prior
         spread ``outline_offset_view_sigma_px``). Per view follows a segmenter whose bias differs
-        between views (1 px standard deviation per object and view, mean 0: median IoU 0.979 /
-        0.979 against 0.896 / 0.918 per object, seeds 0 / 1) and costs a little where the bias is
-        one per object (1 px: 0.984 / 0.987 against 0.991 / 0.993; clean: 0.991 / 0.994 against
-        0.994 / 0.996, 10th percentile 0.847 / 0.936 against 0.899 / 0.923); 100 paper trials,
-        README "Real masks".
+        between views and costs a little where the bias is one per object (100 paper trials, seeds
+        0 / 1, median IoU per view against per object): bias drawn per object and view with 1 px
+        standard deviation, mean 0, 0.980 / 0.979 against 0.901 / 0.928 (no offset 0.911 / 0.937);
+        1 px over-segmentation 0.985 / 0.982 against 0.991 / 0.992; clean 0.992 / 0.994 against
+        0.995 / 0.996, 10th percentile 0.847 / 0.934 against 0.898 / 0.923.
     outline_offset_view_sigma_px : float
         With ``outline_offset = "view"``: the standard deviation of each view's offset about the
-        object's, px, > 0 (on the 1 px spread above 0.25 / 0.5 / 1 px gave 0.968 / 0.979 / 0.982,
-        10th percentile 0.786 / 0.822 / 0.768, seed 0).
+        object's, px, > 0 (on the 1 px spread above, seed 0, prior 1 px: 0.25 / 0.5 / 1 px gave
+        0.968 / 0.979 / 0.982, 10th percentile 0.786 / 0.822 / 0.768).
     """
 
     polygon: str = "hull"
