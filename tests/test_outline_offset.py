@@ -159,14 +159,16 @@ def test_zero_offsets_give_the_plain_residuals(trial):
     np.testing.assert_allclose(J[:len(r0), :11], J0, atol=1e-15)
 
 
-def test_offset_turns_rays_like_shifted_rays(trial):
+@pytest.mark.parametrize("offset", [0.8, -0.8])
+def test_offset_turns_rays_like_shifted_rays(trial, offset):
     rays = contour_rays(trial.observations, 16)
     xi = trial.gt.to_vector()
-    r, _, _ = posed_ray_residuals(np.r_[xi, 0.8], rays, 0.0, offset_sigma_px=1.0)
-    plain = ray_residuals(xi, grazing.shifted_rays(rays, [0.8]))[0]
+    r, _, _ = posed_ray_residuals(np.r_[xi, offset], rays, 0.0, offset_sigma_px=1.0)
+    plain = ray_residuals(xi, grazing.shifted_rays(rays, [offset]))[0]
     n = len(rays)
-    # the same rays; the estimated offset's rows carry the radius factor exp(-o / h)
-    np.testing.assert_allclose(r[:n], plain[:n] * np.exp(-0.8 / rays.radii), atol=1e-15)
+    # the same rays; an inward offset's rows carry the radius factor exp(-o / h), an outward one's none
+    factor = np.exp(-min(offset, 0.0) / rays.radii)
+    np.testing.assert_allclose(r[:n], plain[:n] * factor, atol=1e-15)
 
 
 @pytest.mark.parametrize("sigma, offset_sigma, x_len, match", [

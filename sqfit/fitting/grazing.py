@@ -122,7 +122,7 @@ def silhouette_fit(state, obs, options, name="3G", plain_first=True, offsets=Non
         # A second run, from the plain optimum: started from stage 2 the extra unknowns change
         # Levenberg-Marquardt's path and sometimes its basin, which cost clean fits accuracy.
         start = xi0 if res is None else res.x
-        o0 = np.zeros(n_offsets) if offsets is None else np.broadcast_to(offsets, (n_offsets,))
+        o0 = np.zeros(n_offsets) if offsets is None or not n_offsets else np.broadcast_to(offsets, (n_offsets,))
         res = minimise(rays, np.concatenate([start, np.zeros(n_pose), o0]), options, sigma, offset_sigma, groups)
         nfev += res.nfev
     k = len(xi0)

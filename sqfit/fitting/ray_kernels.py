@@ -456,12 +456,14 @@ def posed_rows(x, origins, directions, offsets, weights, radii, kind, view, grou
                               cz + (w[0] * cy - w[1] * cx))
             col = k + n_pose + group[i]
             J[i, col] = -d[i] * (gx * cx + gy * cy + gz * cz)
-            # the radius factor: r -> r exp(-o / h), d r / d o gains -r / h
-            factor = math.exp(-x[col] / radii[i])
+            # the radius factor: r -> r exp(-min(o, 0) / h), d r / d o gains -r / h where o < 0
+            inward = _minimum(x[col], 0.0)
+            factor = math.exp(-inward / radii[i])
             r[i] = r[i] * factor
             for j in range(k + m):
                 J[i, j] *= factor
-            J[i, col] -= r[i] / radii[i]
+            if inward < 0:
+                J[i, col] -= r[i] / radii[i]
     _penalty_rows(x[:k], weight, lower, upper, r, J, n)
     for j in range(n_pose):
         r[n + k + j] = x[k + j] / sigma
