@@ -110,25 +110,26 @@ class FitOptions(Options):
         outside the silhouette, a segmenter's over-segmentation) with the superquadric, under a
         Gaussian prior of this standard deviation, px, relative to the noise of the fit's residuals
         (:func:`sqfit.fitting.grazing.offset_prior`); 0 trusts the outlines. The estimate is in
-        3G's (3H's) stage message and in :attr:`FitResult.outline_offset_px`. Default 0.5, measured
-        (100 paper trials, default chain, median IoU, seeds 0 / 1; README "Real masks"): 1 px
-        over-segmentation 0.991 / 0.992 (prior 1 px: 0.991 / 0.993; no offset: 0.927 / 0.943),
-        1 px under-segmentation 0.989 / 0.991 (1 px: 0.992 / 0.992, 10th percentile 0.748 / 0.864
-        against 0.812 / 0.874), clean 0.995 / 0.996 (1 px: 0.994 / 0.996); the smaller prior lets
-        random outline noise move the offset less (2 px jitter, seed 0: 0.886 against 0.878 at 1 px
-        and 0.904 without the offset; 2 px jitter + 1 deg pose noise: 0.768 against 0.757).
+        3G's (3H's) stage message and in :attr:`FitResult.outline_offset_px`. Default 0.5 (100
+        paper trials, default chain, median / 10th percentile of IoU, seeds 0; 1, README "Real
+        masks"): 1 px over-segmentation 0.989 / 0.836; 0.989 / 0.901 (no offset 0.928 / 0.761;
+        0.944 / 0.788), 1 px under-segmentation 0.989 / 0.804; 0.991 / 0.850, clean 0.995 / 0.904;
+        0.996 / 0.928. Chosen against 1 px (measured while the radius factor of
+        :mod:`sqfit.fitting.raycost` was still two-sided): the same on 1 px bias (0.991 / 0.992
+        either way) and clean masks, and random outline noise moved the offset less (2 px jitter,
+        seed 0: 0.886 against 0.878; 2 px jitter + 1 deg pose noise: 0.768 against 0.757).
     outline_offset : {"object", "view"}
         One outline offset per object (default), or one per view about the object's (prior
         spread ``outline_offset_view_sigma_px``). Per view follows a segmenter whose bias differs
-        between views and costs a little where the bias is one per object (100 paper trials, seeds
-        0 / 1, median IoU per view against per object): bias drawn per object and view with 1 px
-        standard deviation, mean 0, 0.980 / 0.979 against 0.901 / 0.928 (no offset 0.911 / 0.937);
-        1 px over-segmentation 0.985 / 0.982 against 0.991 / 0.992; clean 0.992 / 0.994 against
-        0.995 / 0.996, 10th percentile 0.847 / 0.934 against 0.898 / 0.923.
+        between views and underestimates a common one (100 paper trials, seeds 0 / 1, median IoU
+        per view against per object): bias drawn per object and view with 1 px standard
+        deviation, mean 0, 0.979 / 0.980 against 0.905 / 0.929 (no offset 0.911 / 0.937); 1 px
+        over-segmentation 0.977 / 0.976 against 0.989 / 0.989; clean 0.995 / 0.994 against
+        0.995 / 0.996 (10th percentile 0.892 / 0.920 against 0.904 / 0.928).
     outline_offset_view_sigma_px : float
         With ``outline_offset = "view"``: the standard deviation of each view's offset about the
-        object's, px, > 0 (on the 1 px spread above, seed 0, prior 1 px: 0.25 / 0.5 / 1 px gave
-        0.968 / 0.979 / 0.982, 10th percentile 0.786 / 0.822 / 0.768).
+        object's, px, > 0 (on the 1 px spread above, seed 0, object prior 1 px, two-sided radius
+        factor: 0.25 / 0.5 / 1 px gave 0.968 / 0.979 / 0.982, 10th percentile 0.786 / 0.822 / 0.768).
     """
 
     polygon: str = "hull"
