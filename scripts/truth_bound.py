@@ -69,6 +69,9 @@ def main(argv=None):
     parser.add_argument("--seed", type=int, default=None, help="default: the scene's experiment.seed")
     parser.add_argument("--chains", default="default,1-2-3G,1-2-3G-3S,1-2-3D-3A")
     parser.add_argument("--json", metavar="PATH", help="write per-trial figures here")
+    parser.add_argument("--option", action="append", default=[], metavar="KEY=VALUE",
+                        help="a sqfit.FitOptions field for every fit (truth-started too), e.g. "
+                             "outline_offset_sigma_px=0; repeatable")
     args = parser.parse_args(argv)
     scene = load_scene(args.scene)
     if args.seed is not None:
@@ -76,7 +79,12 @@ def main(argv=None):
     trials = args.trials or scene.experiment.trials
     chains = [sqfit.DEFAULT_CHAIN if c == "default" else c for c in args.chains.split(",")]
     options = {"polygon": scene.fit.polygon, "penalty_riou": scene.fit.penalty_riou,
-               "penalty_analytic": scene.fit.penalty_analytic, "pose_sigma_deg": scene.fit.pose_sigma_deg}
+               "penalty_analytic": scene.fit.penalty_analytic, "pose_sigma_deg": scene.fit.pose_sigma_deg,
+               "occlusion_aware": scene.fit.occlusion_aware,
+               "outline_offset_sigma_px": scene.fit.outline_offset_sigma_px, "outline_offset": scene.fit.outline_offset,
+               "outline_offset_view_sigma_px": scene.fit.outline_offset_view_sigma_px}
+    options.update(_parse_option(o) for o in args.option)
+    sqfit.FitOptions.coerce(options)  # an unknown key or a bad value fails here, before any fit
     renderer = get_renderer(scene.masks.renderer, scene.intrinsics)
     rows = {c: [] for c in chains + ["truth"]}
     for i in range(trials):
@@ -128,6 +136,19 @@ def main(argv=None):
     if args.json:
         with open(args.json, "w") as f:
             json.dump({"scene": args.scene, "seed": scene.experiment.seed, "trials": rows}, f)
+
+
+def _parse_option(text):
+    """``"KEY=VALUE"`` -> ``(KEY, VALUE)``, the value as a number where it reads as one."""
+    key, sep, value = text.partition("=")
+    if not sep:
+        raise SystemExit(f"--option must be KEY=VALUE, got {text!r}")
+    for kind in (int, float):
+        try:
+            return key.strip(), kind(value)
+        except ValueError:
+            pass
+    return key.strip(), value.strip()
 
 
 if __name__ == "__main__":

@@ -130,6 +130,34 @@ def test_ray_residuals_agree_on_a_paper_trial(kernels):
     assert _close(fast[1][0], slow[1][0], 1e-12) and _close(fast[7], slow[7], 1e-12)
 
 
+@pytest.mark.parametrize("pose", [True, False])
+@pytest.mark.parametrize("per_view", [False, True])
+def test_offset_residuals_agree(kernels, pose, per_view):
+    # the outline offsets of 3G (posed_ray_residuals): per object or per view, with and without the
+    # rotation unknowns, on rays that include one-sided and interior (offset-free) rays
+    trial = paper_trial(3)
+    rays = contour_rays(trial.observations, 16, band_px=1.5, n_inside=8, smooth_px=2.0)
+    groups = rays.view if per_view else None
+    xi = trial.gt.to_vector() * np.r_[1.2, 0.9, 1.1, 1, 1, np.ones(6)] + np.r_[np.zeros(5), 0.1, 0.1, -0.1, 0.05, 0, 0]
+    rng = np.random.default_rng(4)
+    x = np.r_[xi, rng.normal(size=9) * 0.01 if pose else [], rng.normal(size=3 if per_view else 1)]
+    sigma = 0.5 if pose else 0.0
+
+    # per view: a correlated prior (sqfit.fitting.grazing.offset_prior), as the views' offsets share the object's
+    prior = np.linalg.inv(np.linalg.cholesky(np.ones((3, 3)) + 0.25 * np.eye(3))) if per_view else None
+
+    def evaluate():
+        r, J, d = raycost.posed_ray_residuals(x, rays, sigma, offset_sigma_px=1.5, offset_groups=groups,
+                                              offset_prior=prior)
+        return (r, J, d) + raycost.posed_ray_residuals(x * 1.001, rays, sigma, d0=d, offset_sigma_px=1.5,
+                                                       offset_groups=groups, offset_prior=prior)
+
+    fast, slow = kernels(evaluate)
+    for k, (a, b) in enumerate(zip(fast, slow)):
+        assert a.shape == b.shape and _close(a, b, 1e-12), k
+    assert np.abs(slow[1][:len(rays), -1]).max() > 1e-3  # an offset column that is not zero
+
+
 def test_screen_agrees(kernels):
     trial = paper_trial(0)
     rays = contour_rays(trial.observations, axis_screen.N_SCREEN_CONTOUR)
@@ -137,6 +165,20 @@ def test_screen_agrees(kernels):
     (X_k, c_k), (X_n, c_n) = kernels(lambda: axis_screen.batch_levenberg_marquardt(X, rays, 12))
     assert np.abs(X_k - X_n).max() < 1e-9 and _close(c_k, c_n, 1e-9)
     assert np.all(c_k < axis_screen.batch_levenberg_marquardt(X, rays, 0)[1])  # it descended
+
+
+def test_fits_agree_on_a_biased_mask(kernels):
+    # 1 px over-segmentation: the default chain estimates the outline offset and screens again on
+    # rays offset by it (sqfit.fitting.axis_screen.RESCREEN_PX)
+    from sqsim.imaging.mask_models import bias_boundary
+
+    trial = paper_trial(0)
+    rng = np.random.default_rng(0)
+    obs = [sqfit.Observation.from_mask(c, bias_boundary(m, 1.0), 100, "uniform", rng)
+           for c, m in zip(trial.cameras, trial.masks)]
+    a, b = kernels(lambda: sqfit.fit(obs))
+    assert "re-screened" in a.stages[-1].message
+    assert np.abs(a.superquadric.to_vector() - b.superquadric.to_vector()).max() < 1e-9
 
 
 @pytest.mark.parametrize("chain, seeds", [("1-2-3D", range(5)), ("1-2-3H", (0, 3, 4))])

@@ -411,37 +411,71 @@ def ray_rows(X, origins, directions, weights, kind, d0, warm, rtol, max_newton, 
 
 
 @njit(**_JIT)
-def posed_rows(x, origins, directions, weights, kind, view, d0, warm, rtol, max_newton, max_warm, grid, znear,
-               warm_bracket, newton_power, weight, lower, upper, sigma):
-    """:func:`sqfit.fitting.raycost.posed_ray_residuals`: ``x`` ``(11 + 3 v,)``, ``view`` ``(n,) int64``
-    -> ``r`` ``(n + 11 + 3 v,)``, ``J`` ``(n + 11 + 3 v, 11 + 3 v)``, ``d`` ``(n,)``."""
+def posed_rows(x, origins, directions, offsets, weights, radii, kind, view, group, n_pose, d0, warm, rtol,
+               max_newton, max_warm, grid, znear, warm_bracket, newton_power, weight, lower, upper, sigma,
+               offset_prior):
+    """:func:`sqfit.fitting.raycost.posed_ray_residuals`: ``x`` ``(11 + p + g,)`` (``n_pose = p``, 0 or
+    ``3 v``; ``g`` outline offsets, prior rows ``offset_prior @ o``, ``(g, g)``), ``offsets`` ``(n, 3)``,
+    ``radii`` ``(n,)``, ``view`` and ``group`` ``(n,) int64`` -> ``r`` ``(n + 11 + p + g,)``, ``J``
+    ``(n + 11 + p + g, 11 + p + g)``, ``d`` ``(n,)``."""
     n, k = origins.shape[0], 11
-    v3 = x.shape[0] - k
-    turned = np.empty((n, 3))
+    m = x.shape[0] - k
+    n_off = m - n_pose
+    shifted, turned = np.empty((n, 3)), np.empty((n, 3))
     for i in range(n):
-        w = x[k + 3 * view[i]:k + 3 * view[i] + 3]
         bx, by, bz = directions[i, 0], directions[i, 1], directions[i, 2]
-        turned[i, 0] = bx + (w[1] * bz - w[2] * by)
-        turned[i, 1] = by + (w[2] * bx - w[0] * bz)
-        turned[i, 2] = bz + (w[0] * by - w[1] * bx)
-    r, J, d = np.empty(n + k + v3), np.zeros((n + k + v3, k + v3)), np.empty(n)
+        if n_off > 0:
+            o = x[k + n_pose + group[i]]
+            bx, by, bz = bx + o * offsets[i, 0], by + o * offsets[i, 1], bz + o * offsets[i, 2]
+        shifted[i, 0], shifted[i, 1], shifted[i, 2] = bx, by, bz
+        if n_pose > 0:
+            w = x[k + 3 * view[i]:k + 3 * view[i] + 3]
+            turned[i, 0] = bx + (w[1] * bz - w[2] * by)
+            turned[i, 1] = by + (w[2] * bx - w[0] * bz)
+            turned[i, 2] = bz + (w[0] * by - w[1] * bx)
+        else:
+            turned[i, 0], turned[i, 1], turned[i, 2] = bx, by, bz
+    r, J, d = np.empty(n + k + m), np.zeros((n + k + m, k + m)), np.empty(n)
     block = np.empty((n, k))
     _ray_block(x[:k], origins, turned, weights, kind, d0, warm, rtol, max_newton, max_warm, grid, znear,
                warm_bracket, newton_power, r, block, d)
     for i in range(n):
         for j in range(k):
             J[i, j] = block[i, j]
-        # d log m / d w = d* b x grad_x log g (grad_x log g = -d log g / d p); coef folded into block
+        # grad_x log g = -d log g / d p; the residual's coef is folded into block
         gx, gy, gz = block[i, 5], block[i, 6], block[i, 7]
-        bx, by, bz = directions[i, 0], directions[i, 1], directions[i, 2]
-        c = k + 3 * view[i]
-        J[i, c] = d[i] * (gy * bz - gz * by)
-        J[i, c + 1] = d[i] * (gz * bx - gx * bz)
-        J[i, c + 2] = d[i] * (gx * by - gy * bx)
+        if n_pose > 0:  # d log m / d w = d* b x grad_x log g
+            bx, by, bz = shifted[i, 0], shifted[i, 1], shifted[i, 2]
+            c = k + 3 * view[i]
+            J[i, c] = d[i] * (gy * bz - gz * by)
+            J[i, c + 1] = d[i] * (gz * bx - gx * bz)
+            J[i, c + 2] = d[i] * (gx * by - gy * bx)
+        if n_off > 0:  # d log m / d o = d* grad_x log g . (c + w x c)
+            cx, cy, cz = offsets[i, 0], offsets[i, 1], offsets[i, 2]
+            if n_pose > 0:
+                w = x[k + 3 * view[i]:k + 3 * view[i] + 3]
+                cx, cy, cz = (cx + (w[1] * cz - w[2] * cy), cy + (w[2] * cx - w[0] * cz),
+                              cz + (w[0] * cy - w[1] * cx))
+            col = k + n_pose + group[i]
+            J[i, col] = -d[i] * (gx * cx + gy * cy + gz * cz)
+            # the radius factor: r -> r exp(-min(o, 0) / h), d r / d o gains -r / h where o < 0
+            inward = nan_min(x[col], 0.0)
+            factor = math.exp(-inward / radii[i])
+            r[i] = r[i] * factor
+            for j in range(k + m):
+                J[i, j] *= factor
+            if inward < 0:
+                J[i, col] -= r[i] / radii[i]
     _penalty_rows(x[:k], weight, lower, upper, r, J, n)
-    for j in range(v3):
+    for j in range(n_pose):
         r[n + k + j] = x[k + j] / sigma
         J[n + k + j, k + j] = 1.0 / sigma
+    for j in range(n_off):
+        acc = 0.0
+        for col in range(n_off):
+            acc += offset_prior[j, col] * x[k + n_pose + col]
+            J[n + k + n_pose + j, k + n_pose + col] = offset_prior[j, col]
+        r[n + k + n_pose + j] = acc
     return r, J, d
 
 

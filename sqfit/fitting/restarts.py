@@ -76,7 +76,7 @@ from .. import constants as C
 from .._checks import check_shape
 from .raycost import ray_residuals
 from ..views.rays import contour_rays
-from .grazing import minimise, silhouette_stage
+from .grazing import SMOOTH_PX, minimise, silhouette_stage
 from .stages import FitState, r_iou_m, register, to_superquadric
 from ..geometry.superquadric import euler_to_matrix, matrix_to_euler
 
@@ -167,11 +167,12 @@ def _rot_z(angle):
 
 
 def screen_rays(obs):
-    """The :data:`N_SCREEN_CONTOUR` outline rays per view of ``obs``, made once per observation set
-    (cached while ``obs`` lives; 3H's screen uses the same)."""
+    """The :data:`N_SCREEN_CONTOUR` outline rays per view of ``obs`` (points smoothed as 3G's,
+    :data:`sqfit.fitting.grazing.SMOOTH_PX`), made once per observation set (cached while ``obs``
+    lives; 3H's screen uses the same)."""
     rays = _SCREEN_RAYS.get(obs)
     if rays is None:
-        rays = contour_rays(obs.observations, N_SCREEN_CONTOUR)
+        rays = contour_rays(obs.observations, N_SCREEN_CONTOUR, smooth_px=SMOOTH_PX)
         _SCREEN_RAYS[obs] = rays
     return rays
 

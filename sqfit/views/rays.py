@@ -7,6 +7,17 @@ meet it) or :data:`OUTSIDE` (in a band outside the mask: the ray must miss it) -
 view, and whether it is two-sided: a ray through an outline point labelled ``instance`` or
 ``border`` (:mod:`sqfit.views.visibility`) is one-sided, since the object may continue unseen there.
 :func:`contour_rays` builds them from observations; :mod:`sqfit.fitting.raycost` defines the residuals.
+
+Outline offset: a segmenter's outline may lie ``delta`` px outside (``delta > 0``, over-segmentation)
+or inside (``delta < 0``) the object's silhouette, along the outline's outward normal. The silhouette
+point behind an observed outline point ``s`` is then ``s - delta n``, and its ray's direction is
+``directions + delta offsets`` (exact: the direction is affine in the image point). ``offsets`` is
+``-R_c [n_u / fx, n_v / fy, 0]`` for rays through outline points (and the band points beside them),
+0 for rays through interior samples; ``n`` is the outline's normal averaged over
+:data:`NORMAL_ARC_PX` of arc on each side, which smooths the pixel staircase of the outline.
+``radii`` is ``n . (s - centroid)``, the outline point's distance from the mask centroid along the
+normal (px, at least :data:`MIN_RADIUS_PX`; infinite for interior samples): the length that the
+3G residual, a log of a scale about the object's centre, measures pixel errors against.
 """
 
 from __future__ import annotations
@@ -19,13 +30,23 @@ import numpy as np
 from .._checks import check_shape
 from ..geometry.camera import bearings
 from ..geometry.outline import outward_normals  # re-exported: the normals of 3G's band rays
-from .observation import Observation, polyline_points
+from .observation import Observation, arc_lengths
 from .visibility import BACKGROUND, point_labels
 
-__all__ = ["RaySet", "CONTOUR", "INSIDE", "OUTSIDE", "contour_rays", "outward_normals"]
+__all__ = ["RaySet", "CONTOUR", "INSIDE", "OUTSIDE", "NORMAL_ARC_PX", "MIN_RADIUS_PX", "contour_rays",
+           "outward_normals", "arc_normals"]
 
 #: Ray modes (see the module docstring).
 CONTOUR, INSIDE, OUTSIDE = 0, 1, 2
+#: Half-length (px of arc) of the chord whose normal is an outline point's normal (:func:`arc_normals`):
+#: the marching-squares outline of a mask turns by 45 degrees every pixel or so, and 3 px each side
+#: average that staircase (on a circle the chord's normal is radial for any length; thin parts of
+#: a few px are where a longer chord would bend the normals).
+NORMAL_ARC_PX = 3.0
+#: Floor of ``RaySet.radii`` (px): outline points whose normal passes the centroid (concave
+#: stretches, slivers) get this.
+MIN_RADIUS_PX = 1.0
+_TINY = 1e-300
 
 
 @dataclass(frozen=True)
@@ -47,6 +68,12 @@ class RaySet:
     two_sided : (n,) bool
         False for rays through occluded or truncated outline points (see the module docstring);
         default (None when constructing): all True.
+    offsets : (n, 3) float
+        Change of ``directions`` per pixel of outline offset (module docstring), world frame;
+        default (None when constructing): all 0.
+    radii : (n,) float
+        Distance of each ray's image point from its mask's centroid along the outline normal, px,
+        > 0 (module docstring); default (None when constructing): all infinite.
     """
 
     origins: np.ndarray
@@ -55,6 +82,8 @@ class RaySet:
     weights: np.ndarray
     view: np.ndarray
     two_sided: np.ndarray | None = None
+    offsets: np.ndarray | None = None
+    radii: np.ndarray | None = None
 
     def __post_init__(self):
         origins = check_shape(self.origins, (None, 3), "origins")
@@ -75,6 +104,12 @@ class RaySet:
             raise ValueError(f"two_sided must be a boolean array of shape ({n},), got {two_sided.dtype} "
                              f"{two_sided.shape}")
         object.__setattr__(self, "two_sided", two_sided)
+        offsets = np.zeros((n, 3)) if self.offsets is None else check_shape(self.offsets, (n, 3), "offsets")
+        object.__setattr__(self, "offsets", offsets)
+        radii = np.full(n, np.inf) if self.radii is None else check_shape(self.radii, (n,), "radii", finite=False)
+        if np.any(~(radii > 0)):
+            raise ValueError("radii must be > 0")
+        object.__setattr__(self, "radii", radii)
         # Rays with a hinge residual (see the module docstring), as indices: computed once, not
         # per evaluation. One-sided CONTOUR rays act as INSIDE rays; one-sided OUTSIDE rays are dropped.
         object.__setattr__(self, "_hinge_in", np.flatnonzero((modes == INSIDE) | ((modes == CONTOUR) & ~two_sided)))
@@ -84,7 +119,71 @@ class RaySet:
         return len(self.origins)
 
 
-def contour_rays(observations, n_contour=64, band_px=0.0, n_inside=0):
+def arc_normals(contour, arc_lengths, half_arc=NORMAL_ARC_PX):
+    """Unit outward normals of a counter-clockwise image polygon at given arc lengths.
+
+    The normal of the chord between the points ``half_arc`` before and after (as
+    :func:`outward_normals`: ``(dv, -du)`` for a chord ``(du, dv)``), so pixel steps shorter than
+    ``half_arc`` are averaged out.
+
+    Parameters
+    ----------
+    contour : (m, 2) float
+        Closed polygon, not repeated at the end, positive shoelace area in ``(u, v)``.
+    arc_lengths : (n,) float
+        Arc lengths from vertex 0, px (any real: taken modulo the perimeter).
+    half_arc : float
+        Half-length of the chord, px, > 0.
+
+    Returns
+    -------
+    normals : (n, 2) float
+    """
+    contour = check_shape(contour, (None, 2), "contour")
+    if len(contour) < 3:
+        raise ValueError(f"contour must have at least 3 vertices, got {len(contour)}")
+    if not (np.isfinite(half_arc) and half_arc > 0):
+        raise ValueError(f"half_arc must be a finite number > 0, got {half_arc}")
+    at, _, perimeter = _arc_sampler(contour)
+    half = min(float(half_arc), 0.25 * perimeter)
+    s = np.asarray(arc_lengths, dtype=np.float64)
+    return _chord_normals(at(s + half)[0] - at(s - half)[0])
+
+
+def _chord_normals(chord):
+    """Unit outward normals ``(n, 2)`` of chords ``(n, 2)`` of a counter-clockwise polygon."""
+    normal = np.stack([chord[:, 1], -chord[:, 0]], axis=1)
+    return normal / np.maximum(np.linalg.norm(normal, axis=1, keepdims=True), _TINY)
+
+
+def _arc_sampler(polygon, arc=None):
+    """``(at, integral, perimeter)`` of a closed polygon ``(m, 2)``, arc lengths from vertex 0 taken
+    modulo the perimeter: ``at(s)`` gives the points ``(n, 2)`` at arc lengths ``s`` and the edge of
+    each (edge ``k`` runs from vertex ``k`` to ``k + 1``); ``integral(s, points, edges)`` the integral
+    of the point along the polygon from arc length 0 to ``s`` (``(n, 2)``; ``points, edges = at(s)``),
+    exact on the straight edges. ``arc``: :func:`sqfit.views.observation.arc_lengths` of the polygon
+    if already known (``Observation.contour_arc``)."""
+    closed = np.concatenate([polygon, polygon[:1]])
+    edge = np.diff(closed, axis=0)
+    seg, cum = arc_lengths(polygon) if arc is None else arc
+    inverse = 1.0 / np.where(seg > 0, seg, 1.0)
+    last = len(seg) - 1
+
+    def at(s):
+        s = np.mod(s, cum[-1])
+        idx = np.minimum(np.searchsorted(cum, s, side="right") - 1, last)
+        return closed[idx] + ((s - cum[idx]) * inverse[idx])[:, None] * edge[idx], idx
+
+    def integral(s, points, idx):
+        area = np.concatenate([[[0.0, 0.0]], np.cumsum(seg[:, None] * 0.5 * (closed[:-1] + closed[1:]), axis=0)])
+        turns = np.floor(s / cum[-1])
+        rest = s - turns * cum[-1]
+        return turns[:, None] * area[-1] + area[idx] + (rest - cum[idx])[:, None] * 0.5 * (closed[idx] + points)
+
+    return at, integral, cum[-1]
+
+
+def contour_rays(observations, n_contour=64, band_px=0.0, n_inside=0, smooth_px=0.0):
     """Rays of the 3G residuals for a list of observations.
 
     Parameters
@@ -100,13 +199,16 @@ def contour_rays(observations, n_contour=64, band_px=0.0, n_inside=0):
     n_inside : int
         Extra :data:`INSIDE` rays per view through the observation's samples (the first
         ``n_inside``; all of them if fewer), >= 0.
+    smooth_px : float
+        > 0: each contour point is the mean point of the outline over ``smooth_px`` px of arc on
+        each side, which averages the pixel staircase of a mask's outline; >= 0.
 
     Returns
     -------
     rays : RaySet
         Each view's rays weighted ``1 / sqrt(rays in that view)``, so every view counts equally;
         ``two_sided`` False where the outline point is labelled ``instance`` or ``border``
-        (``Observation.contour_labels``).
+        (``Observation.contour_labels``); ``offsets`` from the outline's normals (module docstring).
     """
     if int(n_contour) != n_contour or n_contour < 3:
         raise ValueError(f"n_contour must be an integer >= 3, got {n_contour}")
@@ -114,16 +216,25 @@ def contour_rays(observations, n_contour=64, band_px=0.0, n_inside=0):
         raise ValueError(f"band_px must be a finite number >= 0, got {band_px}")
     if int(n_inside) != n_inside or n_inside < 0:
         raise ValueError(f"n_inside must be an integer >= 0, got {n_inside}")
+    if not (np.isfinite(smooth_px) and smooth_px >= 0):
+        raise ValueError(f"smooth_px must be a finite number >= 0, got {smooth_px}")
     parts = []
     for i, o in enumerate(observations):
         if not isinstance(o, Observation):
             raise TypeError(f"observations[{i}] must be a sqfit.Observation, got {type(o).__name__}")
-        points, modes, two_sided = _view_points(o, int(n_contour), float(band_px), int(n_inside))
+        points, modes, two_sided, normals = _view_points(o, int(n_contour), float(band_px), int(n_inside),
+                                                         float(smooth_px))
+        radii = np.maximum(np.einsum("ij,ij->i", points - o.centroid, normals), MIN_RADIUS_PX)
+        if n_inside:  # interior samples: no outline, no offset
+            radii[len(points) - min(int(n_inside), len(o.samples)):] = np.inf
         cam = o.camera
-        directions = bearings(cam, points) @ cam.rotation.T
+        rotation = cam.rotation
+        directions = bearings(cam, points) @ rotation.T
+        k = cam.intrinsics
+        offsets = (normals * [-1.0 / k.fx, -1.0 / k.fy]) @ rotation[:, :2].T
         weights = np.full(len(points), 1.0 / np.sqrt(len(points)))
         parts.append((np.broadcast_to(cam.center, directions.shape), directions, modes, weights,
-                      np.full(len(points), i), two_sided))
+                      np.full(len(points), i), two_sided, offsets, radii))
     if not parts:
         raise ValueError("observations must not be empty")
     return RaySet(*(np.concatenate(col) for col in zip(*parts)))
@@ -136,10 +247,25 @@ def _contour_phase():
     return float(np.random.default_rng(0).random())
 
 
-def _view_points(observation, n_contour, band_px, n_inside):
-    on, edges = polyline_points(observation.contour, n_contour, _contour_phase(), return_index=True,
-                                arc=observation.contour_arc)
-    sided = point_labels(observation.contour_labels, edges) == BACKGROUND
+def _view_points(observation, n_contour, band_px, n_inside, smooth_px):
+    """Image points, modes, two-sidedness and outline normals (0 for interior samples) of one view."""
+    contour = observation.contour
+    at, integral, perimeter = _arc_sampler(contour, observation.contour_arc)
+    arc = (_contour_phase() + np.arange(n_contour)) / n_contour * perimeter
+    half = min(NORMAL_ARC_PX, 0.25 * perimeter)
+    # sampled at once: the points (as sqfit.views.observation.polyline_points), the ends of their
+    # normals' chords, and the ends of the arcs they are averaged over
+    shifts = np.array([0.0, -half, half, -smooth_px, smooth_px] if smooth_px > 0 else [0.0, -half, half])
+    where = (arc[None, :] + shifts[:, None]).ravel()
+    points, edges = at(where)
+    if smooth_px > 0:  # the mean point of the outline over the arc
+        ends = integral(where[3 * n_contour:], points[3 * n_contour:], edges[3 * n_contour:])
+        on = (ends[n_contour:] - ends[:n_contour]) / (2.0 * smooth_px)
+    else:
+        on = points[:n_contour]
+    points = points.reshape(len(shifts), n_contour, 2)
+    sided = point_labels(observation.contour_labels, edges[:n_contour]) == BACKGROUND
+    normal_at = _chord_normals(points[2] - points[1])
     if band_px > 0:
         # Normals at the sample points: those of the nearest contour vertices.
         normals = outward_normals(observation.contour)
@@ -148,11 +274,13 @@ def _view_points(observation, n_contour, band_px, n_inside):
         points = [on - band_px * nrm, on + band_px * nrm]
         modes = [np.full(n_contour, INSIDE), np.full(n_contour, OUTSIDE)]
         two_sided = [sided, sided]
+        normals = [normal_at, normal_at]
     else:
-        points, modes, two_sided = [on], [np.full(n_contour, CONTOUR)], [sided]
+        points, modes, two_sided, normals = [on], [np.full(n_contour, CONTOUR)], [sided], [normal_at]
     if n_inside:
         inner = observation.samples[:n_inside]
         points.append(inner)
         modes.append(np.full(len(inner), INSIDE))
         two_sided.append(np.ones(len(inner), dtype=bool))
-    return np.concatenate(points), np.concatenate(modes), np.concatenate(two_sided)
+        normals.append(np.zeros((len(inner), 2)))
+    return tuple(np.concatenate(c) for c in (points, modes, two_sided, normals))

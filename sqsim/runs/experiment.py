@@ -11,7 +11,8 @@ Output directory:
   into the same directory must use the same scene and seed; it then fits only the
   (trial, chain) pairs missing from ``trials.jsonl`` (resume after Ctrl-C or a kill).
 - ``trials.jsonl``: one record per (trial, object, chain): ground truth, fitted parameters and
-  metrics after every stage, seconds, status, and per view the object's ``visible_fraction``
+  metrics after every stage, seconds, status, the estimated outline offset
+  (``outline_offset_px``, :attr:`sqfit.FitResult.outline_offset_px`), and per view the object's ``visible_fraction``
   (pixels seen / pixels rendered alone), ``cut_fraction`` (projected area outside the image) and
   ``border_cut`` (its mask touches the border; :mod:`sqsim.imaging.trial`). A line cut short by a kill is
   dropped on resume.
@@ -295,7 +296,9 @@ def fit_trial(scene_dict, index, chains, limits=None):
     seed = trial_seed(scene.experiment.seed, index)
     options = {"polygon": scene.fit.polygon, "penalty_riou": scene.fit.penalty_riou,
                "penalty_analytic": scene.fit.penalty_analytic, "pose_sigma_deg": scene.fit.pose_sigma_deg,
-               "occlusion_aware": scene.fit.occlusion_aware}
+               "occlusion_aware": scene.fit.occlusion_aware,
+               "outline_offset_sigma_px": scene.fit.outline_offset_sigma_px, "outline_offset": scene.fit.outline_offset,
+               "outline_offset_view_sigma_px": scene.fit.outline_offset_view_sigma_px}
     limit_cache = None
     if scene.experiment.limit:
         from ..world.limit import LimitCache, object_limit
@@ -353,6 +356,7 @@ def fit_trial(scene_dict, index, chains, limits=None):
                             "warnings": list(result.warnings),
                             "params": None if result.superquadric is None else result.superquadric.to_vector().tolist(),
                             "stages": stages, "time_s": result.seconds,
+                            "outline_offset_px": result.outline_offset_px,
                             "metrics": {**final_metrics, **limit_metrics, "time_s": result.seconds,
                                         "success": bool(final_metrics["iou"] > 0)}})
     return records

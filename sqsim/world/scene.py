@@ -19,6 +19,7 @@ from pathlib import Path
 import numpy as np
 
 import sqfit
+from sqfit.fitting.pipeline import OUTLINE_OFFSETS
 from sqfit.views.observation import POLYGON_KINDS, SAMPLING_METHODS
 
 from .objects import KEEPS_PROPORTIONS, PROPORTIONS, check_mesh_file
@@ -137,6 +138,9 @@ class FitConfig:
     penalty_analytic: float = 100.0
     pose_sigma_deg: float = sqfit.FitOptions.pose_sigma_deg
     occlusion_aware: bool = sqfit.FitOptions.occlusion_aware
+    outline_offset_sigma_px: float = sqfit.FitOptions.outline_offset_sigma_px
+    outline_offset: str = sqfit.FitOptions.outline_offset
+    outline_offset_view_sigma_px: float = sqfit.FitOptions.outline_offset_view_sigma_px
 
 
 _CHECKS = {
@@ -165,7 +169,8 @@ _CHECKS = {
               "hole_rate": number(0), "hole_radius_px": number(0, lo_open=True)},
     "fit": {"polygon": choice(POLYGON_KINDS), "penalty_riou": number(0, lo_open=True),
             "penalty_analytic": number(0, lo_open=True), "pose_sigma_deg": number(0),
-            "occlusion_aware": boolean},
+            "occlusion_aware": boolean, "outline_offset_sigma_px": number(0),
+            "outline_offset": choice(OUTLINE_OFFSETS), "outline_offset_view_sigma_px": number(0, lo_open=True)},
 }
 _SECTIONS = {"experiment": ExperimentConfig, "camera": CameraConfig, "trajectory": TrajectoryConfig,
              "objects": ObjectsConfig, "masks": MasksConfig, "noise": NoiseConfig, "fit": FitConfig}
