@@ -294,17 +294,29 @@ def _screen_and_refine(state, obs, options):
 
 def _screen_refine_once(state, obs, options, shift=None):
     """One screen and refinement; ``shift`` (px per offset group): screen on outline rays offset by it
-    and start the refinement's offsets there. Returns the state and the estimated offsets (or None)."""
+    and start the refinement's offsets there. Returns the state and the estimated offsets (or None).
+
+    When the refinement finds that the cameras disagree (its pose prior scaled to the residual
+    noise, :func:`sqfit.fitting.grazing.silhouette_fit`), the screen, which ranks the candidates
+    without pose corrections, is not trusted: every candidate is refined under that prior and the
+    lowest cost is kept (module docstring)."""
     candidates = axis_candidates(state.xi)
     rays = screen_rays(obs)
     if shift is not None:
         rays = shifted_rays(rays, shift, offset_groups(rays, options))
     ends, costs = batch_levenberg_marquardt(candidates, rays, SCREEN_ITERATIONS, options.penalty_analytic,
                                             PRUNE_AFTER, PRUNE_RATIO)
-    best = int(np.argmin(costs))
+    order = np.argsort(costs, kind="stable")
     refine = replace(options, ftol_analytic=max(options.ftol_analytic, REFINE_FTOL))
-    new, offsets = silhouette_fit(replace(state, xi=ends[best]), obs, refine, name="3H", plain_first=False,
-                                  offsets=shift)
+    fits = [silhouette_fit(replace(state, xi=ends[order[0]]), obs, refine, name="3H", plain_first=False, offsets=shift)]
+    if fits[0].pose_scale is not None:
+        fits += [silhouette_fit(replace(state, xi=ends[j]), obs, refine, name="3H", plain_first=False, offsets=shift,
+                                pose_scale=fits[0].pose_scale) for j in order[1:]]
+    pick = min(range(len(fits)), key=lambda j: fits[j].state.cost)
+    best, new = int(order[pick]), fits[pick].state
     screened = ", ".join(f"{lab} {c:.2e}" for lab, c in zip(CANDIDATES, costs))
-    return replace(new, nfev=new.nfev + (SCREEN_ITERATIONS + 1) * len(candidates),
-                   message=f"3H: start {CANDIDATES[best]} (screen costs: {screened}); {new.message}"), offsets
+    refined = f"refined all under the pose prior: {CANDIDATES[best]} lowest; " if len(fits) > 1 else ""
+    nfev = sum(f.state.nfev for f in fits)
+    return replace(new, nfev=nfev + (SCREEN_ITERATIONS + 1) * len(candidates),
+                   message=f"3H: start {CANDIDATES[best]} (screen costs: {screened}); {refined}{new.message}"), \
+        fits[pick].offsets
