@@ -29,9 +29,11 @@ therefore decides before 3G, from the 3G cost itself:
    one prior and the lowest cost is kept (2 px jitter + 1 deg rotation, 100 trials, seeds 0 / 1:
    refining the screen's best under the fixed prior lost 17 / 29 trials by more than 0.05 of IoU to
    3G started at the truth, and in 22 of seed 1's 29 the truth-started fit had the lower cost;
-   refining the best 2 or 3 candidates recovered little, all 6 most). Consistent cameras never
-   take this branch (clean paper masks: RMS corrections at most 0.155 deg against the 0.25 deg
-   threshold), so clean fits and their time are unchanged.
+   refining the best 2 or 3 candidates recovered little, all 6 most). Consistent cameras seldom
+   take this branch (clean paper masks: final RMS corrections at most 0.155 deg against the 0.25 deg
+   threshold); 2-3 of 100 clean or +-1 px bias fits do, when the screen's best lands in a wrong
+   basin whose misfit the corrections absorb, and there it helps (``paper_trial(4)``: 0.799 ->
+   0.998). Median time on clean masks is unchanged.
 4. Rescue: when the result's silhouettes miss the masks (R-IOU-M below :data:`RESCUE_R_IOU_M`;
    ~2 % of paper trials, mostly needles and slabs with an aspect ratio above 10, where stage 2's
    ellipsoid is far off and 3G slides into its "far, huge" minimum: a large superquadric behind the

@@ -90,10 +90,11 @@ SMOOTH_PX = 2.0
 OFFSET_UNIT_PX = 30.0
 #: The cameras disagree (pose noise) when the rotation corrections estimated under the fixed prior
 #: ``options.pose_sigma_deg`` have an RMS (over views, of each view's rotation angle) above this many
-#: degrees (:func:`pose_noise_estimate`); the prior is then the noise-scaled one of :func:`minimise`
-#: at that level. Measured (default chain, 100 trials, seed 0): clean paper masks 0.003-0.155 deg
-#: (median 0.008), 1 px bias 0.004-0.91 deg (90th percentile 0.045), 2 px jitter + 1 deg rotation
-#: 0.27-3.3 deg (5th percentile 0.27, median 0.86).
+#: degrees (:func:`pose_noise_estimate`); the prior is then the noise-scaled one at that level
+#: (:func:`pose_prior_scale`). Measured on the default's final fits under the fixed prior (100
+#: trials, seed 0): clean paper masks 0.003-0.155 deg (median 0.008), 1 px bias
+#: 0.004-0.91 deg (90th percentile 0.045), 2 px jitter + 1 deg rotation 0.27-3.3 deg (5th
+#: percentile 0.27, median 0.86). A wrong basin's first fit can exceed it on clean masks too.
 POSE_NOISE_TRIGGER_DEG = 0.25
 
 _RAYS = weakref.WeakKeyDictionary()
