@@ -101,7 +101,10 @@ class FitOptions(Options):
         per-view-normalised residuals: a stiffness, not a calibrated noise level); 0 trusts the
         poses (see :mod:`sqfit.fitting.grazing`). Default 50: measured with the default chain 1-2-3H
         (2 px jitter + 1 deg rotation, 100 trials: median IoU 0.744 at 20, 0.771 at 50, 0.774 at
-        80; clean masks unchanged), README "Robustness".
+        80; clean masks unchanged), README "Robustness". When the corrections estimated under it say
+        that the cameras disagree (RMS above ``sqfit.fitting.grazing.POSE_NOISE_TRIGGER_DEG``), 3G and
+        3H fit again under a prior scaled to the residual noise at the estimated rotation noise
+        (:func:`sqfit.fitting.grazing.silhouette_fit`); this value then only decides that.
     occlusion_aware : bool
         Use the observations' boundary labels (:mod:`sqfit.views.visibility`): occluded and truncated
         outline stretches are one-sided in 3G (and 3S), stages 1 and 2 down-weight or leave out
