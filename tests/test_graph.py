@@ -505,3 +505,70 @@ def test_a_landmark_whose_silhouettes_miss_the_masks_is_refitted(small):
     refit = landmark.landmark_to_superquadric(values.atPose3(L(2)).matrix(), values.atVector(S(2)))
     assert solve._object_overlap(prob, values, 2, seq.true_poses) > 0.7
     assert iou_3d(refit, seq.objects[2]) > 0.8
+
+
+# --- the outline offset (issue "Masks as real segmenters make them") ------------------------------
+
+@pytest.mark.parametrize("delta", [0.7, -0.6])
+def test_outline_offset_jacobians_match_central_differences(delta):
+    cases = _factor_cases(n=4, seed=1)
+    Tc, Tl, shapes, rays = (np.array(c) if i < 3 else list(c) for i, c in enumerate(zip(*cases)))
+    stacked = landmark.stack_rays(rays)
+    offset = np.full(len(cases), delta)
+    r, Jc, Jl, Js, d, Jo = landmark.batch_silhouette_residuals(Tc, Tl, shapes, stacked, None, offset)
+    assert np.abs(Jo).max() > 1e-3
+    for i in range(len(cases)):
+        def f_o(x, i=i):
+            o = offset.copy()
+            o[i] = x[0]
+            return landmark.batch_silhouette_residuals(Tc, Tl, shapes, stacked, None, o)[0][i]
+
+        def f_lm(x, i=i):
+            T = Tl.copy()
+            T[i] = _retract(Tl[i], x)
+            return landmark.batch_silhouette_residuals(Tc, T, shapes, stacked, None, offset)[0][i]
+
+        scale = max(1.0, np.abs(Jo[i]).max())
+        np.testing.assert_allclose(Jo[i], central_difference(f_o, np.array([delta]))[:, 0], atol=1e-6 * scale)
+        np.testing.assert_allclose(Jl[i], central_difference(f_lm, np.zeros(6)), atol=1e-6)
+    # no offset and a zero offset are the same residual
+    plain = landmark.batch_silhouette_residuals(Tc, Tl, shapes, stacked)
+    zero = landmark.batch_silhouette_residuals(Tc, Tl, shapes, stacked, None, np.zeros(len(cases)))
+    for a, b in zip(plain, zero):
+        np.testing.assert_allclose(a, b, atol=1e-12)
+
+
+def test_outline_offset_moves_the_silhouette_as_a_grown_mask_does():
+    # an offset of +1 px on the true landmark's masks misfits like the truth on a mask shrunk by 1 px
+    from scipy import ndimage
+
+    T, s = landmark.superquadric_to_landmark(SQ)
+    cam = sqfit.Camera(K_INTR, T_CAM)
+    mask = polygon_mask(SQ, cam)
+    grown = landmark.camera_rays(sqfit.Observation.from_mask(cam, ndimage.binary_dilation(mask, iterations=2), rng=0), 32)
+    stacked = landmark.stack_rays([grown])
+    args = (T_CAM[None], T[None], s[None], stacked, None)
+    rms = [float(np.linalg.norm(landmark.batch_silhouette_residuals(*args, np.array([o]))[0])) for o in (0.0, 1.5)]
+    assert rms[1] < 0.5 * rms[0], rms
+
+
+@pytest.mark.parametrize("grow", [1, -1])
+def test_graph_estimates_the_outline_offset_of_biased_masks(grow):
+    from scipy import ndimage
+
+    seq = synthetic_sequence(1, n_frames=20, n_objects=3, arc_deg=180.0)
+    biased = {}
+    for (i, oid), obs in seq.observations.items():  # the same views, every mask grown or shrunk by a pixel
+        mask = polygon_mask(seq.objects[oid], sqfit.Camera(seq.intrinsics, seq.true_poses[i]))
+        mask = ndimage.binary_dilation(mask) if grow > 0 else ndimage.binary_erosion(mask)
+        biased[i, oid] = sqfit.Observation.from_mask(obs.camera, mask, rng=0)
+    on = graph.superquadric_graph(seq.intrinsics, seq.odometry_poses, biased,
+                                  graph.GraphOptions(outline_offset_sigma_px=0.5))
+    off = graph.superquadric_graph(seq.intrinsics, seq.odometry_poses, biased)
+    assert on.ok and off.ok and off.outline_offsets == {}
+    assert set(on.outline_offsets) == set(on.objects)
+    assert all(0.2 < grow * v < 1.5 for v in on.outline_offsets.values()), on.outline_offsets
+    iou_on = np.median(list(object_ious(on.objects, seq.objects).values()))
+    iou_off = np.median(list(object_ious(off.objects, seq.objects).values()))
+    assert iou_on > iou_off + 0.01, (iou_on, iou_off)
+    assert json.loads(json.dumps(on.to_dict()))["outline_offsets"].keys() == {str(k) for k in on.objects}

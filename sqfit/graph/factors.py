@@ -43,7 +43,7 @@ class SilhouetteFactors:
     """
 
     def __init__(self):
-        self._keys, self._rays, self._stacked = [], [], {}
+        self._keys, self._rays, self._units, self._stacked = [], [], [], {}
         # per factor: the variables of its last evaluation (bytes: exact, and cheap to compare), its
         # rows (None where non-finite) and its ray minimisers (the next warm start)
         self._at, self._out, self._d = [], [], []
@@ -53,10 +53,12 @@ class SilhouetteFactors:
     def __len__(self):
         return len(self._keys)
 
-    def factor(self, noise, camera_key, pose_key, shape_key, rays):
+    def factor(self, noise, camera_key, pose_key, shape_key, rays, offset_key=None, offset_unit_px=1.0):
         """A new silhouette factor of this graph (arguments: :func:`silhouette_factor`)."""
         i = len(self._keys)
-        self._keys.append((camera_key, pose_key, shape_key))
+        keys = (camera_key, pose_key, shape_key) + (() if offset_key is None else (offset_key,))
+        self._keys.append(keys)
+        self._units.append(float(offset_unit_px))
         self._rays.append(rays)
         self._at.append(None)
         self._out.append(None)
@@ -64,7 +66,8 @@ class SilhouetteFactors:
 
         def error(this, values, jacobians):
             at = (values.atPose3(camera_key).matrix().tobytes() + values.atPose3(pose_key).matrix().tobytes()
-                  + values.atVector(shape_key).tobytes())
+                  + values.atVector(shape_key).tobytes()
+                  + (b"" if offset_key is None else values.atVector(offset_key).tobytes()))
             with self._lock:
                 if at != self._at[i]:
                     self._evaluate(values)
@@ -74,10 +77,11 @@ class SilhouetteFactors:
                                          f"{gtsam.DefaultKeyFormatter(pose_key)}): non-finite residual at shape "
                                          f"{values.atVector(shape_key)}")
             if jacobians is not None:
-                jacobians[0], jacobians[1], jacobians[2] = out[1:]
+                for slot, J in enumerate(out[1:]):
+                    jacobians[slot] = J
             return out[0]
 
-        return gtsam.CustomFactor(noise, [camera_key, pose_key, shape_key], error)
+        return gtsam.CustomFactor(noise, list(keys), error)
 
     def _evaluate(self, values):
         """Evaluate every factor whose variables are in ``values`` and differ from its last evaluation."""
@@ -93,21 +97,27 @@ class SilhouetteFactors:
             at[i] = b"".join(read[key].tobytes() for key in keys)
             if at[i] != self._at[i]:
                 stale.append(i)
-        by_length = {}
+        groups = {}  # evaluated together: the same number of rays, with or without an outline offset
         for i in stale:
-            by_length.setdefault(len(self._rays[i]), []).append(i)
-        for idx in by_length.values():
+            groups.setdefault((len(self._rays[i]), len(self._keys[i])), []).append(i)
+        for (_, n_keys), idx in groups.items():
             Tc, Tl, shape = (np.stack([read[self._keys[i][slot]] for i in idx]) for slot in range(3))
             d0 = np.stack([np.full(len(self._rays[i]), np.nan) if self._d[i] is None else self._d[i] for i in idx])
+            unit = np.array([self._units[i] for i in idx])
+            offset = None if n_keys == 3 else np.array([read[self._keys[i][3]][0] for i in idx]) * unit
             with np.errstate(all="ignore"):
-                out = batch_silhouette_residuals(Tc, Tl, shape, self._stack(idx), d0)
-            finite = np.logical_and.reduce([np.isfinite(a).reshape(len(idx), -1).all(axis=1) for a in out[:4]])
-            r, Jc, Jl, Js, d = out
+                out = batch_silhouette_residuals(Tc, Tl, shape, self._stack(idx), d0, offset)
+            finite = np.logical_and.reduce([np.isfinite(a).reshape(len(idx), -1).all(axis=1)
+                                            for j, a in enumerate(out) if j != 4])
+            r, Jc, Jl, Js, d = out[:5]
+            # the offset variable is in units of `unit` px
+            Jo = () if offset is None else (out[5] * unit[:, None],)
             for j, i in enumerate(idx):
                 # copies, not views: a view would keep this evaluation's arrays alive for as long as
                 # any one of its factors is not re-evaluated (iSAM2 leaves old frames' factors alone)
                 self._at[i], self._d[i] = at[i], d[j].copy()
-                self._out[i] = (r[j].copy(), Jc[j].copy(), Jl[j].copy(), Js[j].copy()) if finite[j] else None
+                self._out[i] = ((r[j].copy(), Jc[j].copy(), Jl[j].copy(), Js[j].copy())
+                                + tuple(a[j][:, None].copy() for a in Jo)) if finite[j] else None
             self.factor_evaluations += len(idx)
         self.evaluations += 1
 
@@ -129,7 +139,8 @@ def _read(values, key, pose):
     return values.atPose3(key).matrix() if pose else values.atVector(key)
 
 
-def silhouette_factor(noise, camera_key, pose_key, shape_key, rays, batch=None):
+def silhouette_factor(noise, camera_key, pose_key, shape_key, rays, batch=None, offset_key=None,
+                      offset_unit_px=1.0):
     """Silhouette factor of one view of one superquadric landmark.
 
     Parameters
@@ -142,8 +153,18 @@ def silhouette_factor(noise, camera_key, pose_key, shape_key, rays, batch=None):
         Camera-frame rays (:func:`sqfit.graph.landmark.camera_rays`).
     batch : SilhouetteFactors, optional
         The evaluator of the graph's silhouette factors; default: one of its own.
+    offset_key : int, optional
+        Key of the landmark's outline offset (a vector (1,), in units of ``offset_unit_px`` pixels):
+        the mask's outline is taken as moved by that offset along its normal
+        (:func:`sqfit.graph.landmark.batch_silhouette_residuals`); default: no offset.
+    offset_unit_px : float
+        Pixels per unit of the offset variable, > 0 (an optimiser's damping sees a pixel's column
+        ~40 times smaller than a metre's: :data:`sqfit.fitting.grazing.OFFSET_UNIT_PX`).
     """
-    return (SilhouetteFactors() if batch is None else batch).factor(noise, camera_key, pose_key, shape_key, rays)
+    if not (np.isfinite(offset_unit_px) and offset_unit_px > 0):
+        raise ValueError(f"offset_unit_px must be a finite number > 0, got {offset_unit_px}")
+    return (SilhouetteFactors() if batch is None else batch).factor(noise, camera_key, pose_key, shape_key, rays,
+                                                                    offset_key, offset_unit_px)
 
 
 def bounds_factor(shape_key, weight):

@@ -68,15 +68,16 @@ def camera_rays(observation, n_contour):
     Returns
     -------
     rays : RaySet
-        ``origins`` all zero, ``directions`` the pixel bearings ``(n, 3)`` with unit depth (camera
-        frame); modes, weights and any other per-ray arrays as :func:`sqfit.views.rays.contour_rays`
-        gives them.
+        ``origins`` all zero, ``directions`` the pixel bearings ``(n, 3)`` with unit depth and
+        ``offsets`` their change per pixel of outline offset (camera frame); modes, weights, radii
+        and any other per-ray arrays as :func:`sqfit.views.rays.contour_rays` gives them.
     """
     if not isinstance(observation, Observation):
         raise TypeError(f"observation must be a sqfit.Observation, got {type(observation).__name__}")
     rays = contour_rays([observation], n_contour)
-    directions = rays.directions @ observation.camera.rotation  # R^T d per row
-    return replace(rays, origins=np.zeros_like(directions), directions=directions)
+    rotation = observation.camera.rotation
+    directions = rays.directions @ rotation  # R^T d per row
+    return replace(rays, origins=np.zeros_like(directions), directions=directions, offsets=rays.offsets @ rotation)
 
 
 def relative_pose(T_world_camera, T_world_sq):
@@ -151,6 +152,11 @@ class StackedRays:
     hinge_out : (k, n) bool
         ``OUTSIDE`` rays (count only when negative).
     two_sided : (k, n) bool
+    offsets : (k, n, 3) float
+        Change of each bearing per pixel of outline offset (camera frame; ``RaySet.offsets``).
+    radii : (k, n) float
+        Distance of each outline point from its mask's centroid along the normal, px
+        (``RaySet.radii``).
     """
 
     directions: np.ndarray
@@ -158,6 +164,8 @@ class StackedRays:
     hinge_in: np.ndarray
     hinge_out: np.ndarray
     two_sided: np.ndarray
+    offsets: np.ndarray
+    radii: np.ndarray
 
     def __len__(self):
         return len(self.directions)
@@ -179,10 +187,11 @@ def stack_rays(ray_sets):
         hinge_in.append(inside)
         hinge_out.append(outside)
     return StackedRays(np.stack([r.directions for r in ray_sets]), np.stack([r.weights for r in ray_sets]),
-                       np.stack(hinge_in), np.stack(hinge_out), np.stack([r.two_sided for r in ray_sets]))
+                       np.stack(hinge_in), np.stack(hinge_out), np.stack([r.two_sided for r in ray_sets]),
+                       np.stack([r.offsets for r in ray_sets]), np.stack([r.radii for r in ray_sets]))
 
 
-def batch_silhouette_residuals(T_world_camera, T_world_sq, shape, rays, d0=None):
+def batch_silhouette_residuals(T_world_camera, T_world_sq, shape, rays, d0=None, offset=None):
     """:func:`silhouette_residuals` of ``k`` factors at once (one vectorised ray solve).
 
     The same residuals and Jacobians (``tests/test_graph.py`` compares them), computed on all the
@@ -199,6 +208,12 @@ def batch_silhouette_residuals(T_world_camera, T_world_sq, shape, rays, d0=None)
         ``k`` factors of ``n`` rays (:func:`stack_rays`).
     d0 : (k, n) float, optional
         Warm start of the ray minimisers; NaN rows (or entries): no warm start there.
+    offset : (k,) float, optional
+        Each factor's outline offset δ, px (> 0: the mask is too big): every outline ray goes
+        through its outline point moved by ``-δ`` along the normal (bearing ``b + δ offsets``), and
+        for ``δ < 0`` its residual is weighted ``exp(-δ / radius)``: the 3G/3H residual with the
+        offset as estimated there (:func:`sqfit.fitting.raycost.posed_ray_residuals`; README "Real
+        masks"), so a superquadric grown by as much cannot buy a lower relative cost.
 
     Returns
     -------
@@ -206,12 +221,17 @@ def batch_silhouette_residuals(T_world_camera, T_world_sq, shape, rays, d0=None)
     J_camera, J_landmark : (k, n, 6) float
     J_shape : (k, n, 5) float
     d : (k, n) float
+    J_offset : (k, n) float
+        ``d r / d δ`` (per px); only when ``offset`` is given.
     """
     R_c, t_c = T_world_camera[:, :3, :3], T_world_camera[:, :3, 3]
     R_l, t_l = T_world_sq[:, :3, :3], T_world_sq[:, :3, 3]
     R_sc = np.einsum("kji,kjl->kil", R_l, R_c)  # R_l^T R_c
     t_sc = np.einsum("kji,kj->ki", R_l, t_c - t_l)
     b = rays.directions
+    if offset is not None:
+        offset = np.asarray(offset, dtype=np.float64)
+        b = b + offset[:, None, None] * rays.offsets
     k, n = b.shape[:2]
     ul = np.einsum("kij,knj->kni", R_sc, b)  # landmark-frame directions
     origins = np.broadcast_to(t_sc[:, None, :], (k, n, 3))
@@ -245,7 +265,16 @@ def batch_silhouette_residuals(T_world_camera, T_world_sq, shape, rays, d0=None)
     g_c = np.einsum("kni,kij->knj", g, R_sc)
     J_camera = np.concatenate([d[..., None] * _cross(b, g_c), g_c], axis=-1)
     J_shape = J[..., :N_SHAPE] * (clipped == shape)[:, None, :]
-    return r, J_camera, J_landmark, J_shape, d
+    if offset is None:
+        return r, J_camera, J_landmark, J_shape, d
+    # envelope theorem again: d r / d b = d* g_c, and b moves by `offsets` per px
+    J_offset = d * np.einsum("kni,kni->kn", g_c, rays.offsets)
+    inward = np.minimum(offset, 0.0)[:, None]
+    factor = np.exp(-inward / rays.radii)
+    r = r * factor
+    J_camera, J_landmark, J_shape = (a * factor[..., None] for a in (J_camera, J_landmark, J_shape))
+    J_offset = J_offset * factor - np.where(inward < 0, r / rays.radii, 0.0)
+    return r, J_camera, J_landmark, J_shape, d, J_offset
 
 
 def _moved(rays, origins, directions):

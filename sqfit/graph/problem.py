@@ -106,6 +106,11 @@ class GraphOptions(Options):
     isam2_dogleg : bool
         iSAM2 steps by Powell's dogleg (trust region; evaluates the whole graph's error at every
         update) instead of Gauss-Newton.
+    outline_offset_sigma_px : float
+        > 0: each landmark gets an outline offset δ (px, one per object, as stage 3G's: the masks
+        grown or shrunk along their normal by δ, README "Real masks") estimated with it, with a
+        Gaussian prior of this standard deviation at 0; 0 (the default): none. For segmenters that
+        over- or under-segment; on exact masks it only adds a variable per landmark.
     max_iterations : int
         Levenberg-Marquardt iterations of the batch solves.
     relative_tolerance : float
@@ -134,6 +139,7 @@ class GraphOptions(Options):
     refit_max_frames: int = 12
     isam2_relinearize_threshold: float = 0.01
     isam2_dogleg: bool = False
+    outline_offset_sigma_px: float = 0.0
     max_iterations: int = 50
     relative_tolerance: float = 1e-3
 
@@ -146,7 +152,7 @@ class GraphOptions(Options):
                                "prior_sigma_deg", "prior_sigma_m", "landmark_prior_sigma_deg", "init_parallax_deg",
                                "isam2_relinearize_threshold", "window_relative_tolerance", "landmark_prior_sigma_m",
                                "shape_prior_sigma", "box_sigma_px", "relative_tolerance"),
-                     nonnegative=("bounds_weight", "refit_misfit"))
+                     nonnegative=("bounds_weight", "refit_misfit", "outline_offset_sigma_px"))
 
 
 @dataclass
@@ -176,6 +182,9 @@ class SlamResult:
         ``"ok"``, or ``"failed"`` when the optimiser stopped on an error (``message`` says which);
         ``poses`` are then the odometry and ``objects`` empty.
     message : str
+    outline_offsets : dict of int -> float
+        Graph methods with ``GraphOptions.outline_offset_sigma_px > 0``: each object's estimated
+        outline offset, px (> 0: its masks are too big).
     """
 
     method: str
@@ -192,6 +201,7 @@ class SlamResult:
     error_final: float | None = None
     status: str = "ok"
     message: str = ""
+    outline_offsets: dict = field(default_factory=dict)
 
     @property
     def ok(self):
@@ -210,6 +220,7 @@ class SlamResult:
         d["poses"] = self.poses.tolist()
         d["objects"] = {str(k): sq.to_vector().tolist() for k, sq in self.objects.items()}
         d["skipped"] = {str(k): v for k, v in self.skipped.items()}
+        d["outline_offsets"] = {str(k): v for k, v in self.outline_offsets.items()}
         for key in ("frame_seconds", "frame_cpu_seconds"):
             d[key] = None if d[key] is None else np.asarray(d[key]).tolist()
         return d

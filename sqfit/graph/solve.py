@@ -30,10 +30,11 @@ from dataclasses import replace
 
 import gtsam
 import numpy as np
-from gtsam.symbol_shorthand import L, Q, S, X
+from gtsam.symbol_shorthand import L, O, Q, S, X
 
 from .. import constants as C
 from ..fitting import pipeline
+from ..fitting.grazing import OFFSET_UNIT_PX
 from ..fitting.stages import r_iou_m
 from .factors import SilhouetteFactors, bounds_factor, box_factor, silhouette_factor
 from .fixedlag import condition_on_past
@@ -113,6 +114,10 @@ def _add_landmark(graph, values, problem, oid, frames, landmark, options, batch,
     rot, pos, size = np.radians(options.landmark_prior_sigma_deg), options.landmark_prior_sigma_m, options.shape_prior_sigma
     graph.add(gtsam.PriorFactorPose3(L(oid), gtsam.Pose3(T), gtsam.noiseModel.Diagonal.Sigmas(np.array([rot] * 3 + [pos] * 3))))
     graph.add(gtsam.PriorFactorVector(S(oid), shape, gtsam.noiseModel.Isotropic.Sigma(len(shape), size)))
+    if options.outline_offset_sigma_px > 0:  # the masks' outline offset, px / OFFSET_UNIT_PX, prior at 0
+        values.insert(O(oid), np.zeros(1))
+        graph.add(gtsam.PriorFactorVector(O(oid), np.zeros(1), gtsam.noiseModel.Isotropic.Sigma(
+            1, options.outline_offset_sigma_px / OFFSET_UNIT_PX)))
     for f in frames:
         graph.add(_silhouette(problem, f, oid, options, batch, rays_cache))
 
@@ -128,8 +133,21 @@ def _silhouette(problem, frame, oid, options, batch, rays_cache=None):
             rays_cache[frame, oid] = rays
     # the ray residuals carry contour_rays' weights 1 / sqrt(n): sigma per weighted row
     sigma = options.silhouette_sigma / np.sqrt(len(rays))
+    offset = O(oid) if options.outline_offset_sigma_px > 0 else None
     return silhouette_factor(_robust(len(rays), sigma, options.huber_k), X(frame), L(oid),
-                             S(oid), rays, batch)
+                             S(oid), rays, batch, offset, OFFSET_UNIT_PX)
+
+
+def _landmark_keys(oid, options):
+    """The keys of landmark ``oid``'s variables: pose, size/shape and, if estimated, outline offset."""
+    return (L(oid), S(oid)) + ((O(oid),) if options.outline_offset_sigma_px > 0 else ())
+
+
+def _offsets(values, oids, options):
+    """Each landmark's estimated outline offset, px (empty when not estimated)."""
+    if options.outline_offset_sigma_px <= 0:
+        return {}
+    return {oid: float(values.atVector(O(oid))[0]) * OFFSET_UNIT_PX for oid in oids}
 
 
 def _lm(graph, values, options):
@@ -293,6 +311,7 @@ def _batch(problem, options):
         growth.finish()
         result.error_final = graph.error(values)
         result.poses, result.objects = _poses(values, n), _objects(values, growth.added)
+        result.outline_offsets = _offsets(values, growth.added, options)
     result.seconds, result.cpu_seconds = clock.elapsed()
     return result
 
@@ -310,7 +329,7 @@ def _window_solve(graph, values, growth, end, options):
         return iterations
     active = {X(f) for f in range(first, end)}
     active |= {key for f in range(first, end) for oid in growth.by_frame.get(f, []) if oid in growth.added
-               for key in (L(oid), S(oid))}
+               for key in _landmark_keys(oid, options)}
     sub_graph, sub_values = condition_on_past(graph, values, active)
     out, iterations = _lm(sub_graph, sub_values, coarse)
     values.update(out)
@@ -409,6 +428,7 @@ def _isam2(problem, options):
     result.iterations = n
     result.error_final = isam.getFactorsUnsafe().error(estimate)
     result.poses, result.objects = _poses(estimate, n), _objects(estimate, sorted(growth.added))
+    result.outline_offsets = _offsets(estimate, sorted(growth.added), options)
     result.seconds, result.cpu_seconds = clock.elapsed()
     return result
 

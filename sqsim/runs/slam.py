@@ -283,8 +283,9 @@ def evaluate_sequence(seq, methods, options=None, min_area_px=1, rng=None):
         ``name, frames, timestamps, true_poses, odometry_poses`` (lists), ``observations``,
         ``true_objects`` ``{id: {"kind", "params", "footprint"}}``, ``warnings`` and per method
         ``methods[m]``: ``status, message, poses, objects {id: params}, skipped, warnings, seconds,
-        cpu_seconds, frame_ms_median, frame_cpu_ms_median, iterations, ate_m, ate_se3_m, rpe_m,
-        rpe_deg, iou {id: value}, iou_median, missing``.
+        cpu_seconds, frame_ms_median, frame_cpu_ms_median, iterations, outline_offsets {id: px} (graph
+        methods estimating them), ate_m, ate_se3_m, rpe_m, rpe_deg, iou {id: value}, iou_median,
+        missing``.
 
     Raises
     ------
@@ -349,7 +350,8 @@ def _score(method, res, seq, truth):
            "objects": {str(k): sq.to_vector().tolist() for k, sq in res.objects.items()},
            "skipped": {str(k): v for k, v in res.skipped.items()}, "warnings": list(res.warnings),
            "seconds": float(res.seconds), "cpu_seconds": float(res.cpu_seconds), "iterations": int(res.iterations),
-           "frame_ms_median": None, "frame_cpu_ms_median": None, "frame_cpu_ms_max": None}
+           "frame_ms_median": None, "frame_cpu_ms_median": None, "frame_cpu_ms_max": None,
+           "outline_offsets": {str(k): float(v) for k, v in res.outline_offsets.items()}}
     if res.frame_seconds is not None:
         row.update(frame_ms_median=1e3 * float(np.median(res.frame_seconds)),
                    frame_cpu_ms_median=1e3 * float(np.median(res.frame_cpu_seconds)),
