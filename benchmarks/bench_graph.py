@@ -44,44 +44,15 @@ os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 import numpy as np  # noqa: E402
 
 from sqfit import graph  # noqa: E402
-from sqfit.graph.testing import object_ious, position_rmse, synthetic_sequence  # noqa: E402
-
-
-def _scale_about_first(poses, true_poses):
-    """The factor ``s`` that best maps ``poses``' camera centres onto ``true_poses``' about their
-    (shared) first centre, least squares."""
-    p, q = poses[:, :3, 3] - poses[0, :3, 3], true_poses[:, :3, 3] - true_poses[0, :3, 3]
-    return float(np.sum(p * q) / max(np.sum(p * p), 1e-300))
-
-
-def _scaled(poses, s):
-    out = poses.copy()
-    out[:, :3, 3] = poses[0, :3, 3] + s * (poses[:, :3, 3] - poses[0, :3, 3])
-    return out
-
-
-def scale_free_ate(poses, true_poses):
-    """ATE after the best scale about the first camera (the error of the trajectory's shape: the
-    silhouettes are scale-free, the scale comes from the odometry alone)."""
-    return position_rmse(_scaled(poses, _scale_about_first(poses, true_poses)), true_poses)
-
-
-def odometry_scale_ate(odometry_poses, true_poses):
-    """ATE of the true trajectory scaled by the odometry's own scale error: the least-squares factor
-    of the measured steps' translations along the true ones (each in its first frame). A method that
-    gets everything but the scale right, and takes the scale from the odometry (nothing else in the
-    graph measures it), has this ATE."""
-    steps = [(np.linalg.inv(a) @ b)[:3, 3] for a, b in zip(true_poses[:-1], true_poses[1:])]
-    measured = [(np.linalg.inv(a) @ b)[:3, 3] for a, b in zip(odometry_poses[:-1], odometry_poses[1:])]
-    st, so = np.array(steps), np.array(measured)
-    return position_rmse(_scaled(true_poses, float(np.sum(st * so) / np.sum(st * st))), true_poses)
+from sqfit.graph.testing import (object_ious, odometry_scale_rmse, position_rmse, scale_free_rmse,  # noqa: E402
+                                 synthetic_sequence)
 
 
 def _row(method, result, seq):
     ious = list(object_ious(result.objects, seq.objects).values()) if method != "odometry" else []
     row = {"method": method, "ate_m": position_rmse(result.poses, seq.true_poses),
-           "ate_scale_free_m": scale_free_ate(result.poses, seq.true_poses),
-           "ate_odometry_scale_m": odometry_scale_ate(seq.odometry_poses, seq.true_poses),
+           "ate_scale_free_m": scale_free_rmse(result.poses, seq.true_poses),
+           "ate_odometry_scale_m": odometry_scale_rmse(seq.odometry_poses, seq.true_poses),
            "ate_odometry_m": position_rmse(seq.odometry_poses, seq.true_poses), "ious": ious,
            "iou_median": float(np.median(ious)) if ious else float("nan"),
            "objects_failed": int(sum(v < 0.05 for v in ious)),
@@ -119,7 +90,7 @@ def _spread(rows, key):
     """Largest and median (max - min) of ``key`` over each sequence's runs."""
     by_seq = {}
     for r in rows:
-        by_seq.setdefault((r["seed"], r["sequence"]), []).append(r[key])
+        by_seq.setdefault((r["scene"], r["seed"], r["sequence"]), []).append(r[key])
     spreads = [max(v) - min(v) for v in by_seq.values()]
     return max(spreads), float(np.median(spreads))
 
@@ -157,8 +128,8 @@ def main(argv=None):
     parser.add_argument("--objects", type=int, default=6)
     parser.add_argument("--methods", default=",".join(graph.METHODS))
     parser.add_argument("--options", default=None, help="GraphOptions fields as JSON, e.g. '{\"refit_misfit\": 0}'")
-    parser.add_argument("--scene", default=None, help="a sequence scene (e.g. scenes/sequence.toml) instead of the "
-                        "synthetic sequences")
+    parser.add_argument("--scene", action="append", default=None, help="a sequence scene (e.g. scenes/sequence.toml) "
+                        "instead of the synthetic sequences; repeat for several (their sequences are pooled)")
     parser.add_argument("--repeat", type=int, default=1, help="runs per method and sequence; the least CPU time is "
                         "kept")
     parser.add_argument("--scene-frames", type=int, default=None, help="with --scene: the trajectory's frame "
@@ -175,21 +146,23 @@ def main(argv=None):
     base = json.loads(args.options) if args.options else {}
     sigma = graph.GraphOptions.coerce(base).silhouette_sigma
     rows = []
-    for seed in range(args.seed, args.seed + args.seeds):
-        for index in range(args.sequences if args.scene else 1):
-            seq = (_scene_sequence(args.scene, seed, index, args.scene_frames) if args.scene
-                   else synthetic_sequence(seed, args.frames, args.objects))
-            for k in range(args.perturb):
-                options = {**base, "silhouette_sigma": sigma * (1.0 + k * 1e-9)} if k else (base or None)
-                for m in methods:
-                    runs = [_row(m, graph.run(seq.intrinsics, seq.odometry_poses, seq.observations, [m], options)[m],
-                                 seq) for _ in range(args.repeat)]
-                    if len({(repr(r["ate_m"]), repr(r["iou_median"])) for r in runs}) > 1:
-                        raise RuntimeError(f"seed {seed}, {m}: repeated runs disagree: {runs}")
-                    rows.append({"seed": seed, "sequence": index, "perturbation": k, "views": len(seq.observations),
-                                 "repeat": args.repeat, **min(runs, key=lambda r: r["cpu_seconds"])})
+    for scene, seed, index in [(scene, seed, index) for scene in (args.scene or [None])
+                               for seed in range(args.seed, args.seed + args.seeds)
+                               for index in range(args.sequences if scene else 1)]:
+        seq = (_scene_sequence(scene, seed, index, args.scene_frames) if scene
+               else synthetic_sequence(seed, args.frames, args.objects))
+        for k in range(args.perturb):
+            options = {**base, "silhouette_sigma": sigma * (1.0 + k * 1e-9)} if k else (base or None)
+            for m in methods:
+                runs = [_row(m, graph.run(seq.intrinsics, seq.odometry_poses, seq.observations, [m], options)[m],
+                             seq) for _ in range(args.repeat)]
+                if len({(repr(r["ate_m"]), repr(r["iou_median"])) for r in runs}) > 1:
+                    raise RuntimeError(f"seed {seed}, {m}: repeated runs disagree: {runs}")
+                rows.append({"scene": scene, "seed": seed, "sequence": index, "perturbation": k,
+                             "views": len(seq.observations),
+                             "repeat": args.repeat, **min(runs, key=lambda r: r["cpu_seconds"])})
     at = '' if args.scene_frames is None else f' at {args.scene_frames} frames'
-    what = (f"{args.scene}{at} (sequences 0..{args.sequences - 1} of each seed)" if args.scene
+    what = (f"{' + '.join(args.scene)}{at} (sequences 0..{args.sequences - 1} of each seed)" if args.scene
             else f"{args.frames} frames, {args.objects} objects")
     if args.perturb > 1:
         what += f", {args.perturb} runs per sequence (silhouette_sigma x (1 + k 1e-9))"
@@ -215,14 +188,14 @@ def main(argv=None):
     graph_rows = [r for r in rows if r["method"] in ("graph", "graph-isam2")]
     if graph_rows:
         print("\nper run (targets: batch solve <= 5 s, iSAM2 update <= 100 ms per frame, median; CPU time)")
-        print(f"{'seed':>4s} {'seq':>3s} {'k':>2s} {'method':12s} {'ATE [m]':>8s} {'IoU med':>8s} {'CPU [s]':>8s} "
+        print(f"{'scene':>27s} {'seed':>4s} {'seq':>3s} {'k':>2s} {'method':12s} {'ATE [m]':>8s} {'IoU med':>8s} {'CPU [s]':>8s} "
               f"{'wall [s]':>8s} "
               f"{'update med CPU / wall [ms]':>27s} {'target':>7s}")
         for r in graph_rows:
             incremental = "frame_cpu_ms_median" in r
             met = r["frame_cpu_ms_median"] <= 100.0 if incremental else r["cpu_seconds"] <= 5.0
             update = f"{r['frame_cpu_ms_median']:.0f} / {r['frame_ms_median']:.0f}" if incremental else "-"
-            print(f"{r['seed']:>4d} {r['sequence']:>3d} {r['perturbation']:>2d} {r['method']:12s} {r['ate_m']:8.4f} "
+            print(f"{os.path.basename(r['scene'] or 'synthetic'):>27s} {r['seed']:>4d} {r['sequence']:>3d} {r['perturbation']:>2d} {r['method']:12s} {r['ate_m']:8.4f} "
                   f"{_fmt(r['iou_median'], '8.3f')} "
                   f"{r['cpu_seconds']:8.2f} {r['seconds']:8.2f} {update:>27s} {'met' if met else 'MISSED':>7s}")
     if args.json:

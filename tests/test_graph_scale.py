@@ -78,3 +78,36 @@ def test_scale_dependent_factors_leave_out_the_invariant_ones():
 def test_rescaled_needs_a_positive_factor():
     with pytest.raises(ValueError, match="scale factor must be > 0"):
         scale.rescaled(_values(CAMERAS), np.zeros(3), 0.0, *_keys(len(CAMERAS)))
+
+
+def test_scale_free_and_odometry_scale_errors():
+    from sqfit.graph.testing import odometry_scale_rmse, position_rmse, scale_free_rmse
+
+    true = np.stack(CAMERAS)
+    scaled = true.copy()
+    scaled[:, :3, 3] = true[0, :3, 3] + 1.02 * (true[:, :3, 3] - true[0, :3, 3])
+    assert position_rmse(scaled, true) > 0.01
+    assert scale_free_rmse(scaled, true) == pytest.approx(0.0, abs=1e-12)
+    # odometry whose steps are all 2 % long: the truth scaled by 2 % is what it allows
+    assert odometry_scale_rmse(scaled, true) == pytest.approx(position_rmse(scaled, true), rel=1e-9)
+    assert odometry_scale_rmse(true, true) == pytest.approx(0.0, abs=1e-12)
+
+
+def test_isam2_rebuilt_at_the_best_scale_still_solves_the_sequence():
+    from sqfit import graph
+    from sqfit.graph.testing import position_rmse, synthetic_sequence
+
+    seq = synthetic_sequence(0, n_frames=12, n_objects=2)
+    odometry_ate = position_rmse(seq.odometry_poses, seq.true_poses)
+    for every in (0, 4):
+        res = graph.superquadric_isam2(seq.intrinsics, seq.odometry_poses, seq.observations,
+                                       {"isam2_rescale_every": every})
+        assert res.ok and sorted(res.objects) == sorted(seq.objects)
+        assert position_rmse(res.poses, seq.true_poses) < 0.5 * odometry_ate
+
+
+def test_isam2_rescale_every_must_be_a_count():
+    from sqfit import graph
+
+    with pytest.raises(ValueError, match="isam2_rescale_every"):
+        graph.GraphOptions(isam2_rescale_every=-1)

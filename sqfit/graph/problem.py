@@ -114,6 +114,10 @@ class GraphOptions(Options):
         from the odometry alone and Levenberg-Marquardt descends that valley slowly).
     isam2_relinearize_threshold : float
         iSAM2 relinearises a variable when its update exceeds this (tangent-space norm).
+    isam2_rescale_every : int
+        Every this many frames, iSAM2 is rebuilt on the same factors at its estimate moved to the
+        best scale (:mod:`sqfit.graph.scale`): its partial relinearisation never moves the whole map
+        together, so the scale set by the first landmarks' first frames sticks (0: never).
     isam2_dogleg : bool
         iSAM2 steps by Powell's dogleg (trust region; evaluates the whole graph's error at every
         update) instead of Gauss-Newton.
@@ -144,6 +148,7 @@ class GraphOptions(Options):
     refit_misfit: float = 0.5
     refit_max_frames: int = 12
     isam2_relinearize_threshold: float = 0.01
+    isam2_rescale_every: int = 10
     isam2_dogleg: bool = False
     max_iterations: int = 50
     relative_tolerance: float = 1e-3
@@ -154,7 +159,8 @@ class GraphOptions(Options):
 
     def __post_init__(self):
         check_fields(self, integers={"n_contour": 3, "init_frames": MIN_FRAMES, "max_iterations": 1, "batch_window": 0,
-                                         "batch_free_frames": 0, "refit_max_frames": 0},
+                                         "batch_free_frames": 0, "refit_max_frames": 0,
+                                         "isam2_rescale_every": 0},
                      positive=("silhouette_sigma", "huber_k", "odometry_sigma_deg", "odometry_sigma_m",
                                "prior_sigma_deg", "prior_sigma_m", "landmark_prior_sigma_deg", "init_parallax_deg",
                                "isam2_relinearize_threshold", "window_relative_tolerance", "landmark_prior_sigma_m",

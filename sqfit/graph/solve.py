@@ -418,15 +418,18 @@ def _isam2(problem, options):
     params.relinearizeSkip = 1
     isam = gtsam.ISAM2(params)
     growth = _Growth(problem, options, result)
+    every = options.isam2_rescale_every
     for i in range(n):
         step = _Clock()
         try:
             isam.update(*growth.add([i]))
+            estimate = isam.calculateEstimate()
+            if every and (i + 1) % every == 0 and growth.added:
+                isam, estimate = _isam2_rescaled(isam, estimate, params, i + 1, growth.added)
         except _SOLVER_ERRORS as exc:
             result.fail(f"iSAM2 update at frame {i}", exc)
             result.seconds, result.cpu_seconds = clock.elapsed()
             return result
-        estimate = isam.calculateEstimate()
         growth.update(estimate, i + 1)
         result.frame_seconds[i], result.frame_cpu_seconds[i] = step.elapsed()
     growth.finish()
@@ -435,6 +438,21 @@ def _isam2(problem, options):
     result.poses, result.objects = _poses(estimate, n), _objects(estimate, sorted(growth.added))
     result.seconds, result.cpu_seconds = clock.elapsed()
     return result
+
+
+def _isam2_rescaled(isam, estimate, params, n, oids):
+    """iSAM2 moved to the best scale (:func:`_rescale`): iSAM2 relinearises only variables whose
+    update exceeds its threshold, one Gauss-Newton step per update, so the scale the first landmarks
+    took from the first frames' odometry is never corrected by the later odometry (the whole map
+    must move together). A new iSAM2 on the same factors, linearised at the rescaled estimate; the
+    old one is kept when the scale is already right."""
+    graph = isam.getFactorsUnsafe()
+    moved = _rescale(graph, estimate, n, oids)
+    if abs(moved.atPose3(X(n - 1)).translation() - estimate.atPose3(X(n - 1)).translation()).max() < 1e-6:
+        return isam, estimate
+    fresh = gtsam.ISAM2(params)
+    fresh.update(graph, moved)
+    return fresh, fresh.calculateEstimate()
 
 
 def quadric_graph(intrinsics, odometry_poses, observations, options=None):
