@@ -89,7 +89,14 @@ class GraphOptions(Options):
     window_relative_tolerance : float
         Relative error decrease at which the solves of the windows before the last stop: they only
         bring the new frames near (measured, 3 seeds of the benchmark: 0.03 instead of 1e-3 cut the
-        batch time by a third at the same accuracy); the last solve runs to ``relative_tolerance``.
+        batch time by a third at the same accuracy). So does the first solve of the whole graph
+        (the last window), before the re-fit.
+    final_relative_tolerance : float
+        Relative error decrease at which the batch's last solve (after the re-fit) stops. The
+        trajectory's scale and the map's place are fixed only by the odometry and the prior on
+        frame 0 (silhouettes are scale-free), so the optimum sits at the end of a long, nearly
+        flat valley that Levenberg-Marquardt descends in steps of far less than 0.1 % of the error:
+        1e-3 stops part way, at a point that depends on rounding.
     refit_misfit : float
         After the batch solve, a landmark whose RMS whitened ray residual is above this (a poor
         local minimum: its silhouettes disagree) is re-initialised by :func:`sqfit.fit` on all its
@@ -101,8 +108,16 @@ class GraphOptions(Options):
         The overlap test and the re-initialising fit of the re-fit use at most this many of the
         landmark's frames, evenly spread over them (their cost then does not grow with the
         sequence); 0: all its frames.
+    rescale : bool
+        Before the batch's last solve, move the solution along the scale direction to the best
+        scale (:mod:`sqfit.graph.scale`: the silhouettes are scale-free, so the error along it comes
+        from the odometry alone and Levenberg-Marquardt descends that valley slowly).
     isam2_relinearize_threshold : float
         iSAM2 relinearises a variable when its update exceeds this (tangent-space norm).
+    isam2_rescale_every : int
+        Every this many frames, iSAM2 is rebuilt on the same factors at its estimate moved to the
+        best scale (:mod:`sqfit.graph.scale`): its partial relinearisation never moves the whole map
+        together, so the scale set by the first landmarks' first frames sticks (0: never).
     isam2_dogleg : bool
         iSAM2 steps by Powell's dogleg (trust region; evaluates the whole graph's error at every
         update) instead of Gauss-Newton.
@@ -114,7 +129,7 @@ class GraphOptions(Options):
     max_iterations : int
         Levenberg-Marquardt iterations of the batch solves.
     relative_tolerance : float
-        Levenberg-Marquardt relative error decrease to stop at.
+        Levenberg-Marquardt relative error decrease to stop at (the quadric baseline).
     """
 
     n_contour: int = 32
@@ -138,20 +153,25 @@ class GraphOptions(Options):
     refit_misfit: float = 0.5
     refit_max_frames: int = 12
     isam2_relinearize_threshold: float = 0.01
+    isam2_rescale_every: int = 10
     isam2_dogleg: bool = False
     outline_offset_sigma_px: float = 0.0
     max_iterations: int = 50
     relative_tolerance: float = 1e-3
+    final_relative_tolerance: float = 1e-5
+    rescale: bool = True
 
     WHAT = "graph"
 
     def __post_init__(self):
         check_fields(self, integers={"n_contour": 3, "init_frames": MIN_FRAMES, "max_iterations": 1, "batch_window": 0,
-                                         "batch_free_frames": 0, "refit_max_frames": 0},
+                                         "batch_free_frames": 0, "refit_max_frames": 0,
+                                         "isam2_rescale_every": 0},
                      positive=("silhouette_sigma", "huber_k", "odometry_sigma_deg", "odometry_sigma_m",
                                "prior_sigma_deg", "prior_sigma_m", "landmark_prior_sigma_deg", "init_parallax_deg",
                                "isam2_relinearize_threshold", "window_relative_tolerance", "landmark_prior_sigma_m",
-                               "shape_prior_sigma", "box_sigma_px", "relative_tolerance"),
+                               "shape_prior_sigma", "box_sigma_px", "relative_tolerance",
+                               "final_relative_tolerance"),
                      nonnegative=("bounds_weight", "refit_misfit", "outline_offset_sigma_px"))
 
 

@@ -14,7 +14,9 @@ Methods (every one returns a :class:`sqfit.graph.problem.SlamResult`):
 - ``fixed``: per-object :func:`sqfit.fit` on all frames that see the object, at the odometry
   poses (no joint optimisation);
 - ``graph``: the graph above, batch Levenberg-Marquardt over growing windows of ``batch_window``
-  frames, each solve from the previous solution and the new frames chained by the odometry;
+  frames, each solve from the previous solution and the new frames chained by the odometry; then
+  the re-fit of landmarks in poor minima, the move to the best scale (:mod:`sqfit.graph.scale`) and
+  a last solve to ``final_relative_tolerance``;
 - ``graph-isam2``: the same graph grown frame by frame with iSAM2 (one update per frame; a landmark
   joins once its first frames are enough for its initial fit (``init_frames``, ``init_parallax_deg``),
   or at the last frame if they never are);
@@ -41,6 +43,7 @@ from .fixedlag import condition_on_past
 from .landmark import camera_rays, landmark_to_superquadric, superquadric_to_landmark
 from .problem import GraphOptions, SlamResult, check_inputs, observation_at, ready_to_initialise
 from .quadric import initialise_quadric, observation_box, quadric_to_superquadric
+from .scale import best_scale, rescaled, scale_dependent_factors
 
 __all__ = ["METHODS", "run", "odometry", "fixed_pose_fits", "superquadric_graph", "superquadric_isam2",
            "quadric_graph"]
@@ -280,8 +283,10 @@ class _Growth:
 
 def _batch(problem, options):
     """Levenberg-Marquardt over growing windows of ``batch_window`` frames, each solve started from
-    the previous one's solution; the windows before the last solve with the past held fixed
-    (``batch_free_frames``, :func:`_window_solve`), the last one the whole graph (GraphOptions)."""
+    the previous one's solution, to ``window_relative_tolerance``; the windows before the last solve
+    with the past held fixed (``batch_free_frames``, :func:`_window_solve`), the last one the whole
+    graph. Then the re-fit of landmarks in poor minima (:func:`_refit`) and one solve of the whole
+    graph to ``final_relative_tolerance`` (GraphOptions)."""
     clock, n = _Clock(), problem.n_frames
     result = SlamResult("graph", problem.odometry_poses.copy(), skipped=dict(problem.skipped),
                         warnings=list(problem.warnings))
@@ -296,14 +301,22 @@ def _batch(problem, options):
                 graph.add(new_graph.at(k))
             values.insert(new_values)
             if end >= n:
-                result.error_initial = graph.error(values)
-                values, iterations = _lm(graph, values, options)
+                values, iterations = _lm(graph, values, replace(options, relative_tolerance=options.window_relative_tolerance))
             else:
                 iterations = _window_solve(graph, values, growth, end, options)
             result.iterations += iterations
             growth.update(values, end)
-        if _refit(problem, values, growth.added, options, result, growth.rays):
-            values, iterations = _lm(graph, values, options)
+        _refit(problem, values, growth.added, options, result, growth.rays)
+        final = replace(options, relative_tolerance=options.final_relative_tolerance)
+        for check in (False, True):
+            # the last solve moves far along the scale valley: a landmark it drops into 3G's far,
+            # huge minimum is re-fitted (overlap test only) and the graph solved once more
+            if check and not _refit(problem, values, growth.added, options, result, growth.rays, overlap_only=True):
+                break
+            if options.rescale:
+                values = _rescale(graph, values, n, growth.added)
+            result.error_initial = graph.error(values)
+            values, iterations = _lm(graph, values, final)
             result.iterations += iterations
     except _SOLVER_ERRORS as exc:
         result.fail("Levenberg-Marquardt", exc)
@@ -314,6 +327,17 @@ def _batch(problem, options):
         result.outline_offsets = _offsets(values, growth.added, options)
     result.seconds, result.cpu_seconds = clock.elapsed()
     return result
+
+
+def _rescale(graph, values, n, oids):
+    """``values`` moved along the scale direction to the best scale about frame 0's camera
+    (:mod:`sqfit.graph.scale`; the silhouette factors, the graph's only ones on three or four
+    variables (camera, landmark pose and shape, and the outline offset if estimated), do not change
+    with it)."""
+    centre = values.atPose3(X(0)).translation()
+    keys = ([X(i) for i in range(n)], [L(oid) for oid in oids], [S(oid) for oid in oids])
+    changing = scale_dependent_factors(graph, lambda factor: len(factor.keys()) >= 3)
+    return rescaled(values, centre, best_scale(changing, values, centre, *keys), *keys)
 
 
 def _window_solve(graph, values, growth, end, options):
@@ -365,23 +389,25 @@ def _object_overlap(problem, values, oid, poses, frames=None):
     return float(r_iou_m([sq], obs)[0])
 
 
-def _refit(problem, values, oids, options, result, rays_cache=None):
+def _refit(problem, values, oids, options, result, rays_cache=None, overlap_only=False):
     """Re-initialise the landmarks left in a poor minimum by :func:`sqfit.fit` on all their frames at
     the solved poses: those whose silhouettes disagree (misfit above ``refit_misfit``; a refit is
     kept if its misfit is lower) and those whose silhouettes barely overlap their masks (R-IOU-M
     below ``sqfit.constants.POOR_FIT_R_IOU_M``, 3G's "far, huge" minimum, whose misfit is low; a
     refit is kept if it overlaps more). The overlap and the fit use at most ``refit_max_frames`` of
-    the landmark's frames (:func:`_spread`). Returns whether a landmark changed. ``rays_cache``:
-    :func:`_silhouette`."""
+    the landmark's frames (:func:`_spread`). ``overlap_only``: only the second kind. Returns whether
+    a landmark changed. ``rays_cache``: :func:`_silhouette`."""
     if options.refit_misfit <= 0:
         return False
     poses = _poses(values, problem.n_frames)
     changed = False
     for oid in oids:
         frames = _spread(problem.frames[oid], options.refit_max_frames)
-        before = _object_misfit(problem, values, oid, options, rays_cache)
         overlap = _object_overlap(problem, values, oid, poses, frames)
         disjoint = overlap < C.POOR_FIT_R_IOU_M
+        if overlap_only and not disjoint:
+            continue
+        before = _object_misfit(problem, values, oid, options, rays_cache)
         if before <= options.refit_misfit and not disjoint:
             continue
         landmark, _ = _initial_fit(problem, oid, frames, poses, options)
@@ -413,15 +439,18 @@ def _isam2(problem, options):
     params.relinearizeSkip = 1
     isam = gtsam.ISAM2(params)
     growth = _Growth(problem, options, result)
+    every = options.isam2_rescale_every
     for i in range(n):
         step = _Clock()
         try:
             isam.update(*growth.add([i]))
+            estimate = isam.calculateEstimate()
+            if every and (i + 1) % every == 0 and growth.added:
+                isam, estimate = _isam2_rescaled(isam, estimate, params, i + 1, growth.added)
         except _SOLVER_ERRORS as exc:
             result.fail(f"iSAM2 update at frame {i}", exc)
             result.seconds, result.cpu_seconds = clock.elapsed()
             return result
-        estimate = isam.calculateEstimate()
         growth.update(estimate, i + 1)
         result.frame_seconds[i], result.frame_cpu_seconds[i] = step.elapsed()
     growth.finish()
@@ -431,6 +460,21 @@ def _isam2(problem, options):
     result.outline_offsets = _offsets(estimate, sorted(growth.added), options)
     result.seconds, result.cpu_seconds = clock.elapsed()
     return result
+
+
+def _isam2_rescaled(isam, estimate, params, n, oids):
+    """iSAM2 moved to the best scale (:func:`_rescale`): iSAM2 relinearises only variables whose
+    update exceeds its threshold, one Gauss-Newton step per update, so the scale the first landmarks
+    took from the first frames' odometry is never corrected by the later odometry (the whole map
+    must move together). A new iSAM2 on the same factors, linearised at the rescaled estimate; the
+    old one is kept when the scale is already right."""
+    graph = isam.getFactorsUnsafe()
+    moved = _rescale(graph, estimate, n, oids)
+    if abs(moved.atPose3(X(n - 1)).translation() - estimate.atPose3(X(n - 1)).translation()).max() < 1e-6:
+        return isam, estimate
+    fresh = gtsam.ISAM2(params)
+    fresh.update(graph, moved)
+    return fresh, fresh.calculateEstimate()
 
 
 def quadric_graph(intrinsics, odometry_poses, observations, options=None):

@@ -26,7 +26,8 @@ from ..views.observation import Observation
 from ..geometry.superquadric import Superquadric
 from ..testing import polygon_mask
 
-__all__ = ["SEQUENCE_INTRINSICS", "Sequence", "synthetic_sequence", "position_rmse", "object_ious"]
+__all__ = ["SEQUENCE_INTRINSICS", "Sequence", "synthetic_sequence", "position_rmse", "scale_free_rmse",
+           "odometry_scale_rmse", "object_ious"]
 
 SEQUENCE_INTRINSICS = Intrinsics(640, 480, 500.0, 500.0, 320.0, 240.0)
 LOOK_AT_HEIGHT = 0.4  #: metres
@@ -98,6 +99,32 @@ def _touches_border(mask):
 def position_rmse(poses, true_poses):
     """RMS of the camera-centre errors, metres, without alignment (both trajectories share frame 0)."""
     return float(np.sqrt(np.mean(np.sum((poses[:, :3, 3] - true_poses[:, :3, 3]) ** 2, axis=1))))
+
+
+def _scaled_about_first(poses, s):
+    out = np.array(poses, dtype=np.float64)
+    out[:, :3, 3] = out[0, :3, 3] + s * (out[:, :3, 3] - out[0, :3, 3])
+    return out
+
+
+def scale_free_rmse(poses, true_poses):
+    """:func:`position_rmse` after the least-squares scale of ``poses`` about their first camera
+    centre: the error of the trajectory's shape (silhouettes are scale-free; the scale comes from
+    the odometry alone)."""
+    p, q = poses[:, :3, 3] - poses[0, :3, 3], true_poses[:, :3, 3] - true_poses[0, :3, 3]
+    return position_rmse(_scaled_about_first(poses, float(np.sum(p * q) / max(np.sum(p * p), 1e-300))), true_poses)
+
+
+def odometry_scale_rmse(odometry_poses, true_poses):
+    """:func:`position_rmse` of the true trajectory scaled about its first camera centre by the
+    odometry's own scale error (the least-squares factor of the measured steps' translations along
+    the true ones, each in its first frame): what a method that gets all but the scale right, and
+    takes the scale from the odometry (nothing else in the graph measures it), scores."""
+    true_poses, odometry_poses = np.asarray(true_poses, dtype=np.float64), np.asarray(odometry_poses, dtype=np.float64)
+    steps = np.array([(np.linalg.inv(a) @ b)[:3, 3] for a, b in zip(true_poses[:-1], true_poses[1:])])
+    measured = np.array([(np.linalg.inv(a) @ b)[:3, 3] for a, b in zip(odometry_poses[:-1], odometry_poses[1:])])
+    s = float(np.sum(steps * measured) / max(np.sum(steps * steps), 1e-300))
+    return position_rmse(_scaled_about_first(true_poses, s), true_poses)
 
 
 def object_ious(objects, true_objects):
