@@ -2,7 +2,7 @@
 
 Above :mod:`sqfit.views`. Stages are registered by name in :data:`STAGES` (paper codes: ``1``,
 ``2``, ``3A``-``3F`` in :mod:`.stages`; ``3G`` in :mod:`.grazing`; ``3S`` in :mod:`.restarts`;
-``3H`` in :mod:`.axis_screen`; ``2M`` in :mod:`.moments`; ``3T`` in :mod:`.outline`; ``HULL`` in :mod:`.hull`), and a chain is a
+``3H`` in :mod:`.axis_screen`; ``2M`` in :mod:`.moments`; ``3T`` in :mod:`.outline`; ``3R`` in :mod:`.trimmed`; ``HULL`` in :mod:`.hull`), and a chain is a
 dash-joined list of them (``"1-2M-3H"``).
 
 - :mod:`.costs` — the paper's costs: R-IOU (G2), the analytic G3-G5, penalty, bounds;
@@ -14,12 +14,13 @@ dash-joined list of them (``"1-2M-3H"``).
 - :mod:`.restarts` — stage 3S: symmetric restarts of 3G;
 - :mod:`.axis_screen` — stage 3H (the default's last stage): choose the axes, then 3G;
 - :mod:`.outline` — stage 3T (chain ``tolerant``): G2 on the mask contours where 3G's cost is not met;
+- :mod:`.trimmed` — stage 3R (chain ``tolerant``): 3G without the outline rays no superquadric grazes;
 - :mod:`.pointcloud` — an outlier-tolerant superquadric fit to a point cloud (EMS);
 - :mod:`.hull` — stage HULL (the visual-hull baseline, chain ``hull``): carve, then the point fit;
 - :mod:`.pipeline` — options, results and :func:`fit`.
 """
 
-from . import axis_screen, grazing, hull, moments, outline, restarts  # noqa: F401  (register 3H, 3G, HULL, 2M, 3T, 3S)
+from . import axis_screen, grazing, hull, moments, outline, restarts, trimmed  # noqa: F401  (register 3H, 3G, HULL, 2M, 3T, 3S, 3R)
 from .pipeline import (CHAIN_ALIASES, DEFAULT_CHAIN, HULL_CHAIN, PAPER_CHAINS, FitOptions, FitResult, StageRecord, fit,
                        parse_chain)
 from .stages import STAGES

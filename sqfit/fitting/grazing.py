@@ -59,7 +59,7 @@ from .raycost import offset_groups_of, posed_ray_residuals, ray_residuals
 from ..views.rays import RaySet, contour_rays
 from .stages import StageError, register
 
-__all__ = ["N_CONTOUR", "BAND_PX", "SMOOTH_PX", "OFFSET_UNIT_PX", "POSE_NOISE_TRIGGER_DEG", "SilhouetteFit",
+__all__ = ["outline_rays", "N_CONTOUR", "BAND_PX", "SMOOTH_PX", "OFFSET_UNIT_PX", "POSE_NOISE_TRIGGER_DEG", "SilhouetteFit",
            "silhouette_stage", "silhouette_fit", "minimise", "camera_corrections", "pose_noise_estimate",
            "pose_prior_scale", "offset_groups", "offset_prior", "shifted_rays", "describe_values", "describe_offsets",
            "read_offsets"]
@@ -108,6 +108,12 @@ def _rays(obs):
         cached = (key, contour_rays(obs.observations, N_CONTOUR, BAND_PX, smooth_px=SMOOTH_PX))
         _RAYS[obs] = cached
     return cached[1]
+
+
+def outline_rays(obs):
+    """The 3G rays of an :class:`sqfit.fitting.costs.ObservationSet` (cached with it), a
+    :class:`sqfit.views.rays.RaySet`."""
+    return _rays(obs)
 
 
 @dataclass(frozen=True)

@@ -40,10 +40,11 @@ DEFAULT_CHAIN = "1-2M-3H"  # measured: README "Beyond the paper", sqfit.fitting.
 #: Chain of :func:`fit` when a starting superquadric is given (``initial=``) and no chain is: a
 #: local refinement from it.
 INITIAL_CHAIN = "3G"
-#: The default followed by stage 3T (:mod:`sqfit.fitting.outline`): G2 on the mask contours where no
-#: superquadric grazes the outline (objects with legs, handles, stands); opt-in, measured in the
-#: README ("Real objects").
-TOLERANT_CHAIN = DEFAULT_CHAIN + "-3T"
+#: The default followed by stages 3R (:mod:`sqfit.fitting.trimmed`: 3G without the outline rays no
+#: superquadric grazes, where 3G's cost is moderate: handles) and 3T (:mod:`sqfit.fitting.outline`:
+#: G2 on the mask contours where 3G's cost is high: legs, stands); opt-in, measured in the README
+#: ("Real objects").
+TOLERANT_CHAIN = DEFAULT_CHAIN + "-3R-3T"
 #: Names that stand for a whole chain wherever a chain is given (:func:`parse_chain`); ``hull`` is the
 #: visual-hull baseline (:data:`sqfit.fitting.hull.HULL_CHAIN`), ``tolerant`` :data:`TOLERANT_CHAIN`.
 CHAIN_ALIASES = {"default": DEFAULT_CHAIN, "hull": HULL_CHAIN, "tolerant": TOLERANT_CHAIN}
