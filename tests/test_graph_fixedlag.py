@@ -99,3 +99,17 @@ def test_windows_with_a_fixed_past_match_the_full_resolve():
     assert all(r.ok for r in res.values())
     assert ate[6] < 0.5 * position_rmse(seq.odometry_poses, seq.true_poses), ate
     assert ate[6] < ate[0] + 0.02 and iou[6] > iou[0] - 0.05, (ate, iou)
+
+
+def test_many_mixed_factors_keep_their_residuals():
+    # each mixed factor is linearised into a temporary JacobianFactor; its rows must be copied out
+    # before the next one replaces it (views into freed memory gave residuals ~1e270 and an infinite
+    # error, so Levenberg-Marquardt left every fixed-past window solve where it started)
+    g, values = _chain()
+    rng = np.random.default_rng(0)
+    for _ in range(200):
+        g.add(_linear([KEYS[3], KEYS[1]], [1.0, rng.uniform(-1, 1)], rng.normal(size=2)))
+    active = {KEYS[3], KEYS[4]}
+    sub, sub_values = fixedlag.condition_on_past(g, values, active)
+    touching = [g.at(k) for k in range(g.size()) if set(g.at(k).keys()) & active]
+    assert sub.error(sub_values) == pytest.approx(sum(f.error(values) for f in touching))

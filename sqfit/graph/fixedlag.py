@@ -86,7 +86,8 @@ def condition_on_past(graph, values, active):
             lin = gtsam.JacobianFactor(factor.linearize(at))
             if lin.isConstrained():
                 raise ValueError(f"cannot condition a constrained factor on keys {keys}")
-            A, offset, cols = lin.getA(), 0, []
+            # copies: getA / getb are views into `lin`'s memory, freed when `lin` is replaced
+            A, b, offset, cols = np.array(lin.getA()), np.array(lin.getb()), 0, []
             for key in lin.keys():
                 dim = zero.at(key).size
                 if key in active:
@@ -94,7 +95,7 @@ def condition_on_past(graph, values, active):
                 offset += dim
             group = groups.setdefault(tuple(key for key, _ in cols), ([], []))
             group[0].append(np.hstack([block for _, block in cols]))
-            group[1].append(lin.getb())
+            group[1].append(b)
         for keys, (blocks, bs) in groups.items():
             A, b = np.vstack(blocks), np.concatenate(bs)
             dims = np.cumsum([0] + [zero.at(key).size for key in keys])
