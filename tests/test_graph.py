@@ -574,3 +574,24 @@ def test_graph_estimates_the_outline_offset_of_biased_masks(grow):
     iou_off = np.median(list(object_ious(off.objects, seq.objects).values()))
     assert iou_on > iou_off + 0.01, (iou_on, iou_off)
     assert json.loads(json.dumps(on.to_dict()))["outline_offsets"].keys() == {str(k) for k in on.objects}
+
+
+@pytest.mark.parametrize("delta_units", [0.02, -0.03])
+def test_silhouette_factor_with_outline_offset_linearizes_as_central_differences(delta_units):
+    from gtsam.symbol_shorthand import O
+
+    Tl, s = _perturbed_landmark()
+    values = gtsam.Values()
+    values.insert(X(0), gtsam.Pose3(T_CAM))
+    values.insert(L(1), gtsam.Pose3(Tl))
+    values.insert(S(1), s)
+    values.insert(O(1), np.array([delta_units]))  # in units of 30 px: +0.6 / -0.9 px
+    rays = _rays()
+    keys = [X(0), L(1), S(1), O(1)]
+    f = factors.silhouette_factor(gtsam.noiseModel.Unit.Create(len(rays)), *keys[:3], rays, None, O(1), 30.0)
+    blocks, numeric = _linearized(f, values, keys, [6, 6, 5, 1])
+    assert np.abs(blocks[3]).max() > 1e-3
+    for b, n in zip(blocks, numeric):
+        np.testing.assert_allclose(b, n, atol=1e-5 * max(1.0, np.abs(n).max()))
+    with pytest.raises(ValueError, match="offset_unit_px"):
+        factors.silhouette_factor(gtsam.noiseModel.Unit.Create(len(rays)), *keys[:3], rays, None, O(1), 0.0)
