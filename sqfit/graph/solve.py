@@ -117,9 +117,10 @@ def _add_landmark(graph, values, problem, oid, frames, landmark, options, batch,
     rot, pos, size = np.radians(options.landmark_prior_sigma_deg), options.landmark_prior_sigma_m, options.shape_prior_sigma
     graph.add(gtsam.PriorFactorPose3(L(oid), gtsam.Pose3(T), gtsam.noiseModel.Diagonal.Sigmas(np.array([rot] * 3 + [pos] * 3))))
     graph.add(gtsam.PriorFactorVector(S(oid), shape, gtsam.noiseModel.Isotropic.Sigma(len(shape), size)))
-    if options.outline_offset_sigma_px > 0:  # the masks' outline offset, px / OFFSET_UNIT_PX, prior at 0
-        values.insert(O(oid), np.zeros(1))
-        graph.add(gtsam.PriorFactorVector(O(oid), np.zeros(1), gtsam.noiseModel.Isotropic.Sigma(
+    offset = _offset_key(oid, options)
+    if offset is not None:  # the masks' outline offset, px / OFFSET_UNIT_PX, prior at 0
+        values.insert(offset, np.zeros(1))
+        graph.add(gtsam.PriorFactorVector(offset, np.zeros(1), gtsam.noiseModel.Isotropic.Sigma(
             1, options.outline_offset_sigma_px / OFFSET_UNIT_PX)))
     for f in frames:
         graph.add(_silhouette(problem, f, oid, options, batch, rays_cache))
@@ -136,14 +137,19 @@ def _silhouette(problem, frame, oid, options, batch, rays_cache=None):
             rays_cache[frame, oid] = rays
     # the ray residuals carry contour_rays' weights 1 / sqrt(n): sigma per weighted row
     sigma = options.silhouette_sigma / np.sqrt(len(rays))
-    offset = O(oid) if options.outline_offset_sigma_px > 0 else None
     return silhouette_factor(_robust(len(rays), sigma, options.huber_k), X(frame), L(oid),
-                             S(oid), rays, batch, offset, OFFSET_UNIT_PX)
+                             S(oid), rays, batch, _offset_key(oid, options), OFFSET_UNIT_PX)
+
+
+def _offset_key(oid, options):
+    """Key of landmark ``oid``'s outline offset, or None when the graph does not estimate offsets."""
+    return O(oid) if options.outline_offset_sigma_px > 0 else None
 
 
 def _landmark_keys(oid, options):
     """The keys of landmark ``oid``'s variables: pose, size/shape and, if estimated, outline offset."""
-    return (L(oid), S(oid)) + ((O(oid),) if options.outline_offset_sigma_px > 0 else ())
+    offset = _offset_key(oid, options)
+    return (L(oid), S(oid)) + (() if offset is None else (offset,))
 
 
 def _offsets(values, oids, options):
