@@ -33,13 +33,12 @@ from __future__ import annotations
 from dataclasses import replace
 
 import numpy as np
-from scipy.spatial.transform import Rotation
 
 from .grazing import minimise, outline_rays
 from .outline import TRIGGER_COST
 from .raycost import ray_residuals
 from .stages import NUMERICAL_ERRORS, StageError, register
-from ..views.rays import RaySet
+from ..geometry.superquadric import euler_to_matrix, matrix_to_euler
 
 __all__ = ["ROUNDS", "CUT", "PHI_MIN", "KEEP", "CYLINDER_SHAPE", "MIN_COST", "ray_phi", "outlier_rays",
            "trim_refit", "truncated_cost", "cylinder_starts", "trimmed_stage"]
@@ -86,8 +85,7 @@ def trim_refit(xi, rays, options, rounds=ROUNDS):
     nfev = 0
     for _ in range(rounds):
         out, _ = outlier_rays(xi, rays, options.penalty_analytic)
-        kept = RaySet(rays.origins, rays.directions, rays.modes, np.where(out, 0.0, rays.weights), rays.view,
-                      rays.two_sided, rays.offsets, rays.radii)
+        kept = replace(rays, weights=np.where(out, 0.0, rays.weights))
         res = minimise(kept, xi, options, 0.0)
         nfev += res.nfev
         if not np.all(np.isfinite(res.x)) or np.max(np.abs(res.x[:3])) > 1e4:
@@ -100,7 +98,7 @@ def cylinder_starts(xi):
     """Three ``(11,)`` starts at ``xi``'s centre, shape :data:`CYLINDER_SHAPE`, axis along each of
     ``xi``'s axes in turn (length that axis's size, radius the geometric mean of the other two)."""
     xi = np.asarray(xi, dtype=np.float64)
-    R = Rotation.from_euler("xyz", xi[8:11]).as_matrix()
+    R = euler_to_matrix(xi[8:11])
     starts = []
     for axis in range(3):
         perm = [(axis + 1) % 3, (axis + 2) % 3, axis]
@@ -109,7 +107,7 @@ def cylinder_starts(xi):
             Rp[:, 0] *= -1.0
         radius = float(np.sqrt(xi[perm[0]] * xi[perm[1]]))
         starts.append(np.concatenate([[radius, radius, xi[perm[2]]], CYLINDER_SHAPE, xi[5:8],
-                                      Rotation.from_matrix(Rp).as_euler("xyz")]))
+                                      matrix_to_euler(Rp)]))
     return starts
 
 
