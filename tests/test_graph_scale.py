@@ -75,6 +75,26 @@ def test_scale_dependent_factors_leave_out_the_invariant_ones():
     assert kept.size() == g.size() - 1
 
 
+def test_silhouette_factors_are_told_apart_by_their_evaluator():
+    from sqfit.graph import factors
+
+    batch, other = factors.SilhouetteFactors(), factors.SilhouetteFactors()
+    cam = sqfit.Camera(K_INTR, CAMERAS[0])
+    rays = landmark.camera_rays(sqfit.Observation.from_mask(cam, polygon_mask(SQ, cam), rng=0), 24)
+    noise = gtsam.noiseModel.Isotropic.Sigma(len(rays), 0.05)
+    g = _odometry(CAMERAS)
+    g.add(factors.bounds_factor(S(0), 1.0))  # one key, changes with the scale
+    g.add(factors.box_factor(gtsam.noiseModel.Isotropic.Sigma(4, 2.0), X(1), L(0), S(0), K_INTR.K,
+                             np.array([100.0, 100.0, 200.0, 200.0])))  # three keys, not a silhouette
+    g.add(batch.factor(noise, X(0), L(0), S(0), rays))
+    g.add(batch.factor(noise, X(2), L(0), S(0), rays, offset_key=1234))
+    g.add(other.factor(noise, X(3), L(0), S(0), rays))
+    held = [batch.holds(g.at(k)) for k in range(g.size())]
+    assert held == [False] * (g.size() - 3) + [True, True, False]
+    kept = scale.scale_dependent_factors(g, batch.holds)
+    assert kept.size() == g.size() - 2
+
+
 def test_rescaled_needs_a_positive_factor():
     with pytest.raises(ValueError, match="scale factor must be > 0"):
         scale.rescaled(_values(CAMERAS), np.zeros(3), 0.0, *_keys(len(CAMERAS)))

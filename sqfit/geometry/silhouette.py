@@ -559,6 +559,6 @@ def silhouette_gradient(xi, weights, unit_points, points, rotations, intrinsics)
         out[..., 3] = np.sum(planar + Ha[..., 2] * slog[..., 2], axis=-1) * scale[..., 0]
         out[..., 4] = np.sum(Ha[..., 0] * slog[..., 0] + Ha[..., 1] * slog[..., 1] - planar, axis=-1) * scale[..., 1]
         # Rotation: sum_k Gw_k . (dR_j (a s_k)) = <dR_j, sum_k Gw_k (a s_k)^T>.
-        O = Gw.swapaxes(-1, -2) @ (unit_points * a[:, None, None, :])  # (b, v, 3, 3)
-        out[..., 8:11] = O.reshape(b, v, 9) @ dR.reshape(b, 3, 9).swapaxes(1, 2)
+        Gs = Gw.swapaxes(-1, -2) @ (unit_points * a[:, None, None, :])  # (b, v, 3, 3)
+        out[..., 8:11] = Gs.reshape(b, v, 9) @ dR.reshape(b, 3, 9).swapaxes(1, 2)
     return out

@@ -44,6 +44,7 @@ class SilhouetteFactors:
 
     def __init__(self):
         self._keys, self._rays, self._units, self._stacked = [], [], [], {}
+        self._key_set = set()
         # per factor: the variables of its last evaluation (bytes: exact, and cheap to compare), its
         # rows (None where non-finite) and its ray minimisers (the next warm start)
         self._at, self._out, self._d = [], [], []
@@ -53,11 +54,19 @@ class SilhouetteFactors:
     def __len__(self):
         return len(self._keys)
 
+    def holds(self, factor):
+        """Whether ``factor`` (a GTSAM factor) is one of this graph's silhouette factors (by its
+        variables: one silhouette factor per camera, landmark and shape; no other factor of the
+        superquadric graph has those three)."""
+        keys = tuple(factor.keys())
+        return len(keys) >= 3 and keys in self._key_set
+
     def factor(self, noise, camera_key, pose_key, shape_key, rays, offset_key=None, offset_unit_px=1.0):
         """A new silhouette factor of this graph (arguments: :func:`silhouette_factor`)."""
         i = len(self._keys)
         keys = (camera_key, pose_key, shape_key) + (() if offset_key is None else (offset_key,))
         self._keys.append(keys)
+        self._key_set.add(keys)
         self._units.append(float(offset_unit_px))
         self._rays.append(rays)
         self._at.append(None)

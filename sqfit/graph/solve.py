@@ -320,7 +320,7 @@ def _batch(problem, options):
             if check and not _refit(problem, values, growth.added, options, result, growth.rays, overlap_only=True):
                 break
             if options.rescale:
-                values = _rescale(graph, values, n, growth.added)
+                values = _rescale(graph, values, n, growth.added, growth.batch)
             result.error_initial = graph.error(values)
             values, iterations = _lm(graph, values, final)
             result.iterations += iterations
@@ -335,14 +335,13 @@ def _batch(problem, options):
     return result
 
 
-def _rescale(graph, values, n, oids):
+def _rescale(graph, values, n, oids, batch):
     """``values`` moved along the scale direction to the best scale about frame 0's camera
-    (:mod:`sqfit.graph.scale`; the silhouette factors, the graph's only ones on three or four
-    variables (camera, landmark pose and shape, and the outline offset if estimated), do not change
-    with it)."""
+    (:mod:`sqfit.graph.scale`; the silhouette factors, those ``batch`` (a
+    :class:`~sqfit.graph.factors.SilhouetteFactors`) holds, do not change with it)."""
     centre = values.atPose3(X(0)).translation()
     keys = ([X(i) for i in range(n)], [L(oid) for oid in oids], [S(oid) for oid in oids])
-    changing = scale_dependent_factors(graph, lambda factor: len(factor.keys()) >= 3)
+    changing = scale_dependent_factors(graph, batch.holds)
     return rescaled(values, centre, best_scale(changing, values, centre, *keys), *keys)
 
 
@@ -452,7 +451,7 @@ def _isam2(problem, options):
             isam.update(*growth.add([i]))
             estimate = isam.calculateEstimate()
             if every and (i + 1) % every == 0 and growth.added:
-                isam, estimate = _isam2_rescaled(isam, estimate, params, i + 1, growth.added)
+                isam, estimate = _isam2_rescaled(isam, estimate, params, i + 1, growth.added, growth.batch)
         except _SOLVER_ERRORS as exc:
             result.fail(f"iSAM2 update at frame {i}", exc)
             result.seconds, result.cpu_seconds = clock.elapsed()
@@ -468,14 +467,14 @@ def _isam2(problem, options):
     return result
 
 
-def _isam2_rescaled(isam, estimate, params, n, oids):
+def _isam2_rescaled(isam, estimate, params, n, oids, batch):
     """iSAM2 moved to the best scale (:func:`_rescale`): iSAM2 relinearises only variables whose
     update exceeds its threshold, one Gauss-Newton step per update, so the scale the first landmarks
     took from the first frames' odometry is never corrected by the later odometry (the whole map
     must move together). A new iSAM2 on the same factors, linearised at the rescaled estimate; the
     old one is kept when the scale is already right."""
     graph = isam.getFactorsUnsafe()
-    moved = _rescale(graph, estimate, n, oids)
+    moved = _rescale(graph, estimate, n, oids, batch)
     if abs(moved.atPose3(X(n - 1)).translation() - estimate.atPose3(X(n - 1)).translation()).max() < 1e-6:
         return isam, estimate
     fresh = gtsam.ISAM2(params)
