@@ -253,6 +253,41 @@ def test_offsets_can_be_switched_off():
     assert grazing.read_offsets(result.stages[-1].message) is None and result.outline_offset_px is None
 
 
+def _box_trial(index):
+    """Observations of trial ``index`` of ``scenes/boxes.toml`` (seed 0: a trimesh box, clean masks) and its mesh."""
+    from pathlib import Path
+
+    from sqsim.imaging.render import get_renderer
+    from sqsim.imaging.trial import observations, simulate_trial
+    from sqsim.world.scene import load_scene
+
+    scene = load_scene(Path(__file__).resolve().parents[1] / "scenes" / "boxes.toml")
+    sim = simulate_trial(scene, index, get_renderer(scene.masks.renderer, scene.intrinsics))
+    box = sim.objects[0]
+    return observations(sim, box.id, scene), box.mesh
+
+
+def test_offset_is_not_estimated_for_a_shape_at_its_bound(monkeypatch):
+    from sqfit.metrics import iou_3d_mesh
+
+    obs, mesh = _box_trial(0)
+    result = sqfit.fit(obs)
+    assert grazing.at_shape_bound(result.superquadric.to_vector())
+    assert result.outline_offset_px is None and "outline offset not estimated" in result.stages[-1].message
+    monkeypatch.setattr(grazing, "SHAPE_AT_BOUND", -1.0)  # estimated all the same: the box grows
+    free = sqfit.fit(obs)
+    assert free.outline_offset_px[0] < -0.1
+    assert iou_3d_mesh(result.superquadric, mesh) > iou_3d_mesh(free.superquadric, mesh) + 0.003
+
+
+def test_at_shape_bound():
+    xi = paper_trial(1).gt.to_vector()
+    xi[3:5] = 0.5, 0.031
+    assert grazing.at_shape_bound(xi)
+    xi[4] = 0.1
+    assert not grazing.at_shape_bound(xi)
+
+
 def test_read_offsets_round_trip():
     message = "converged; " + grazing.describe_offsets(np.array([0.5, -1.25]), "view") + "; more"
     np.testing.assert_allclose(grazing.read_offsets(message), [0.5, -1.25])
