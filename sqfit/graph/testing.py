@@ -15,7 +15,7 @@ seeded random perturbation ``Exp([omega, v])`` (``omega ~ N(0, odometry_sigma_de
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 from scipy.spatial.transform import Rotation
@@ -27,7 +27,7 @@ from ..geometry.superquadric import Superquadric
 from ..testing import polygon_mask
 
 __all__ = ["SEQUENCE_INTRINSICS", "Sequence", "synthetic_sequence", "position_rmse", "scale_free_rmse",
-           "odometry_scale_rmse", "object_ious"]
+           "trajectory_scale", "scale_aligned_objects", "odometry_scale_rmse", "object_ious"]
 
 SEQUENCE_INTRINSICS = Intrinsics(640, 480, 500.0, 500.0, 320.0, 240.0)
 LOOK_AT_HEIGHT = 0.4  #: metres
@@ -107,12 +107,30 @@ def _scaled_about_first(poses, s):
     return out
 
 
+def trajectory_scale(poses, true_poses):
+    """The least-squares factor ``s`` that scales ``poses``' camera centres about their first one
+    onto ``true_poses``' (both trajectories start at the same pose): ``s > 1`` when ``poses`` is
+    too small."""
+    p, q = poses[:, :3, 3] - poses[0, :3, 3], true_poses[:, :3, 3] - true_poses[0, :3, 3]
+    return float(np.sum(p * q) / max(np.sum(p * p), 1e-300))
+
+
 def scale_free_rmse(poses, true_poses):
     """:func:`position_rmse` after the least-squares scale of ``poses`` about their first camera
-    centre: the error of the trajectory's shape (silhouettes are scale-free; the scale comes from
-    the odometry alone)."""
-    p, q = poses[:, :3, 3] - poses[0, :3, 3], true_poses[:, :3, 3] - true_poses[0, :3, 3]
-    return position_rmse(_scaled_about_first(poses, float(np.sum(p * q) / max(np.sum(p * p), 1e-300))), true_poses)
+    centre (:func:`trajectory_scale`): the error of the trajectory's shape (silhouettes are
+    scale-free; the scale comes from the odometry alone)."""
+    return position_rmse(_scaled_about_first(poses, trajectory_scale(poses, true_poses)), true_poses)
+
+
+def scale_aligned_objects(objects, poses, true_poses):
+    """``objects`` scaled about ``poses``' first camera centre by :func:`trajectory_scale` (positions
+    and sizes; rotations and shapes unchanged): the map as it would be had the trajectory the true
+    scale. Their IoU against the truth is what the map loses to everything but the scale, which no
+    silhouette measures."""
+    s, centre = trajectory_scale(poses, true_poses), np.asarray(poses[0, :3, 3], dtype=np.float64)
+    return {oid: replace(sq, size=tuple(s * np.asarray(sq.size)),
+                         position=tuple(centre + s * (np.asarray(sq.position) - centre)))
+            for oid, sq in objects.items()}
 
 
 def odometry_scale_rmse(odometry_poses, true_poses):
