@@ -111,6 +111,19 @@ def test_scale_aligned_objects_undo_a_map_scaled_about_the_first_camera():
     assert aligned.rotation == SQ.rotation and aligned.shape == SQ.shape
 
 
+def test_odometry_scale_ious_score_the_truth_moved_by_the_odometrys_scale():
+    from sqfit.graph.testing import odometry_scale, odometry_scale_ious
+
+    true = np.stack(CAMERAS)
+    long = true.copy()
+    long[:, :3, 3] = true[0, :3, 3] + 1.02 * (true[:, :3, 3] - true[0, :3, 3])
+    assert odometry_scale(long, true) == pytest.approx(1.02, rel=1e-9)
+    assert odometry_scale_ious(true, true, {1: SQ})[1] == pytest.approx(1.0)
+    far = sqfit.Superquadric(SQ.size, SQ.shape, (-3.0, 0.5, 0.4), SQ.rotation)  # 7 m from the first camera
+    ious = odometry_scale_ious(long, true, {1: SQ, 2: far})
+    assert ious[2] < ious[1] < 0.99  # 2 % of the distance to the first camera, and of the size
+
+
 def test_isam2_rebuilt_at_the_best_scale_still_solves_the_sequence():
     from sqfit import graph
     from sqfit.graph.testing import position_rmse, synthetic_sequence
