@@ -5,8 +5,9 @@ odometry pose, a ``BetweenFactorPose3`` per frame step from the odometry; per ob
 landmark pose ``L(j)`` (``Pose3``, superquadric -> world) and a size/shape vector ``S(j)``
 (``[ax, ay, az, e1, e2]``) with the bound penalty (eq. 7) as a unary factor; one silhouette factor
 per (frame, object) (:func:`sqfit.graph.factors.silhouette_factor`) under a Huber-robust noise
-model. Each landmark starts from :func:`sqfit.fit` on the first frames that see it, at the current
-pose estimates.
+model; with ``GraphOptions.floor_z``, a floor factor per landmark (:mod:`sqfit.graph.floor`). Each
+landmark starts from :func:`sqfit.fit` on the first frames that see it, at the current pose
+estimates.
 
 Methods (every one returns a :class:`sqfit.graph.problem.SlamResult`):
 
