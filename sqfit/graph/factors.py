@@ -20,10 +20,11 @@ import threading
 import gtsam
 import numpy as np
 
+from .floor import floor_residual
 from .landmark import batch_silhouette_residuals, bounds_residuals, stack_rays
 from .quadric import box_residuals
 
-__all__ = ["SilhouetteFactors", "silhouette_factor", "bounds_factor", "box_factor"]
+__all__ = ["SilhouetteFactors", "silhouette_factor", "bounds_factor", "floor_factor", "box_factor"]
 
 
 class SilhouetteFactors:
@@ -185,6 +186,20 @@ def bounds_factor(shape_key, weight):
         return r
 
     return gtsam.CustomFactor(gtsam.noiseModel.Unit.Create(5), [shape_key], error)
+
+
+def floor_factor(noise, pose_key, shape_key, floor_z):
+    """Binary factor: the landmark's lowest point on the floor ``z = floor_z``
+    (:func:`sqfit.graph.floor.floor_residual`); ``noise`` of dimension 1, metres."""
+    floor_z = float(floor_z)
+
+    def error(this, values, jacobians):
+        r, J_pose, J_shape = floor_residual(values.atPose3(pose_key).matrix(), values.atVector(shape_key), floor_z)
+        if jacobians is not None:
+            jacobians[0], jacobians[1] = J_pose, J_shape
+        return r
+
+    return gtsam.CustomFactor(noise, [pose_key, shape_key], error)
 
 
 def box_factor(noise, camera_key, pose_key, radii_key, K, box):

@@ -126,6 +126,13 @@ class GraphOptions(Options):
         grown or shrunk along their normal by δ, README "Real masks") estimated with it, with a
         Gaussian prior of this standard deviation at 0; 0 (the default): none. For segmenters that
         over- or under-segment; on exact masks it only adds a variable per landmark.
+    floor_z : float or None
+        The height (world ``z``, metres, +z up) of a floor every object stands on, when the caller
+        knows it (:mod:`sqfit.graph.floor`: a metric cue the images and odometry do not carry;
+        e.g. a camera at a known height in a gravity-aligned frame); None (the default): no floor.
+        Each landmark then gets a Huber-robust factor putting its lowest point on it.
+    floor_sigma_m : float
+        Standard deviation of a landmark's lowest point about the floor, metres, > 0.
     max_iterations : int
         Levenberg-Marquardt iterations of the batch solves.
     relative_tolerance : float
@@ -156,6 +163,8 @@ class GraphOptions(Options):
     isam2_rescale_every: int = 10
     isam2_dogleg: bool = False
     outline_offset_sigma_px: float = 0.0
+    floor_z: float | None = None
+    floor_sigma_m: float = 0.01
     max_iterations: int = 50
     relative_tolerance: float = 1e-3
     final_relative_tolerance: float = 1e-5
@@ -171,8 +180,10 @@ class GraphOptions(Options):
                                "prior_sigma_deg", "prior_sigma_m", "landmark_prior_sigma_deg", "init_parallax_deg",
                                "isam2_relinearize_threshold", "window_relative_tolerance", "landmark_prior_sigma_m",
                                "shape_prior_sigma", "box_sigma_px", "relative_tolerance",
-                               "final_relative_tolerance"),
+                               "final_relative_tolerance", "floor_sigma_m"),
                      nonnegative=("bounds_weight", "refit_misfit", "outline_offset_sigma_px"))
+        if self.floor_z is not None and not np.isfinite(self.floor_z):
+            raise ValueError(f"floor_z must be a finite height or None, got {self.floor_z}")
 
 
 @dataclass

@@ -5,8 +5,9 @@ odometry pose, a ``BetweenFactorPose3`` per frame step from the odometry; per ob
 landmark pose ``L(j)`` (``Pose3``, superquadric -> world) and a size/shape vector ``S(j)``
 (``[ax, ay, az, e1, e2]``) with the bound penalty (eq. 7) as a unary factor; one silhouette factor
 per (frame, object) (:func:`sqfit.graph.factors.silhouette_factor`) under a Huber-robust noise
-model. Each landmark starts from :func:`sqfit.fit` on the first frames that see it, at the current
-pose estimates.
+model; with ``GraphOptions.floor_z``, a floor factor per landmark (:mod:`sqfit.graph.floor`). Each
+landmark starts from :func:`sqfit.fit` on the first frames that see it, at the current pose
+estimates.
 
 Methods (every one returns a :class:`sqfit.graph.problem.SlamResult`):
 
@@ -38,7 +39,7 @@ from .. import constants as C
 from ..fitting import pipeline
 from ..fitting.grazing import OFFSET_UNIT_PX
 from ..fitting.stages import r_iou_m
-from .factors import SilhouetteFactors, bounds_factor, box_factor, silhouette_factor
+from .factors import SilhouetteFactors, bounds_factor, box_factor, floor_factor, silhouette_factor
 from .fixedlag import condition_on_past
 from .landmark import camera_rays, landmark_to_superquadric, superquadric_to_landmark
 from .problem import GraphOptions, SlamResult, check_inputs, observation_at, ready_to_initialise
@@ -117,6 +118,8 @@ def _add_landmark(graph, values, problem, oid, frames, landmark, options, batch,
     rot, pos, size = np.radians(options.landmark_prior_sigma_deg), options.landmark_prior_sigma_m, options.shape_prior_sigma
     graph.add(gtsam.PriorFactorPose3(L(oid), gtsam.Pose3(T), gtsam.noiseModel.Diagonal.Sigmas(np.array([rot] * 3 + [pos] * 3))))
     graph.add(gtsam.PriorFactorVector(S(oid), shape, gtsam.noiseModel.Isotropic.Sigma(len(shape), size)))
+    if options.floor_z is not None:
+        graph.add(floor_factor(_robust(1, options.floor_sigma_m, options.huber_k), L(oid), S(oid), options.floor_z))
     offset = _offset_key(oid, options)
     if offset is not None:  # the masks' outline offset, px / OFFSET_UNIT_PX, prior at 0
         values.insert(offset, np.zeros(1))
