@@ -1,5 +1,6 @@
 """The factor graph (sqfit.graph): factors' Jacobians, conventions, a small sequence, bad input."""
 
+import dataclasses
 import json
 
 import numpy as np
@@ -48,6 +49,10 @@ def test_camera_rays_are_pixel_bearings_whatever_the_observation_pose():
     np.testing.assert_allclose(a.directions, b.directions, atol=1e-12)
     np.testing.assert_allclose(a.directions[:, 2], 1.0)  # unit depth
     np.testing.assert_array_equal(a.origins, 0.0)
+    # made without a second validation: the same as a checked RaySet of the same arrays
+    checked = dataclasses.replace(a)
+    for name in ("origins", "directions", "offsets", "modes", "weights", "two_sided", "radii", "_hinge_in", "_hinge_out"):
+        np.testing.assert_array_equal(getattr(a, name), getattr(checked, name))
 
 
 def test_moving_rays_keeps_every_per_ray_array():
