@@ -53,6 +53,7 @@ class SilhouetteFactors:
         # per factor: the signature of its last evaluation, its rows (None where non-finite) and its
         # ray minimisers (the next warm start)
         self._sig, self._out, self._d = np.zeros((0, 4), dtype=np.int64), [], []
+        self._last = []  # per factor: its signature as a tuple (one entry per key), None before any
         # per ray count: every factor's rays stacked (StackedRays of them all) and each factor's row
         self._pool, self._row, self._unpooled = {}, [], []
         self._lock = threading.Lock()
@@ -80,10 +81,17 @@ class SilhouetteFactors:
         self._unpooled.append(i)
         self._out.append(None)
         self._d.append(None)
+        self._last.append(None)
+        # (key, a pose?, that variable's numbered values) per key: GTSAM calls this once per factor
+        # and pass, and most calls only find their variables unchanged
+        checks = tuple((key, self._pose[slot], self._seen[slot]) for key, slot in zip(keys, slots))
 
         def error(this, values, jacobians):
             with self._lock:
-                if self._stale(i, values):
+                last = self._last[i]
+                if last is None or any(
+                        seen.get((values.atPose3(key).matrix() if pose else values.atVector(key)).tobytes()) != number
+                        for (key, pose, seen), number in zip(checks, last)):
                     self._evaluate(values)
                 out = self._out[i]
             if out is None:
@@ -96,17 +104,6 @@ class SilhouetteFactors:
             return out[0]
 
         return gtsam.CustomFactor(noise, list(keys), error)
-
-    def _stale(self, i, values):
-        """Whether factor ``i``'s variables in ``values`` differ from those of its last evaluation."""
-        if i >= len(self._sig):
-            return True
-        sig = self._sig[i]
-        for position, key in enumerate(self._keys[i]):
-            slot = self._slots[i][position]
-            if self._seen[slot].get(_read(values, key, self._pose[slot]).tobytes(), -3) != sig[position]:
-                return True
-        return False
 
     def _signatures(self, values):
         """The numbers of the values of every variable in ``values`` (-1 where absent), by slot,
@@ -154,6 +151,8 @@ class SilhouetteFactors:
                 self._out[i] = ((r[j].copy(), Jc[j].copy(), Jl[j].copy(), Js[j].copy())
                                 + tuple(a[j][:, None].copy() for a in Jo)) if finite[j] else None
             self._sig[idx] = sig[idx]
+            for i in idx:
+                self._last[i] = tuple(self._sig[i, :len(self._keys[i])].tolist())
             self.factor_evaluations += len(idx)
         self.evaluations += 1
 
