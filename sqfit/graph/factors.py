@@ -66,10 +66,10 @@ class SilhouetteFactors:
         """A new silhouette factor of this graph (arguments: :func:`silhouette_factor`)."""
         i = len(self._keys)
         keys = (camera_key, pose_key, shape_key) + (() if offset_key is None else (offset_key,))
-        for slot, key in enumerate(keys):
+        for position, key in enumerate(keys):
             if key not in self._slot:
                 self._slot[key] = len(self._pose)
-                self._pose.append(slot < 2)
+                self._pose.append(position < 2)  # the camera and the landmark pose
                 self._seen.append({})
         slots = [self._slot[key] for key in keys]
         self._keys.append(keys)
