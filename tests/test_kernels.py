@@ -310,6 +310,31 @@ def test_convex_hull_kernel():
     assert len(k.convex_hull(np.array([[0.0, 0.0], [1.0, 1.0], [2.0, 2.0]]))) == 0  # collinear: no hull
 
 
+def test_hidden_counts_kernel_agrees():
+    # the occluding pixels inside each silhouette: the same counts as the numpy edge tests, also for
+    # points on a silhouette's edges and vertices, outside its bounding box, and a non-finite vertex
+    from sqfit.fitting.backend import compiled
+    from sqfit.geometry.visible_iou import hidden_counts
+
+    k = compiled("silhouettes")
+    if k is None:
+        pytest.skip("numba kernels not selected")
+    rng = np.random.default_rng(3)
+    t = np.linspace(0.0, 2.0 * np.pi, 48, endpoint=False)
+    S = np.stack([np.stack([100.0 + 50.0 * s * np.cos(t), 80.0 + 30.0 * s * np.sin(t)], -1)
+                  for s in rng.uniform(0.3, 1.5, 6)])
+    square = np.array([[0.0, 0.0], [4.0, 0.0], [4.0, 4.0], [0.0, 4.0]])
+    S = np.concatenate([S, np.repeat(np.vstack([square, square[-1:].repeat(44, 0)])[None], 1, 0)])
+    S[2, 7] = np.nan
+    points = np.vstack([rng.uniform(0.0, 200.0, (2000, 2)), S[0, :10], [[2.0, 0.0], [4.0, 2.0], [4.0, 4.0],
+                                                                         [4.0 + 1e-12, 2.0], [-1e-300, 1.0]]])
+    in_q = rng.random(len(points)) < 0.4
+    inter, union = k.hidden_counts(S, points, in_q)
+    ref_inter, ref_union = hidden_counts(S, points, in_q)
+    assert np.array_equal(inter, ref_inter) and np.array_equal(union, ref_union)
+    assert inter[2] == 0 and union[2] == in_q.sum() and inter[0] > 0 and inter[-1] > 0
+
+
 def test_compiled_parts_load_lazily():
     code = ("import sys, sqfit.fitting.backend as b; b.compiled(); print('silhouette_kernels' in str(sys.modules)); "
             "b.compiled('silhouettes'); print('sqfit.fitting.silhouette_kernels' in sys.modules)")

@@ -73,3 +73,20 @@ def test_3h_refines_every_candidate_when_the_cameras_disagree():
     assert iou_3d(result.superquadric, trial.gt) > 0.7
     clean = sqfit.fit(trial.observations)
     assert "refined all" not in clean.stages[-1].message
+
+
+def test_without_pose_noise_refit_the_fixed_prior_fit_is_kept():
+    # FitOptions.pose_noise_refit=False (the factor graph's fits): the corrections are still
+    # estimated under the fixed prior, but neither 3G's second run nor 3H's refinement of every
+    # candidate follows
+    trial = paper_trial(1)
+    obs = ObservationSet(_turned_observations(trial, TURNS_DEG))
+    options = sqfit.FitOptions(pose_noise_refit=False)
+    fit = silhouette_fit(FitState(trial.gt.to_vector()), obs, options)
+    assert fit.pose_noise_deg > POSE_NOISE_TRIGGER_DEG and fit.pose_scale is None
+    assert "pose prior scaled" not in fit.state.message
+    result = sqfit.fit(_turned_observations(trial, TURNS_DEG), options=options)
+    assert result.ok and "refined all" not in result.stages[-1].message
+    assert 0.5 < iou_3d(result.superquadric, trial.gt) < 0.7  # the branch is what lifts it above 0.7
+    with pytest.raises(ValueError, match="pose_noise_refit must be True or False"):
+        sqfit.FitOptions(pose_noise_refit=1)

@@ -106,6 +106,11 @@ class FitOptions(Options):
         that the cameras disagree (RMS above ``sqfit.fitting.grazing.POSE_NOISE_TRIGGER_DEG``), 3G and
         3H fit again under a prior scaled to the residual noise at the estimated rotation noise
         (:func:`sqfit.fitting.grazing.silhouette_fit`); this value then only decides that.
+    pose_noise_refit : bool
+        Whether cameras that disagree (above) make 3G fit again under the noise-scaled prior and
+        3H refine every axis candidate under it (default True); False keeps the fit under the fixed
+        prior and 3H's refinement of the screen's best candidate (for callers that estimate the
+        poses themselves and only need a start: :mod:`sqfit.graph`).
     occlusion_aware : bool
         Use the observations' boundary labels (:mod:`sqfit.views.visibility`): occluded and truncated
         outline stretches are one-sided in 3G (and 3S), stages 1 and 2 down-weight or leave out
@@ -158,6 +163,7 @@ class FitOptions(Options):
     riou_jacobian: str = "analytic"
     silhouette_directions: int = 48
     pose_sigma_deg: float = 50.0
+    pose_noise_refit: bool = True
     occlusion_aware: bool = True
     outline_offset_sigma_px: float = 0.5
     outline_offset: str = "object"
@@ -187,8 +193,9 @@ class FitOptions(Options):
             raise ValueError(f"riou_jacobian must be 'analytic' or 'numeric', got {self.riou_jacobian!r}")
         if self.fd_step <= 0:
             raise ValueError(f"fd_step must be > 0, got {self.fd_step}")
-        if not isinstance(self.occlusion_aware, (bool, np.bool_)):
-            raise ValueError(f"occlusion_aware must be True or False, got {self.occlusion_aware!r}")
+        for name in ("occlusion_aware", "pose_noise_refit"):
+            if not isinstance(getattr(self, name), (bool, np.bool_)):
+                raise ValueError(f"{name} must be True or False, got {getattr(self, name)!r}")
 
 
 @dataclass
