@@ -36,15 +36,16 @@ __all__ = ["fit", "FitOptions", "FitResult", "StageRecord", "PAPER_CHAINS", "DEF
 #: The 13 chains of the paper's Table II, in its row order.
 PAPER_CHAINS = ("3A", "3B", "1-3A", "1-2-3A", "1-2-3B", "3E", "1-3E", "1-2-3C", "1-2-3D", "1-2-3E",
                 "1-2-3D-3E", "1-2-3D-3A", "1-2-3D-3F")
-DEFAULT_CHAIN = "1-2M-3H"  # measured: README "Beyond the paper", sqfit.fitting.axis_screen; 2M: sqfit.fitting.moments
+#: 2M: :mod:`sqfit.fitting.moments`; 3H: :mod:`sqfit.fitting.axis_screen` (README "Beyond the paper"); 3R:
+#: :mod:`sqfit.fitting.trimmed`, 3G without a stretch of outline rays that sticks out of the fit (a handle, a
+#: bottle's neck), acting only where 3H's cost is moderate and the misfit is such a stretch (README "Real objects").
+DEFAULT_CHAIN = "1-2M-3H-3R"
 #: Chain of :func:`fit` when a starting superquadric is given (``initial=``) and no chain is: a
 #: local refinement from it.
 INITIAL_CHAIN = "3G"
-#: The default followed by stages 3R (:mod:`sqfit.fitting.trimmed`: 3G without the outline rays no
-#: superquadric grazes, where 3G's cost is moderate: handles) and 3T (:mod:`sqfit.fitting.outline`:
-#: G2 on the mask contours where 3G's cost is high: legs, stands); opt-in, measured in the README
-#: ("Real objects").
-TOLERANT_CHAIN = DEFAULT_CHAIN + "-3R-3T"
+#: The default followed by stage 3T (:mod:`sqfit.fitting.outline`: G2 on the mask contours where 3G's cost
+#: is high: legs, stands); opt-in, measured in the README ("Real objects").
+TOLERANT_CHAIN = DEFAULT_CHAIN + "-3T"
 #: Names that stand for a whole chain wherever a chain is given (:func:`parse_chain`); ``hull`` is the
 #: visual-hull baseline (:data:`sqfit.fitting.hull.HULL_CHAIN`), ``tolerant`` :data:`TOLERANT_CHAIN`.
 CHAIN_ALIASES = {"default": DEFAULT_CHAIN, "hull": HULL_CHAIN, "tolerant": TOLERANT_CHAIN}
