@@ -36,15 +36,16 @@ __all__ = ["fit", "FitOptions", "FitResult", "StageRecord", "PAPER_CHAINS", "DEF
 #: The 13 chains of the paper's Table II, in its row order.
 PAPER_CHAINS = ("3A", "3B", "1-3A", "1-2-3A", "1-2-3B", "3E", "1-3E", "1-2-3C", "1-2-3D", "1-2-3E",
                 "1-2-3D-3E", "1-2-3D-3A", "1-2-3D-3F")
-DEFAULT_CHAIN = "1-2M-3H"  # measured: README "Beyond the paper", sqfit.fitting.axis_screen; 2M: sqfit.fitting.moments
+#: 2M: :mod:`sqfit.fitting.moments`; 3H: :mod:`sqfit.fitting.axis_screen` (README "Beyond the paper"); 3R:
+#: :mod:`sqfit.fitting.trimmed`, 3G without a stretch of outline rays that sticks out of the fit (a handle, a
+#: bottle's neck), acting only where 3H's cost is moderate and the misfit is such a stretch (README "Real objects").
+DEFAULT_CHAIN = "1-2M-3H-3R"
 #: Chain of :func:`fit` when a starting superquadric is given (``initial=``) and no chain is: a
 #: local refinement from it.
 INITIAL_CHAIN = "3G"
-#: The default followed by stages 3R (:mod:`sqfit.fitting.trimmed`: 3G without the outline rays no
-#: superquadric grazes, where 3G's cost is moderate: handles) and 3T (:mod:`sqfit.fitting.outline`:
-#: G2 on the mask contours where 3G's cost is high: legs, stands); opt-in, measured in the README
-#: ("Real objects").
-TOLERANT_CHAIN = DEFAULT_CHAIN + "-3R-3T"
+#: The default followed by stage 3T (:mod:`sqfit.fitting.outline`: G2 on the mask contours where 3G's cost
+#: is high: legs, stands); opt-in, measured in the README ("Real objects").
+TOLERANT_CHAIN = DEFAULT_CHAIN + "-3T"
 #: Names that stand for a whole chain wherever a chain is given (:func:`parse_chain`); ``hull`` is the
 #: visual-hull baseline (:data:`sqfit.fitting.hull.HULL_CHAIN`), ``tolerant`` :data:`TOLERANT_CHAIN`.
 CHAIN_ALIASES = {"default": DEFAULT_CHAIN, "hull": HULL_CHAIN, "tolerant": TOLERANT_CHAIN}
@@ -261,7 +262,8 @@ class FitResult:
     outline_offset_px : list of float or None
         The masks' outline offset estimated by the last stage that estimates it (3G, 3H; px, > 0:
         the outlines lie outside the silhouettes; one value per object or per view,
-        ``FitOptions.outline_offset``); None if no stage did.
+        ``FitOptions.outline_offset``); None if no stage did, or if a later stage changed the fit
+        without estimating one (stage 3R's trimmed re-fit keeps no offset).
     """
 
     superquadric: Superquadric | None
@@ -452,6 +454,10 @@ def fit(observations, chain=None, *, initial=None, rng=None, options=None):
         offsets = read_offsets(new.message)
         if offsets is not None:
             result.outline_offset_px = offsets.tolist()
+        elif not np.array_equal(new.xi, start.xi):
+            # a stage that moved the fit without estimating an offset (3R's trimmed re-fit, 3T):
+            # an earlier stage's offset belongs to a fit that is no longer the result
+            result.outline_offset_px = None
     if snapshots:
         scores = r_iou_m(snapshots, obs, options.polygon)
         for rec, s in zip((r for r in result.stages if r.superquadric is not None), scores):
