@@ -43,3 +43,9 @@ def mask_shapes():
     border = np.zeros((30, 30), bool)
     border[:12, 20:] = True  # touches the image border, corner included
     return {"square": square, "ell": ell, "border": border}
+
+
+def stage(result, name):
+    """The last :class:`sqfit.StageRecord` named ``name`` of a :class:`sqfit.FitResult` (the default chain
+    ends in 3R, so 3H's record is not the last one)."""
+    return [s for s in result.stages if s.name == name][-1]

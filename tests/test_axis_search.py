@@ -8,6 +8,7 @@ from sqfit.metrics import iou_3d
 from sqfit.fitting.raycost import batch_log_gauge_jacobian, batch_ray_residuals, log_gauge_jacobian, ray_residuals
 from sqfit.views.rays import INSIDE, RaySet, contour_rays
 from sqfit.testing import paper_trial
+from _helpers import stage
 
 
 @pytest.fixture(scope="module")
@@ -105,8 +106,8 @@ def test_default_chain_resolves_axes_on_a_block_of_paper_trials():
     new, old = np.array(ious[sqfit.DEFAULT_CHAIN]), np.array(ious["1-2-3G"])
     assert old.min() < 0.8
     assert (new < 0.8).sum() < (old < 0.8).sum() and np.median(new) > 0.97
-    last = sqfit.fit(paper_trial(0).observations).stages[-1]
-    assert last.name == "3H" and last.message.startswith("3H: start ")
+    last = stage(sqfit.fit(paper_trial(0).observations), "3H")
+    assert last.message.startswith("3H: start ")
 
 
 def test_batch_log_gauge_jacobian_equals_one_at_a_time():

@@ -1,5 +1,6 @@
 """The factor graph (sqfit.graph): factors' Jacobians, conventions, a small sequence, bad input."""
 
+import dataclasses
 import json
 
 import numpy as np
@@ -48,6 +49,10 @@ def test_camera_rays_are_pixel_bearings_whatever_the_observation_pose():
     np.testing.assert_allclose(a.directions, b.directions, atol=1e-12)
     np.testing.assert_allclose(a.directions[:, 2], 1.0)  # unit depth
     np.testing.assert_array_equal(a.origins, 0.0)
+    # made without a second validation: the same as a checked RaySet of the same arrays
+    checked = dataclasses.replace(a)
+    for name in ("origins", "directions", "offsets", "modes", "weights", "two_sided", "radii", "_hinge_in", "_hinge_out"):
+        np.testing.assert_array_equal(getattr(a, name), getattr(checked, name))
 
 
 def test_moving_rays_keeps_every_per_ray_array():
@@ -384,6 +389,8 @@ def test_bad_options_and_methods_are_named():
         graph.GraphOptions(init_frames=1)
     with pytest.raises(ValueError, match="silhouette_sigma must be a finite number > 0"):
         graph.GraphOptions(silhouette_sigma=0.0)
+    with pytest.raises(ValueError, match="batch_pose_noise_refit must be True or False"):
+        graph.GraphOptions(batch_pose_noise_refit="no")
     with pytest.raises(TypeError, match="options must be None, a dict or a GraphOptions"):
         graph.GraphOptions.coerce(3)
     with pytest.raises(ValueError, match=r"unknown method\(s\) \['slam'\]"):
@@ -423,11 +430,14 @@ def test_a_landmark_left_in_a_poor_minimum_is_refitted(small):
         T, s = landmark.superquadric_to_landmark(sq)
         values.insert(L(oid), gtsam.Pose3(T))
         values.insert(S(oid), s)
-    misfit = {oid: solve._object_misfit(prob, values, oid, options) for oid in seq.objects}
+    misfit = solve._object_misfits(prob, values, list(seq.objects), options)
+    # evaluated together, as alone
+    for oid in seq.objects:
+        assert solve._object_misfits(prob, values, [oid], options)[oid] == pytest.approx(misfit[oid], rel=1e-9)
     cache = {}  # the batch solve hands the re-fit the graph's rays: the same misfit from them
-    assert solve._object_misfit(prob, values, 2, options, cache) == misfit[2]
+    assert solve._object_misfits(prob, values, [2], options, cache)[2] == pytest.approx(misfit[2], rel=1e-9)
     assert sorted(cache) == [(f, 2) for f in prob.frames[2]]
-    assert solve._object_misfit(prob, values, 2, options, cache) == misfit[2]
+    assert solve._object_misfits(prob, values, [2], options, cache)[2] == pytest.approx(misfit[2], rel=1e-9)
     assert misfit[2] > options.refit_misfit > max(misfit[1], misfit[3]), misfit
     result = graph.SlamResult("graph", seq.true_poses)
     # the check after the batch's last solve looks at the overlap only: this minimum overlaps its masks
@@ -435,9 +445,29 @@ def test_a_landmark_left_in_a_poor_minimum_is_refitted(small):
     assert solve._refit(prob, values, list(seq.objects), options, result)
     assert [w.split(":")[0] for w in result.warnings] == ["object 2"]
     refit = landmark.landmark_to_superquadric(values.atPose3(L(2)).matrix(), values.atVector(S(2)))
-    assert solve._object_misfit(prob, values, 2, options) < options.refit_misfit
+    assert solve._object_misfits(prob, values, [2], options)[2] < options.refit_misfit
     assert iou_3d(refit, seq.objects[2]) > 0.8
     assert not solve._refit(prob, values, list(seq.objects), graph.GraphOptions(refit_misfit=0), result)
+
+
+def test_the_batch_fits_skip_the_fitters_pose_noise_branch(monkeypatch):
+    # the batch's landmark fits (initial and re-fit) run without the fitter's answer to pose noise
+    # (GraphOptions.batch_pose_noise_refit, default False); iSAM2's and the fixed baseline's keep it
+    from sqfit.fitting import pipeline
+
+    seq, seen = synthetic_sequence(0, n_frames=6, n_objects=1), []
+    real = pipeline.fit
+
+    def fit(observations, chain=None, **kw):
+        seen.append(sqfit.FitOptions.coerce(kw.get("options")).pose_noise_refit)
+        return real(observations, chain, **kw)
+
+    monkeypatch.setattr(pipeline, "fit", fit)
+    for methods, options, expected in ((["graph"], None, False), (["graph"], {"batch_pose_noise_refit": True}, True),
+                                       (["graph-isam2", "fixed"], None, True)):
+        seen.clear()
+        graph.run(seq.intrinsics, seq.odometry_poses, seq.observations, methods, options)
+        assert seen and set(seen) == {expected}, (methods, options)
 
 
 def test_observations_from_instance_images_match_the_masks():
@@ -499,13 +529,14 @@ def test_a_landmark_whose_silhouettes_miss_the_masks_is_refitted(small):
         T, s = landmark.superquadric_to_landmark(sq)
         values.insert(L(oid), gtsam.Pose3(T))
         values.insert(S(oid), s)
-    overlap = {oid: solve._object_overlap(prob, values, oid, seq.true_poses) for oid in seq.objects}
+    overlap = {oid: solve._overlap(values, oid, solve._observation_set(prob, oid, seq.true_poses, prob.frames[oid]))
+               for oid in seq.objects}
     assert overlap[2] < sqfit.constants.POOR_FIT_R_IOU_M < min(overlap[1], overlap[3]), overlap
     result = graph.SlamResult("graph", seq.true_poses)
     assert solve._refit(prob, values, list(seq.objects), options, result, overlap_only=True)
     assert [w.split(":")[0] for w in result.warnings] == ["object 2"] and "R-IOU-M" in result.warnings[0]
     refit = landmark.landmark_to_superquadric(values.atPose3(L(2)).matrix(), values.atVector(S(2)))
-    assert solve._object_overlap(prob, values, 2, seq.true_poses) > 0.7
+    assert solve._overlap(values, 2, solve._observation_set(prob, 2, seq.true_poses, prob.frames[2])) > 0.7
     assert iou_3d(refit, seq.objects[2]) > 0.8
 
 

@@ -113,6 +113,37 @@ def test_scale_free_and_odometry_scale_errors():
     assert odometry_scale_rmse(true, true) == pytest.approx(0.0, abs=1e-12)
 
 
+def test_scale_aligned_objects_undo_a_map_scaled_about_the_first_camera():
+    from dataclasses import replace
+
+    from sqfit.graph.testing import object_ious, scale_aligned_objects, trajectory_scale
+
+    true = np.stack(CAMERAS)
+    small = true.copy()
+    small[:, :3, 3] = true[0, :3, 3] + (true[:, :3, 3] - true[0, :3, 3]) / 1.02
+    shrunk = replace(SQ, size=tuple(np.asarray(SQ.size) / 1.02),
+                     position=tuple(true[0, :3, 3] + (np.asarray(SQ.position) - true[0, :3, 3]) / 1.02))
+    assert trajectory_scale(small, true) == pytest.approx(1.02, rel=1e-12)
+    assert object_ious({1: shrunk}, {1: SQ})[1] < 0.95
+    aligned = scale_aligned_objects({1: shrunk}, small, true)[1]
+    np.testing.assert_allclose(aligned.position, SQ.position, atol=1e-12)
+    np.testing.assert_allclose(aligned.size, SQ.size, rtol=1e-12)
+    assert aligned.rotation == SQ.rotation and aligned.shape == SQ.shape
+
+
+def test_odometry_scale_ious_score_the_truth_moved_by_the_odometrys_scale():
+    from sqfit.graph.testing import odometry_scale, odometry_scale_ious
+
+    true = np.stack(CAMERAS)
+    long = true.copy()
+    long[:, :3, 3] = true[0, :3, 3] + 1.02 * (true[:, :3, 3] - true[0, :3, 3])
+    assert odometry_scale(long, true) == pytest.approx(1.02, rel=1e-9)
+    assert odometry_scale_ious(true, true, {1: SQ})[1] == pytest.approx(1.0)
+    far = sqfit.Superquadric(SQ.size, SQ.shape, (-3.0, 0.5, 0.4), SQ.rotation)  # 7 m from the first camera
+    ious = odometry_scale_ious(long, true, {1: SQ, 2: far})
+    assert ious[2] < ious[1] < 0.99  # 2 % of the distance to the first camera, and of the size
+
+
 def test_isam2_rebuilt_at_the_best_scale_still_solves_the_sequence():
     from sqfit import graph
     from sqfit.graph.testing import position_rmse, synthetic_sequence

@@ -13,6 +13,7 @@ from sqfit.metrics import iou_3d
 from sqfit.testing import paper_trial
 from sqfit.views.rays import MIN_RADIUS_PX, RaySet, arc_normals, contour_rays
 from _numeric import central_difference
+from _helpers import stage
 
 
 @pytest.fixture(scope="module")
@@ -233,7 +234,7 @@ def test_3g_recovers_a_boundary_bias(delta):
 def test_offset_stays_near_zero_on_clean_masks():
     trial = paper_trial(1)
     result = sqfit.fit(trial.observations)
-    assert result.outline_offset_px == grazing.read_offsets(result.stages[-1].message).tolist()
+    assert result.outline_offset_px == grazing.read_offsets(stage(result, "3H").message).tolist()
     assert result.to_dict()["outline_offset_px"] == result.outline_offset_px
     assert abs(result.outline_offset_px[0]) < 0.2
     assert iou_3d(result.superquadric, trial.gt) > 0.98
@@ -242,7 +243,7 @@ def test_offset_stays_near_zero_on_clean_masks():
 def test_default_chain_reports_the_offset_per_view_on_request():
     trial = paper_trial(1)
     result = sqfit.fit(_biased(trial, 1.0), options={"outline_offset": "view"})
-    message = result.stages[-1].message
+    message = stage(result, "3H").message
     assert "outline offset [px] (view)" in message
     estimate = grazing.read_offsets(message)
     assert estimate.shape == (3,) and np.all(np.abs(estimate - 1.0) < 0.6)
@@ -251,7 +252,7 @@ def test_default_chain_reports_the_offset_per_view_on_request():
 def test_offsets_can_be_switched_off():
     trial = paper_trial(1)
     result = sqfit.fit(trial.observations, options={"outline_offset_sigma_px": 0.0})
-    assert grazing.read_offsets(result.stages[-1].message) is None and result.outline_offset_px is None
+    assert grazing.read_offsets(stage(result, "3H").message) is None and result.outline_offset_px is None
 
 
 def _box_trial(index):
@@ -274,7 +275,7 @@ def test_offset_is_not_estimated_for_a_shape_at_its_bound(monkeypatch):
     obs, mesh = _box_trial(0)
     result = sqfit.fit(obs)
     assert grazing.at_shape_bound(result.superquadric.to_vector())
-    assert result.outline_offset_px is None and "outline offset not estimated" in result.stages[-1].message
+    assert result.outline_offset_px is None and "outline offset not estimated" in stage(result, "3H").message
     monkeypatch.setattr(grazing, "SHAPE_AT_BOUND", -1.0)  # estimated all the same: the box grows
     free = sqfit.fit(obs)
     # -0.066 px, IoU 0.9849 against 0.9882 (-0.14 px with 3G's bound at 0.03, README "Real masks")

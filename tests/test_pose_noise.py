@@ -13,6 +13,7 @@ from sqfit.fitting.stages import FitState
 from sqfit.metrics import iou_3d
 from sqfit.testing import paper_trial
 from sqfit.views.rays import contour_rays
+from _helpers import stage
 
 #: Per-view camera-frame rotation errors (degrees) of the "noisy" trial below.
 TURNS_DEG = [(1.0, -0.5, 0.3), (-0.8, 1.2, -0.4), (0.6, 0.9, 1.0)]
@@ -69,7 +70,24 @@ def test_3h_refines_every_candidate_when_the_cameras_disagree():
     trial = paper_trial(1)
     result = sqfit.fit(_turned_observations(trial, TURNS_DEG))
     assert result.ok
-    assert "refined all under the pose prior" in result.stages[-1].message
+    assert "refined all under the pose prior" in stage(result, "3H").message
     assert iou_3d(result.superquadric, trial.gt) > 0.7
     clean = sqfit.fit(trial.observations)
-    assert "refined all" not in clean.stages[-1].message
+    assert "refined all" not in stage(clean, "3H").message
+
+
+def test_without_pose_noise_refit_the_fixed_prior_fit_is_kept():
+    # FitOptions.pose_noise_refit=False (the factor graph's fits): the corrections are still
+    # estimated under the fixed prior, but neither 3G's second run nor 3H's refinement of every
+    # candidate follows
+    trial = paper_trial(1)
+    obs = ObservationSet(_turned_observations(trial, TURNS_DEG))
+    options = sqfit.FitOptions(pose_noise_refit=False)
+    fit = silhouette_fit(FitState(trial.gt.to_vector()), obs, options)
+    assert fit.pose_noise_deg > POSE_NOISE_TRIGGER_DEG and fit.pose_scale is None
+    assert "pose prior scaled" not in fit.state.message
+    result = sqfit.fit(_turned_observations(trial, TURNS_DEG), options=options)
+    assert result.ok and "refined all" not in stage(result, "3H").message
+    assert 0.5 < iou_3d(result.superquadric, trial.gt) < 0.7  # the branch is what lifts it above 0.7
+    with pytest.raises(ValueError, match="pose_noise_refit must be True or False"):
+        sqfit.FitOptions(pose_noise_refit=1)

@@ -162,11 +162,22 @@ class ObservationSet:
             :func:`sqfit.geometry.visible_iou.hidden_counts` per view.
         """
         views = np.flatnonzero(self.border_views | self.occluded_views)
-        counts = [hidden_counts(polys[:, j], self.observations[j].hidden, self.hidden_in_target(polygon)[j])
-                  for j in views]
+        kernels = compiled("silhouettes")
+        count = hidden_counts if kernels is None else _compiled_hidden_counts(kernels)
+        counts = [count(polys[:, j], self.observations[j].hidden, self.hidden_in_target(polygon)[j]) for j in views]
         hi = np.stack([c[0] for c in counts], axis=1) if counts else np.zeros((len(polys), 0))
         hu = np.stack([c[1] for c in counts], axis=1) if counts else np.zeros((len(polys), 0))
         return views, self.border_views[views], hi, hu
+
+
+def _compiled_hidden_counts(kernels):
+    """:func:`sqfit.geometry.visible_iou.hidden_counts` by the compiled kernel (same numbers)."""
+    def count(S, points, in_q):
+        if not len(points):
+            return np.zeros(len(S)), np.zeros(len(S))
+        return kernels.hidden_counts(np.ascontiguousarray(S, dtype=np.float64),
+                                     np.ascontiguousarray(points, dtype=np.float64), np.ascontiguousarray(in_q))
+    return count
 
 
 def _hull(observation):

@@ -202,7 +202,7 @@ def silhouette_fit(state, obs, options, name="3G", plain_first=True, offsets=Non
         nfev += res.nfev
         if n_pose:
             noise_deg = pose_noise_estimate(res.x[len(xi0):len(xi0) + n_pose])
-        if n_pose and scale is None and noise_deg > POSE_NOISE_TRIGGER_DEG:
+        if n_pose and scale is None and options.pose_noise_refit and noise_deg > POSE_NOISE_TRIGGER_DEG:
             scale = pose_prior_scale(noise_deg, rays, start, options)
             res = minimise(rays, x0, options, sigma, offset_sigma, groups, scale)
             nfev += res.nfev

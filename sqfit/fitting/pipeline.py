@@ -36,15 +36,16 @@ __all__ = ["fit", "FitOptions", "FitResult", "StageRecord", "PAPER_CHAINS", "DEF
 #: The 13 chains of the paper's Table II, in its row order.
 PAPER_CHAINS = ("3A", "3B", "1-3A", "1-2-3A", "1-2-3B", "3E", "1-3E", "1-2-3C", "1-2-3D", "1-2-3E",
                 "1-2-3D-3E", "1-2-3D-3A", "1-2-3D-3F")
-DEFAULT_CHAIN = "1-2M-3H"  # measured: README "Beyond the paper", sqfit.fitting.axis_screen; 2M: sqfit.fitting.moments
+#: 2M: :mod:`sqfit.fitting.moments`; 3H: :mod:`sqfit.fitting.axis_screen` (README "Beyond the paper"); 3R:
+#: :mod:`sqfit.fitting.trimmed`, 3G without a stretch of outline rays that sticks out of the fit (a handle, a
+#: bottle's neck), acting only where 3H's cost is moderate and the misfit is such a stretch (README "Real objects").
+DEFAULT_CHAIN = "1-2M-3H-3R"
 #: Chain of :func:`fit` when a starting superquadric is given (``initial=``) and no chain is: a
 #: local refinement from it.
 INITIAL_CHAIN = "3G"
-#: The default followed by stages 3R (:mod:`sqfit.fitting.trimmed`: 3G without the outline rays no
-#: superquadric grazes, where 3G's cost is moderate: handles) and 3T (:mod:`sqfit.fitting.outline`:
-#: G2 on the mask contours where 3G's cost is high: legs, stands); opt-in, measured in the README
-#: ("Real objects").
-TOLERANT_CHAIN = DEFAULT_CHAIN + "-3R-3T"
+#: The default followed by stage 3T (:mod:`sqfit.fitting.outline`: G2 on the mask contours where 3G's cost
+#: is high: legs, stands); opt-in, measured in the README ("Real objects").
+TOLERANT_CHAIN = DEFAULT_CHAIN + "-3T"
 #: Names that stand for a whole chain wherever a chain is given (:func:`parse_chain`); ``hull`` is the
 #: visual-hull baseline (:data:`sqfit.fitting.hull.HULL_CHAIN`), ``tolerant`` :data:`TOLERANT_CHAIN`.
 CHAIN_ALIASES = {"default": DEFAULT_CHAIN, "hull": HULL_CHAIN, "tolerant": TOLERANT_CHAIN}
@@ -106,6 +107,11 @@ class FitOptions(Options):
         that the cameras disagree (RMS above ``sqfit.fitting.grazing.POSE_NOISE_TRIGGER_DEG``), 3G and
         3H fit again under a prior scaled to the residual noise at the estimated rotation noise
         (:func:`sqfit.fitting.grazing.silhouette_fit`); this value then only decides that.
+    pose_noise_refit : bool
+        Whether cameras that disagree (above) make 3G fit again under the noise-scaled prior and
+        3H refine every axis candidate under it (default True); False keeps the fit under the fixed
+        prior and 3H's refinement of the screen's best candidate (for callers that estimate the
+        poses themselves and only need a start: :mod:`sqfit.graph`).
     occlusion_aware : bool
         Use the observations' boundary labels (:mod:`sqfit.views.visibility`): occluded and truncated
         outline stretches are one-sided in 3G (and 3S), stages 1 and 2 down-weight or leave out
@@ -158,6 +164,7 @@ class FitOptions(Options):
     riou_jacobian: str = "analytic"
     silhouette_directions: int = 48
     pose_sigma_deg: float = 50.0
+    pose_noise_refit: bool = True
     occlusion_aware: bool = True
     outline_offset_sigma_px: float = 0.5
     outline_offset: str = "object"
@@ -187,8 +194,9 @@ class FitOptions(Options):
             raise ValueError(f"riou_jacobian must be 'analytic' or 'numeric', got {self.riou_jacobian!r}")
         if self.fd_step <= 0:
             raise ValueError(f"fd_step must be > 0, got {self.fd_step}")
-        if not isinstance(self.occlusion_aware, (bool, np.bool_)):
-            raise ValueError(f"occlusion_aware must be True or False, got {self.occlusion_aware!r}")
+        for name in ("occlusion_aware", "pose_noise_refit"):
+            if not isinstance(getattr(self, name), (bool, np.bool_)):
+                raise ValueError(f"{name} must be True or False, got {getattr(self, name)!r}")
 
 
 @dataclass
@@ -254,7 +262,8 @@ class FitResult:
     outline_offset_px : list of float or None
         The masks' outline offset estimated by the last stage that estimates it (3G, 3H; px, > 0:
         the outlines lie outside the silhouettes; one value per object or per view,
-        ``FitOptions.outline_offset``); None if no stage did.
+        ``FitOptions.outline_offset``); None if no stage did, or if a later stage changed the fit
+        without estimating one (stage 3R's trimmed re-fit keeps no offset).
     """
 
     superquadric: Superquadric | None
@@ -445,6 +454,10 @@ def fit(observations, chain=None, *, initial=None, rng=None, options=None):
         offsets = read_offsets(new.message)
         if offsets is not None:
             result.outline_offset_px = offsets.tolist()
+        elif not np.array_equal(new.xi, start.xi):
+            # a stage that moved the fit without estimating an offset (3R's trimmed re-fit, 3T):
+            # an earlier stage's offset belongs to a fit that is no longer the result
+            result.outline_offset_px = None
     if snapshots:
         scores = r_iou_m(snapshots, obs, options.polygon)
         for rec, s in zip((r for r in result.stages if r.superquadric is not None), scores):

@@ -14,7 +14,11 @@ compute the same numbers per view and per vertex:
 - :func:`convex_iou` is :func:`~sqfit.geometry.polygon.convex_overlap`'s IoU (Cyrus-Beck clipping of
   both boundaries, Green's theorem), with the same tie rules for shared and degenerate edges;
 - :func:`convex_hull` is Andrew's monotone chain, counter-clockwise without collinear vertices: the
-  polygon qhull returns for ``sqfit.fitting.costs``' hull observations, maybe from another first vertex.
+  polygon qhull returns for ``sqfit.fitting.costs``' hull observations, maybe from another first vertex;
+- :func:`hidden_counts` is :func:`sqfit.geometry.visible_iou.hidden_counts` (the occluding pixels
+  inside each silhouette, the same edge tests), a point's tests stopping at its first outside edge:
+  with thousands of occluding pixels per view the numpy version's ``(b, n)`` passes per edge were
+  ~15 % of the factor graph's batch time.
 
 Sums run in index order (numpy's pairwise sums and BLAS may round differently: IoUs agree to
 1e-12). No ``fastmath``. Importing this module imports numba; :mod:`sqfit.fitting.backend` does that
@@ -31,7 +35,7 @@ from numba import njit
 
 from .ray_kernels import nan_max, nan_min
 
-__all__ = ["silhouettes", "convex_iou", "convex_hull"]
+__all__ = ["silhouettes", "convex_iou", "convex_hull", "hidden_counts"]
 
 _TINY = 1e-300
 _JIT = dict(cache=True, error_model="numpy", nogil=True)
@@ -289,3 +293,44 @@ def convex_hull(points):
             size += 1
         size -= 1  # each chain's last point starts the other chain
     return hull[:size].copy() if size >= 3 else hull[:0].copy()
+
+
+@njit(**_JIT)
+def hidden_counts(S, points, in_q):
+    """:func:`sqfit.geometry.visible_iou.hidden_counts`: silhouettes ``S`` ``(b, k, 2)`` (convex,
+    CCW), ``points`` ``(n, 2)``, ``in_q`` ``(n,) bool`` -> ``(h_n, h_u)``, each ``(b,)`` float.
+    A point outside a silhouette's bounding box is outside it without the edge tests; a silhouette
+    with a non-finite vertex holds no point (as the numpy tests, whose comparisons are then false)."""
+    b, k, n = S.shape[0], S.shape[1], points.shape[0]
+    n_q = 0
+    for j in range(n):
+        if in_q[j]:
+            n_q += 1
+    inter, union = np.zeros(b), np.zeros(b)
+    for s in range(b):
+        lo_x, lo_y, hi_x, hi_y = np.inf, np.inf, -np.inf, -np.inf
+        finite = True
+        for i in range(k):
+            x, y = S[s, i, 0], S[s, i, 1]
+            if not (np.isfinite(x) and np.isfinite(y)):
+                finite = False
+            lo_x, hi_x, lo_y, hi_y = min(lo_x, x), max(hi_x, x), min(lo_y, y), max(hi_y, y)
+        both = inside_s = 0
+        for j in range(n):
+            px, py = points[j, 0], points[j, 1]
+            if not finite or px < lo_x or px > hi_x or py < lo_y or py > hi_y:
+                continue
+            inside = True
+            for i in range(k):
+                sx, sy = S[s, i, 0], S[s, i, 1]
+                nxt = i + 1 if i + 1 < k else 0
+                dx, dy = S[s, nxt, 0] - sx, S[s, nxt, 1] - sy
+                if not (dx * (py - sy) - dy * (px - sx) >= 0.0):
+                    inside = False
+                    break
+            if inside:
+                inside_s += 1
+                if in_q[j]:
+                    both += 1
+        inter[s], union[s] = both, inside_s + n_q - both
+    return inter, union

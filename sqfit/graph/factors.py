@@ -16,14 +16,16 @@ value).
 from __future__ import annotations
 
 import threading
+from dataclasses import fields
 
 import gtsam
 import numpy as np
 
-from .landmark import batch_silhouette_residuals, bounds_residuals, stack_rays
+from .floor import floor_residual
+from .landmark import StackedRays, batch_silhouette_residuals, bounds_residuals, stack_rays
 from .quadric import box_residuals
 
-__all__ = ["SilhouetteFactors", "silhouette_factor", "bounds_factor", "box_factor"]
+__all__ = ["SilhouetteFactors", "silhouette_factor", "bounds_factor", "floor_factor", "box_factor"]
 
 
 class SilhouetteFactors:
@@ -44,10 +46,18 @@ class SilhouetteFactors:
 
     def __init__(self):
         self._keys, self._rays, self._units, self._stacked = [], [], [], {}
-        self._key_set = set()
-        # per factor: the variables of its last evaluation (bytes: exact, and cheap to compare), its
-        # rows (None where non-finite) and its ray minimisers (the next warm start)
-        self._at, self._out, self._d = [], [], []
+        self._key_set = set()  # every factor's keys (holds)
+        # Each variable's distinct values so far, by exact bytes (cheap to compare), numbered: a
+        # factor's signature is the numbers of its variables' values, and it is re-evaluated when
+        # that changes (a value seen before keeps its number: a rejected step's values come back).
+        self._slot, self._pose, self._seen = {}, [], []  # key -> slot; per slot: a pose?, bytes -> number
+        self._slots, self._signed = [], None  # per factor its keys' slots (-1: none); as an array
+        # per factor: the signature of its last evaluation, its rows (None where non-finite) and its
+        # ray minimisers (the next warm start)
+        self._sig, self._out, self._d = np.zeros((0, 4), dtype=np.int64), [], []
+        self._last = []  # per factor: its signature as a tuple (one entry per key), None before any
+        # per ray count: every factor's rays stacked (StackedRays of them all) and each factor's row
+        self._pool, self._row, self._unpooled = {}, [], []
         self._lock = threading.Lock()
         self.evaluations = self.factor_evaluations = 0
 
@@ -65,20 +75,33 @@ class SilhouetteFactors:
         """A new silhouette factor of this graph (arguments: :func:`silhouette_factor`)."""
         i = len(self._keys)
         keys = (camera_key, pose_key, shape_key) + (() if offset_key is None else (offset_key,))
+        for position, key in enumerate(keys):
+            if key not in self._slot:
+                self._slot[key] = len(self._pose)
+                self._pose.append(position < 2)  # the camera and the landmark pose
+                self._seen.append({})
+        slots = [self._slot[key] for key in keys]
         self._keys.append(keys)
         self._key_set.add(keys)
+        self._slots.append(slots + [-1] * (4 - len(slots)))
+        self._signed = None
         self._units.append(float(offset_unit_px))
         self._rays.append(rays)
-        self._at.append(None)
+        self._row.append(None)
+        self._unpooled.append(i)
         self._out.append(None)
         self._d.append(None)
+        self._last.append(None)
+        # (key, a pose?, that variable's numbered values) per key: GTSAM calls this once per factor
+        # and pass, and most calls only find their variables unchanged
+        checks = tuple((key, self._pose[slot], self._seen[slot]) for key, slot in zip(keys, slots))
 
         def error(this, values, jacobians):
-            at = (values.atPose3(camera_key).matrix().tobytes() + values.atPose3(pose_key).matrix().tobytes()
-                  + values.atVector(shape_key).tobytes()
-                  + (b"" if offset_key is None else values.atVector(offset_key).tobytes()))
             with self._lock:
-                if at != self._at[i]:
+                last = self._last[i]
+                if last is None or any(
+                        seen.get((values.atPose3(key).matrix() if pose else values.atVector(key)).tobytes()) != number
+                        for (key, pose, seen), number in zip(checks, last)):
                     self._evaluate(values)
                 out = self._out[i]
             if out is None:
@@ -92,22 +115,32 @@ class SilhouetteFactors:
 
         return gtsam.CustomFactor(noise, list(keys), error)
 
+    def _signatures(self, values):
+        """The numbers of the values of every variable in ``values`` (-1 where absent), by slot,
+        with a last entry -1 for the unused fourth key of factors without an outline offset."""
+        numbers = np.full(len(self._pose) + 1, -1, dtype=np.int64)
+        read = {}
+        for key, slot in self._slot.items():
+            v = _read(values, key, self._pose[slot]) if values.exists(key) else None
+            if v is not None:
+                seen = self._seen[slot]
+                numbers[slot] = seen.setdefault(v.tobytes(), len(seen))
+                read[key] = v
+        return numbers, read
+
     def _evaluate(self, values):
         """Evaluate every factor whose variables are in ``values`` and differ from its last evaluation."""
-        read = {}
-        for keys in self._keys:
-            for slot, key in enumerate(keys):
-                if key not in read:
-                    read[key] = _read(values, key, pose=slot < 2)
-        stale, at = [], {}
-        for i, keys in enumerate(self._keys):
-            if any(read[key] is None for key in keys):
-                continue
-            at[i] = b"".join(read[key].tobytes() for key in keys)
-            if at[i] != self._at[i]:
-                stale.append(i)
+        if self._signed is None:
+            self._signed = np.array(self._slots, dtype=np.int64).reshape(-1, 4)
+            grown = np.full((len(self._slots), 4), -2, dtype=np.int64)
+            grown[:len(self._sig)] = self._sig
+            self._sig = grown
+        numbers, read = self._signatures(values)
+        sig = numbers[self._signed]  # (factors, 4); the fourth key's -1 where there is none
+        present = np.all((sig >= 0) | (self._signed < 0), axis=1)
+        stale = np.flatnonzero(present & np.any(sig != self._sig, axis=1))
         groups = {}  # evaluated together: the same number of rays, with or without an outline offset
-        for i in stale:
+        for i in stale.tolist():
             groups.setdefault((len(self._rays[i]), len(self._keys[i])), []).append(i)
         for (_, n_keys), idx in groups.items():
             Tc, Tl, shape = (np.stack([read[self._keys[i][slot]] for i in idx]) for slot in range(3))
@@ -124,9 +157,12 @@ class SilhouetteFactors:
             for j, i in enumerate(idx):
                 # copies, not views: a view would keep this evaluation's arrays alive for as long as
                 # any one of its factors is not re-evaluated (iSAM2 leaves old frames' factors alone)
-                self._at[i], self._d[i] = at[i], d[j].copy()
+                self._d[i] = d[j].copy()
                 self._out[i] = ((r[j].copy(), Jc[j].copy(), Jl[j].copy(), Js[j].copy())
                                 + tuple(a[j][:, None].copy() for a in Jo)) if finite[j] else None
+            self._sig[idx] = sig[idx]
+            for i in idx:
+                self._last[i] = tuple(self._sig[i, :len(self._keys[i])].tolist())
             self.factor_evaluations += len(idx)
         self.evaluations += 1
 
@@ -137,14 +173,28 @@ class SilhouetteFactors:
             # variables in iSAM2): keep the last few stackings
             if len(self._stacked) > 8:
                 self._stacked.pop(next(iter(self._stacked)))
-            self._stacked[key] = stack_rays([self._rays[i] for i in idx])
+            self._stacked[key] = self._gather(idx)
         return self._stacked[key]
+
+    def _gather(self, idx):
+        """The rays of factors ``idx`` (all with the same ray count) from the pool of that count,
+        stacked once per factor as factors are added, not per evaluation."""
+        n = len(self._rays[idx[0]])
+        new = [i for i in self._unpooled if len(self._rays[i]) == n]
+        if new:
+            self._unpooled = [i for i in self._unpooled if len(self._rays[i]) != n]
+            pool, rows = self._pool.get(n), len(self._pool[n]) if n in self._pool else 0
+            added = stack_rays([self._rays[i] for i in new])
+            self._pool[n] = added if pool is None else StackedRays(*(
+                np.concatenate([getattr(pool, f.name), getattr(added, f.name)]) for f in fields(StackedRays)))
+            for j, i in enumerate(new):
+                self._row[i] = rows + j
+        rows, pool = np.array([self._row[i] for i in idx]), self._pool[n]
+        return StackedRays(*(getattr(pool, f.name)[rows] for f in fields(StackedRays)))
 
 
 def _read(values, key, pose):
-    """A variable (a pose as its (4, 4) matrix), or None when ``values`` lacks it."""
-    if not values.exists(key):
-        return None
+    """A variable (a pose as its (4, 4) matrix) of ``values``."""
     return values.atPose3(key).matrix() if pose else values.atVector(key)
 
 
@@ -185,6 +235,20 @@ def bounds_factor(shape_key, weight):
         return r
 
     return gtsam.CustomFactor(gtsam.noiseModel.Unit.Create(5), [shape_key], error)
+
+
+def floor_factor(noise, pose_key, shape_key, floor_z):
+    """Binary factor: the landmark's lowest point on the floor ``z = floor_z``
+    (:func:`sqfit.graph.floor.floor_residual`); ``noise`` of dimension 1, metres."""
+    floor_z = float(floor_z)
+
+    def error(this, values, jacobians):
+        r, J_pose, J_shape = floor_residual(values.atPose3(pose_key).matrix(), values.atVector(shape_key), floor_z)
+        if jacobians is not None:
+            jacobians[0], jacobians[1] = J_pose, J_shape
+        return r
+
+    return gtsam.CustomFactor(noise, [pose_key, shape_key], error)
 
 
 def box_factor(noise, camera_key, pose_key, radii_key, K, box):

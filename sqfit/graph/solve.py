@@ -5,8 +5,9 @@ odometry pose, a ``BetweenFactorPose3`` per frame step from the odometry; per ob
 landmark pose ``L(j)`` (``Pose3``, superquadric -> world) and a size/shape vector ``S(j)``
 (``[ax, ay, az, e1, e2]``) with the bound penalty (eq. 7) as a unary factor; one silhouette factor
 per (frame, object) (:func:`sqfit.graph.factors.silhouette_factor`) under a Huber-robust noise
-model. Each landmark starts from :func:`sqfit.fit` on the first frames that see it, at the current
-pose estimates.
+model; with ``GraphOptions.floor_z``, a floor factor per landmark (:mod:`sqfit.graph.floor`). Each
+landmark starts from :func:`sqfit.fit` on the first frames that see it, at the current pose
+estimates.
 
 Methods (every one returns a :class:`sqfit.graph.problem.SlamResult`):
 
@@ -38,7 +39,7 @@ from .. import constants as C
 from ..fitting import pipeline
 from ..fitting.grazing import OFFSET_UNIT_PX
 from ..fitting.stages import r_iou_m
-from .factors import SilhouetteFactors, bounds_factor, box_factor, silhouette_factor
+from .factors import SilhouetteFactors, bounds_factor, box_factor, floor_factor, silhouette_factor
 from .fixedlag import condition_on_past
 from .landmark import camera_rays, landmark_to_superquadric, superquadric_to_landmark
 from .problem import GraphOptions, SlamResult, check_inputs, observation_at, ready_to_initialise
@@ -96,13 +97,15 @@ def _poses(values, n):
     return np.stack([values.atPose3(X(i)).matrix() for i in range(n)])
 
 
-def _initial_fit(problem, oid, frames, poses, options):
-    """:func:`sqfit.fit` of object ``oid`` on ``frames`` at ``poses`` (frame -> (4, 4)); a landmark
-    ``(T, shape)`` or the failure message."""
-    obs = [observation_at(problem.observations[f, oid], poses[f]) for f in frames]
-    res = pipeline.fit(obs, options.init_chain)
+def _initial_fit(problem, oid, frames, poses, options, pose_noise_refit=True):
+    """:func:`sqfit.fit` of object ``oid`` on ``frames`` at ``poses`` (frame -> (4, 4)), or on
+    ``frames`` given as its observations (an ObservationSet, ``poses`` None); a landmark ``(T, shape)``
+    or the failure message. ``pose_noise_refit``: the fit's option of that name."""
+    obs = frames if poses is None else [observation_at(problem.observations[f, oid], poses[f]) for f in frames]
+    res = pipeline.fit(obs, options.init_chain, options={"pose_noise_refit": bool(pose_noise_refit)})
     if not res.ok or res.superquadric is None:
-        return None, f"initial fit on frames {list(frames)} failed: {res.status}: {res.message}"
+        where = f"{len(obs)} frames" if poses is None else f"frames {list(frames)}"
+        return None, f"initial fit on {where} failed: {res.status}: {res.message}"
     return superquadric_to_landmark(res.superquadric), ""
 
 
@@ -117,6 +120,8 @@ def _add_landmark(graph, values, problem, oid, frames, landmark, options, batch,
     rot, pos, size = np.radians(options.landmark_prior_sigma_deg), options.landmark_prior_sigma_m, options.shape_prior_sigma
     graph.add(gtsam.PriorFactorPose3(L(oid), gtsam.Pose3(T), gtsam.noiseModel.Diagonal.Sigmas(np.array([rot] * 3 + [pos] * 3))))
     graph.add(gtsam.PriorFactorVector(S(oid), shape, gtsam.noiseModel.Isotropic.Sigma(len(shape), size)))
+    if options.floor_z is not None:
+        graph.add(floor_factor(_robust(1, options.floor_sigma_m, options.huber_k), L(oid), S(oid), options.floor_z))
     offset = _offset_key(oid, options)
     if offset is not None:  # the masks' outline offset, px / OFFSET_UNIT_PX, prior at 0
         values.insert(offset, np.zeros(1))
@@ -233,10 +238,11 @@ class _Growth:
     """Grows the graph frame by frame (shared by the batch windows and iSAM2): each new frame's pose,
     chained from the current estimate of the previous one by the odometry step, its odometry factor,
     its silhouette factors, and the landmarks whose first frames have become enough for their
-    initial fit (at the current pose estimates)."""
+    initial fit (at the current pose estimates; ``pose_noise_refit``: :func:`_initial_fit`)."""
 
-    def __init__(self, problem, options, result):
+    def __init__(self, problem, options, result, pose_noise_refit=True):
         self.problem, self.options, self.result = problem, options, result
+        self.pose_noise_refit = pose_noise_refit
         self.noise = _noise(options)
         self.by_frame = {}
         for oid, frames in problem.frames.items():
@@ -268,7 +274,7 @@ class _Growth:
         last = i == self.problem.n_frames - 1
         if not (ready_to_initialise(self.problem, oid, frames, self.current, self.options) or (last and len(frames) >= 2)):
             return
-        landmark, message = _initial_fit(self.problem, oid, frames, self.current, self.options)
+        landmark, message = _initial_fit(self.problem, oid, frames, self.current, self.options, self.pose_noise_refit)
         if landmark is None:
             _skip(self.result, oid, message)
             self.failed.add(oid)
@@ -296,7 +302,7 @@ def _batch(problem, options):
     clock, n = _Clock(), problem.n_frames
     result = SlamResult("graph", problem.odometry_poses.copy(), skipped=dict(problem.skipped),
                         warnings=list(problem.warnings))
-    growth = _Growth(problem, options, result)
+    growth = _Growth(problem, options, result, options.batch_pose_noise_refit)
     graph, values = gtsam.NonlinearFactorGraph(), gtsam.Values()
     window = options.batch_window or n
     try:
@@ -365,14 +371,14 @@ def _window_solve(graph, values, growth, end, options):
     return iterations
 
 
-def _object_misfit(problem, values, oid, options, rays_cache=None):
-    """RMS whitened ray residual of object ``oid``'s silhouette factors at ``values`` (1: a typical
-    ray one ``silhouette_sigma`` off)."""
-    sub, rows, batch = gtsam.NonlinearFactorGraph(), 0, SilhouetteFactors()
-    for f in problem.frames[oid]:
-        sub.add(_silhouette(problem, f, oid, options, batch, rays_cache))
-        rows += options.n_contour
-    return float(np.sqrt(2.0 * sub.error(values) / rows))
+def _object_misfits(problem, values, oids, options, rays_cache=None):
+    """RMS whitened ray residual of each object's silhouette factors at ``values`` (1: a typical ray
+    one ``silhouette_sigma`` off), ``{oid: float}``; the factors of all ``oids`` evaluated together."""
+    batch, factors = SilhouetteFactors(), {}
+    for oid in oids:
+        factors[oid] = [_silhouette(problem, f, oid, options, batch, rays_cache) for f in problem.frames[oid]]
+    return {oid: float(np.sqrt(2.0 * sum(factor.error(values) for factor in fs) / (len(fs) * options.n_contour)))
+            for oid, fs in factors.items()}
 
 
 def _spread(frames, most):
@@ -382,14 +388,18 @@ def _spread(frames, most):
     return [frames[i] for i in np.unique(np.round(np.linspace(0, len(frames) - 1, most)).astype(int))]
 
 
-def _object_overlap(problem, values, oid, poses, frames=None):
-    """R-IOU-M of object ``oid``'s landmark against its observations at ``poses`` in ``frames``
-    (default: all that see it): how much its silhouettes overlap its masks
-    (``sqfit.fitting.stages.r_iou_m``; 3G's "far, huge" minimum has a low misfit but almost no overlap)."""
+def _observation_set(problem, oid, poses, frames):
+    """Object ``oid``'s observations in ``frames`` at ``poses``, as one
+    :class:`sqfit.fitting.costs.ObservationSet` (its caches shared by the overlap tests and the fit)."""
     from ..fitting.costs import ObservationSet
 
-    frames = problem.frames[oid] if frames is None else frames
-    obs = ObservationSet([observation_at(problem.observations[f, oid], poses[f]) for f in frames])
+    return ObservationSet([observation_at(problem.observations[f, oid], poses[f]) for f in frames])
+
+
+def _overlap(values, oid, obs):
+    """R-IOU-M of object ``oid``'s landmark at ``values`` against ``obs`` (an ObservationSet): how
+    much its silhouettes overlap its masks (``sqfit.fitting.stages.r_iou_m``; 3G's "far, huge"
+    minimum has a low misfit but almost no overlap)."""
     sq = landmark_to_superquadric(values.atPose3(L(oid)).matrix(), values.atVector(S(oid)))
     return float(r_iou_m([sq], obs)[0])
 
@@ -405,24 +415,28 @@ def _refit(problem, values, oids, options, result, rays_cache=None, overlap_only
     if options.refit_misfit <= 0:
         return False
     poses = _poses(values, problem.n_frames)
+    misfits = {} if overlap_only else _object_misfits(problem, values, oids, options, rays_cache)
     changed = False
     for oid in oids:
         frames = _spread(problem.frames[oid], options.refit_max_frames)
-        overlap = _object_overlap(problem, values, oid, poses, frames)
+        obs = _observation_set(problem, oid, poses, frames)
+        overlap = _overlap(values, oid, obs)
         disjoint = overlap < C.POOR_FIT_R_IOU_M
         if overlap_only and not disjoint:
             continue
-        before = _object_misfit(problem, values, oid, options, rays_cache)
+        if oid not in misfits:
+            misfits.update(_object_misfits(problem, values, [oid], options, rays_cache))
+        before = misfits[oid]
         if before <= options.refit_misfit and not disjoint:
             continue
-        landmark, _ = _initial_fit(problem, oid, frames, poses, options)
+        landmark, _ = _initial_fit(problem, oid, obs, None, options, options.batch_pose_noise_refit)
         if landmark is None:
             continue
         trial = gtsam.Values(values)
         trial.update(L(oid), gtsam.Pose3(landmark[0]))
         trial.update(S(oid), np.asarray(landmark[1], dtype=np.float64))
-        after = _object_misfit(problem, trial, oid, options, rays_cache)
-        overlap_after = _object_overlap(problem, trial, oid, poses, frames)
+        after = _object_misfits(problem, trial, [oid], options, rays_cache)[oid]
+        overlap_after = _overlap(trial, oid, obs)
         if (overlap_after > overlap) if disjoint else (after < before):
             values.update(L(oid), gtsam.Pose3(landmark[0]))
             values.update(S(oid), np.asarray(landmark[1], dtype=np.float64))

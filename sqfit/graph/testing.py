@@ -15,7 +15,7 @@ seeded random perturbation ``Exp([omega, v])`` (``omega ~ N(0, odometry_sigma_de
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 from scipy.spatial.transform import Rotation
@@ -27,7 +27,8 @@ from ..geometry.superquadric import Superquadric
 from ..testing import polygon_mask
 
 __all__ = ["SEQUENCE_INTRINSICS", "Sequence", "synthetic_sequence", "position_rmse", "scale_free_rmse",
-           "odometry_scale_rmse", "object_ious"]
+           "trajectory_scale", "scaled_objects", "scale_aligned_objects", "odometry_scale", "odometry_scale_rmse",
+           "odometry_scale_ious", "object_ious"]
 
 SEQUENCE_INTRINSICS = Intrinsics(640, 480, 500.0, 500.0, 320.0, 240.0)
 LOOK_AT_HEIGHT = 0.4  #: metres
@@ -107,24 +108,61 @@ def _scaled_about_first(poses, s):
     return out
 
 
+def trajectory_scale(poses, true_poses):
+    """The least-squares factor ``s`` that scales ``poses``' camera centres about their first one
+    onto ``true_poses``' (both trajectories start at the same pose): ``s > 1`` when ``poses`` is
+    too small."""
+    p, q = poses[:, :3, 3] - poses[0, :3, 3], true_poses[:, :3, 3] - true_poses[0, :3, 3]
+    return float(np.sum(p * q) / max(np.sum(p * p), 1e-300))
+
+
 def scale_free_rmse(poses, true_poses):
     """:func:`position_rmse` after the least-squares scale of ``poses`` about their first camera
-    centre: the error of the trajectory's shape (silhouettes are scale-free; the scale comes from
-    the odometry alone)."""
-    p, q = poses[:, :3, 3] - poses[0, :3, 3], true_poses[:, :3, 3] - true_poses[0, :3, 3]
-    return position_rmse(_scaled_about_first(poses, float(np.sum(p * q) / max(np.sum(p * p), 1e-300))), true_poses)
+    centre (:func:`trajectory_scale`): the error of the trajectory's shape (silhouettes are
+    scale-free; the scale comes from the odometry alone)."""
+    return position_rmse(_scaled_about_first(poses, trajectory_scale(poses, true_poses)), true_poses)
+
+
+def scaled_objects(objects, centre, s):
+    """``objects`` (``{id: Superquadric}``) with positions scaled by ``s`` about ``centre`` ``(3,)``
+    and sizes by ``s`` (rotations and shapes unchanged): a map moved along the scale direction."""
+    centre = np.asarray(centre, dtype=np.float64)
+    return {oid: replace(sq, size=tuple(s * np.asarray(sq.size)),
+                         position=tuple(centre + s * (np.asarray(sq.position) - centre)))
+            for oid, sq in objects.items()}
+
+
+def scale_aligned_objects(objects, poses, true_poses):
+    """``objects`` scaled about ``poses``' first camera centre by :func:`trajectory_scale`: the map
+    as it would be had the trajectory the true scale. Their IoU against the truth is what the map
+    loses to everything but the scale, which no silhouette measures."""
+    return scaled_objects(objects, poses[0, :3, 3], trajectory_scale(poses, true_poses))
+
+
+def odometry_scale(odometry_poses, true_poses):
+    """The odometry's own scale error: the least-squares factor of the measured steps' translations
+    along the true ones, each in its first frame (> 1: the steps are too long)."""
+    true_poses, odometry_poses = np.asarray(true_poses, dtype=np.float64), np.asarray(odometry_poses, dtype=np.float64)
+    steps = np.array([(np.linalg.inv(a) @ b)[:3, 3] for a, b in zip(true_poses[:-1], true_poses[1:])])
+    measured = np.array([(np.linalg.inv(a) @ b)[:3, 3] for a, b in zip(odometry_poses[:-1], odometry_poses[1:])])
+    return float(np.sum(steps * measured) / max(np.sum(steps * steps), 1e-300))
 
 
 def odometry_scale_rmse(odometry_poses, true_poses):
     """:func:`position_rmse` of the true trajectory scaled about its first camera centre by the
-    odometry's own scale error (the least-squares factor of the measured steps' translations along
-    the true ones, each in its first frame): what a method that gets all but the scale right, and
-    takes the scale from the odometry (nothing else in the graph measures it), scores."""
-    true_poses, odometry_poses = np.asarray(true_poses, dtype=np.float64), np.asarray(odometry_poses, dtype=np.float64)
-    steps = np.array([(np.linalg.inv(a) @ b)[:3, 3] for a, b in zip(true_poses[:-1], true_poses[1:])])
-    measured = np.array([(np.linalg.inv(a) @ b)[:3, 3] for a, b in zip(odometry_poses[:-1], odometry_poses[1:])])
-    s = float(np.sum(steps * measured) / max(np.sum(steps * steps), 1e-300))
-    return position_rmse(_scaled_about_first(true_poses, s), true_poses)
+    odometry's own scale error (:func:`odometry_scale`): what a method that gets all but the scale
+    right, and takes the scale from the odometry (nothing else in the graph measures it), scores."""
+    true_poses = np.asarray(true_poses, dtype=np.float64)
+    return position_rmse(_scaled_about_first(true_poses, odometry_scale(odometry_poses, true_poses)), true_poses)
+
+
+def odometry_scale_ious(odometry_poses, true_poses, true_objects):
+    """``{id: 3D IoU}`` of the true objects scaled about the first true camera centre by the
+    odometry's scale error (:func:`odometry_scale`) against themselves: the object IoU of a method
+    whose map is perfect but for the scale, which it takes from the odometry."""
+    true_poses = np.asarray(true_poses, dtype=np.float64)
+    moved = scaled_objects(true_objects, true_poses[0, :3, 3], odometry_scale(odometry_poses, true_poses))
+    return object_ious(moved, true_objects)
 
 
 def object_ious(objects, true_objects):

@@ -1,0 +1,108 @@
+"""A known floor under the landmarks: the one metric cue a sequence of silhouettes can be given.
+
+Silhouettes are scale-free (:mod:`sqfit.graph.scale`), so the graph's scale comes from the odometry
+alone. When the caller knows the height ``floor_z`` of the plane the objects stand on, in the world
+frame of the poses (a camera at a known height above the floor in a gravity-aligned frame; in a
+simulated ``ground`` scene, ``z = 0``), each landmark's lowest point measures that scale: scaling
+the map by ``s`` about frame 0's camera moves a point on the floor by ``(s - 1)`` times the camera's
+height above it. This is information the images and odometry do not carry; the graph uses it only
+when asked (``GraphOptions.floor_z``).
+
+The lowest point of a superquadric: with ``n = R^T e_z`` (world up in the landmark's frame) and
+``m = a * n``, the height of its highest point above its centre along ``n`` is the support function
+``h = ((|m_x|^q2 + |m_y|^q2)^(q1 / q2) + |m_z|^q1)^(1 / q1)``, ``q_i = 2 / (2 - e_i)`` (the dual of
+the superquadric's nested norm with powers ``2 / e_i``; convex shapes, ``e <= 2``), and by symmetry
+its lowest point lies ``h`` below the centre. Jacobians follow :mod:`sqfit.graph.landmark`'s pose
+convention (``T' = T Exp([omega, v])``): ``n' = n + n x omega``, ``t' = t + R v``.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from .landmark import EVAL_LOWER, N_SHAPE
+
+__all__ = ["lowest_point_height", "floor_residual", "FLOOR_SHAPE_MAX"]
+
+#: The shape exponents are clipped to at most this in the support function (``q = 2 / (2 - e)``
+#: grows without bound at ``e = 2``); the bound penalty keeps them below 1.9.
+FLOOR_SHAPE_MAX = 1.95
+#: Central-difference step of the support function's derivative in the shape exponents.
+_E_STEP = 1e-6
+
+
+def _support(m, e):
+    """``(h, dh/dm (3,))`` of the direction ``m = a * n`` for exponents ``e = (e1, e2)``."""
+    q1, q2 = 2.0 / (2.0 - e[0]), 2.0 / (2.0 - e[1])
+    x = np.abs(m)
+    A = x[0] ** q2 + x[1] ** q2
+    h = (A ** (q1 / q2) + x[2] ** q1) ** (1.0 / q1)
+    if h == 0.0:
+        return 0.0, np.zeros(3)
+    c = h ** (1.0 - q1)
+    g = np.zeros(3)
+    g[2] = c * x[2] ** (q1 - 1.0)
+    if A > 0.0:
+        g[:2] = c * A ** (q1 / q2 - 1.0) * x[:2] ** (q2 - 1.0)
+    return h, g * np.sign(m)
+
+
+def lowest_point_height(T_world_sq, shape):
+    """World ``z`` of a landmark's lowest point.
+
+    Parameters
+    ----------
+    T_world_sq : (4, 4) float
+        Landmark pose (superquadric -> world, world +z up).
+    shape : (5,) float
+        ``[ax, ay, az, e1, e2]``; ``a`` clipped below at ``EVAL_LOWER``, ``e`` to
+        ``[EVAL_LOWER, FLOOR_SHAPE_MAX]``.
+
+    Returns
+    -------
+    z : float
+    """
+    T, shape = np.asarray(T_world_sq, dtype=np.float64), np.asarray(shape, dtype=np.float64)
+    a, e = _clipped(shape)
+    return float(T[2, 3] - _support(a * T[2, :3], e)[0])
+
+
+def _clipped(shape):
+    return np.maximum(shape[:3], EVAL_LOWER[:3]), np.clip(shape[3:N_SHAPE], EVAL_LOWER[3:], FLOOR_SHAPE_MAX)
+
+
+def floor_residual(T_world_sq, shape, floor_z):
+    """Height of a landmark's lowest point above the floor, and its Jacobians.
+
+    No input checks (runs at every evaluation of the factor, on values GTSAM holds).
+
+    Parameters
+    ----------
+    T_world_sq : (4, 4) float
+    shape : (5,) float
+    floor_z : float
+        The floor's height, world frame, metres.
+
+    Returns
+    -------
+    r : (1,) float
+        Metres (``> 0``: the landmark floats above the floor).
+    J_pose : (1, 6) float
+        ``d r / d [omega, v]`` (module docstring).
+    J_shape : (1, 5) float
+        ``d r / d s``; the exponents' columns by central differences, zero where clipped.
+    """
+    R, t = T_world_sq[:3, :3], T_world_sq[:3, 3]
+    a, e = _clipped(shape)
+    n = R[2]
+    h, g = _support(a * n, e)
+    gn = g * a  # dh/dn
+    J_pose = np.concatenate([-np.cross(gn, n), n])  # dh/domega = gn . (n x omega) = (gn x n) . omega
+    J_shape = np.zeros(N_SHAPE)
+    J_shape[:3] = -g * n * (shape[:3] >= EVAL_LOWER[:3])
+    for k in range(2):
+        if EVAL_LOWER[3 + k] <= shape[3 + k] <= FLOOR_SHAPE_MAX:
+            step = np.zeros(2)
+            step[k] = _E_STEP
+            J_shape[3 + k] = -(_support(a * n, e + step)[0] - _support(a * n, e - step)[0]) / (2.0 * _E_STEP)
+    return np.array([t[2] - h - floor_z]), J_pose[None], J_shape[None]

@@ -1,0 +1,93 @@
+"""A known floor under the landmarks (sqfit.graph.floor): the lowest point, its Jacobians, and the
+scale it gives a graph whose odometry has the wrong one."""
+
+import numpy as np
+import pytest
+
+gtsam = pytest.importorskip("gtsam")
+
+import sqfit  # noqa: E402
+from sqfit import graph  # noqa: E402
+from sqfit.geometry.superquadric import sample_surface_parametric  # noqa: E402
+from sqfit.graph import factors, floor, landmark  # noqa: E402
+from sqfit.graph.testing import object_ious, synthetic_sequence, trajectory_scale  # noqa: E402
+from _numeric import central_difference  # noqa: E402
+
+from gtsam.symbol_shorthand import L, S  # noqa: E402
+
+TILTED = sqfit.Superquadric((0.5, 0.3, 0.4), (0.6, 1.3), (0.2, -0.1, 0.9), (0.3, -0.2, 0.5))
+
+
+def _retract(T, delta):
+    return gtsam.Pose3(T).retract(delta).matrix()
+
+
+@pytest.mark.parametrize("shape", [(0.2, 0.2), (1.0, 1.0), (1.8, 0.4), (0.6, 1.3)])
+def test_lowest_point_is_the_lowest_surface_point(shape):
+    sq = sqfit.Superquadric((0.5, 0.3, 0.4), shape, (0.2, -0.1, 0.9), (0.3, -0.2, 0.5))
+    T, s = landmark.superquadric_to_landmark(sq)
+    lowest = sample_surface_parametric(sq, 200_000, rng=0)[:, 2].min()
+    assert floor.lowest_point_height(T, s) == pytest.approx(lowest, abs=2e-3)
+    assert floor.lowest_point_height(T, s) <= lowest + 1e-9
+
+
+def test_an_upright_superquadric_standing_on_the_floor_has_zero_residual():
+    sq = sqfit.Superquadric((0.5, 0.3, 0.4), (0.3, 1.4), (1.0, 2.0, 0.4), (0.0, 0.0, 0.7))
+    T, s = landmark.superquadric_to_landmark(sq)
+    assert floor.floor_residual(T, s, 0.0)[0] == pytest.approx([0.0], abs=1e-12)
+    assert floor.floor_residual(T, s, -0.1)[0] == pytest.approx([0.1], abs=1e-12)
+
+
+def test_floor_jacobians_match_central_differences():
+    T, s = landmark.superquadric_to_landmark(TILTED)
+    r, J_pose, J_shape = floor.floor_residual(T, s, 0.0)
+    f_pose = lambda x: floor.floor_residual(_retract(T, x), s, 0.0)[0]  # noqa: E731
+    f_shape = lambda x: floor.floor_residual(T, x, 0.0)[0]  # noqa: E731
+    assert np.abs(J_pose[0, :3]).max() > 0.05  # the tilt moves the lowest point
+    np.testing.assert_allclose(J_pose, central_difference(f_pose, np.zeros(6)), atol=1e-6)
+    np.testing.assert_allclose(J_shape, central_difference(f_shape, s), atol=1e-6)
+
+
+def test_floor_factor_linearises_as_its_residual():
+    T, s = landmark.superquadric_to_landmark(TILTED)
+    values = gtsam.Values()
+    values.insert(L(1), gtsam.Pose3(T))
+    values.insert(S(1), s)
+    f = factors.floor_factor(gtsam.noiseModel.Unit.Create(1), L(1), S(1), 0.25)
+    r, J_pose, J_shape = floor.floor_residual(T, s, 0.25)
+    np.testing.assert_allclose(f.unwhitenedError(values), r)
+    A = f.linearize(values).jacobian()[0]
+    np.testing.assert_allclose(A, np.hstack([J_pose, J_shape]), atol=1e-12)
+
+
+def _long_odometry(seq, factor):
+    """``seq``'s odometry with every step's translation ``factor`` times as long."""
+    odo = [seq.odometry_poses[0]]
+    for a, b in zip(seq.odometry_poses[:-1], seq.odometry_poses[1:]):
+        step = np.linalg.inv(a) @ b
+        step[:3, 3] *= factor
+        odo.append(odo[-1] @ step)
+    return np.stack(odo)
+
+
+def test_a_known_floor_gives_the_graph_the_scale_the_odometry_gets_wrong():
+    seq = synthetic_sequence(0, n_frames=16, n_objects=3)  # objects stand on z = 0
+    odometry = _long_odometry(seq, 1.04)  # steps of ~0.7 m, each ~3 cm too long: sigma to match
+    scales, ious = {}, {}
+    for name, options in (("odometry's scale", {"odometry_sigma_m": 0.03}),
+                          ("floor", {"odometry_sigma_m": 0.03, "floor_z": 0.0})):
+        r = graph.run(seq.intrinsics, odometry, seq.observations, ["graph"], options)["graph"]
+        scales[name] = trajectory_scale(r.poses, seq.true_poses)
+        ious[name] = np.median(list(object_ious(r.objects, seq.objects).values()))
+    assert scales["odometry's scale"] < 0.975, scales  # the graph keeps most of the odometry's 4 %
+    assert abs(scales["floor"] - 1.0) < 0.01, scales
+    assert ious["floor"] > ious["odometry's scale"] + 0.03, ious
+
+
+@pytest.mark.parametrize("options, match", [
+    ({"floor_z": float("nan")}, "floor_z must be a finite height or None"),
+    ({"floor_sigma_m": 0.0}, "floor_sigma_m must be a finite number > 0"),
+])
+def test_floor_options_are_checked(options, match):
+    with pytest.raises(ValueError, match=match):
+        graph.GraphOptions.coerce(options)
