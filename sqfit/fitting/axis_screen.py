@@ -62,8 +62,9 @@ variant                                paper   cylinders  boxes  time
 =====================================  ======  =========  =====  =======
 
 (the last three rows with 3G's shape bound lowered to 0.05; at 0.03, the default then,
-``constants.SILHOUETTE_SHAPE_BOUNDS``, boxes reach 0.974; at 0.015, the default now, the default
-chain gives 0.983 / 0.984 / 0.985 on seeds 0 / 1 / 2). The default as shipped (batched screen,
+``constants.SILHOUETTE_SHAPE_BOUNDS``, boxes reach 0.974; with 3G at 0.015, the default now, and
+the screen at :data:`SCREEN_SHAPE_MIN` = 0.03, the default chain gives 0.981 / 0.982 / 0.983 on
+seeds 0 / 1 / 2). The default as shipped (batched screen,
 12 steps, one refining run; README "Beyond the paper", ``scripts/truth_bound.py``, seeds 0 and 1):
 paper scene 0.993 / 0.995 (100 trials each, 10th percentile 0.842 / 0.841), cylinders 0.978 /
 0.979, boxes 0.970 / 0.971, 36-45 ms CPU per object on a loaded machine. Ranking candidates without or after
