@@ -63,7 +63,7 @@ from ._checks import check_shape
 from .geometry.superquadric import Superquadric, log_implicit_unit, matrix_to_euler, unit_volume
 from .metrics import iou_3d_mesh
 
-__all__ = ["LIMIT_POINTS", "SEARCH_POINTS", "LIMIT_STARTS", "RepresentationLimit", "best_superquadric",
+__all__ = ["LIMIT_POINTS", "LIMIT_SHAPE_BOUNDS", "SEARCH_POINTS", "LIMIT_STARTS", "RepresentationLimit", "best_superquadric",
            "interior_points"]
 
 #: Interior sample of the refinement (points inside the mesh, about).

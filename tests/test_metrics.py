@@ -5,6 +5,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from sqfit import Superquadric
+from sqfit import constants as C
 from sqfit.metrics import bounding_box, intersection_volume, iou_3d, iou_3d_mesh, success
 from sqfit.geometry.superquadric import contains, sample_surface_uniform, to_mesh, volume
 
@@ -28,7 +29,8 @@ def test_iou_3d_agrees_with_manifold_boolean_within_one_percent(seed):
     assert iou_3d(a, b) == pytest.approx(exact, rel=0.01)
 
 
-@pytest.mark.parametrize("shape", [(0.1, 0.1), (1.9, 1.9), (0.1, 1.9)])
+@pytest.mark.parametrize("shape", [(0.1, 0.1), (1.9, 1.9), (0.1, 1.9), (C.SILHOUETTE_SHAPE_BOUNDS[0],) * 2,
+                                   (C.SHAPE_DOMAIN[0], 1.0)])
 def test_iou_3d_thin_and_edgy_shapes(shape):
     a = Superquadric((4.0, 0.15, 0.1), shape, (1.0, 0.0, 0.0), (0.3, -0.4, 0.5))
     b = Superquadric((4.0, 0.15, 0.12), shape, (1.05, 0.0, 0.0), (0.3, -0.4, 0.5))
@@ -44,7 +46,8 @@ def test_iou_3d_identity_disjoint_and_symmetry():
     assert iou_3d(a, b) == pytest.approx(iou_3d(b, a), rel=0.01)
 
 
-@pytest.mark.parametrize("shape", [(0.1, 0.1), (0.1, 1.9), (1.9, 0.1), (1.9, 1.9), (1.0, 1.0), (0.5, 1.5)])
+@pytest.mark.parametrize("shape", [(0.1, 0.1), (0.1, 1.9), (1.9, 0.1), (1.9, 1.9), (1.0, 1.0), (0.5, 1.5),
+                                   (C.SILHOUETTE_SHAPE_BOUNDS[0],) * 2, (C.SHAPE_DOMAIN[0],) * 2])
 @pytest.mark.parametrize("size", [(1.0, 1.0, 1.0), (4.0, 0.15, 0.1), (0.1, 5.0, 2.0)])
 def test_iou_3d_of_a_superquadric_with_itself_is_exactly_one(shape, size):
     # Box-like shapes were 0.989 when the intersection came from a grid and the volumes from

@@ -5,6 +5,7 @@ import numpy as np
 import pytest
 
 import sqfit
+from sqfit import constants as C
 from sqfit.fitting import grazing
 from sqfit.fitting.raycost import posed_ray_residuals, ray_residuals
 from sqfit.geometry.camera import project
@@ -277,15 +278,16 @@ def test_offset_is_not_estimated_for_a_shape_at_its_bound(monkeypatch):
     assert result.outline_offset_px is None and "outline offset not estimated" in stage(result, "3H").message
     monkeypatch.setattr(grazing, "SHAPE_AT_BOUND", -1.0)  # estimated all the same: the box grows
     free = sqfit.fit(obs)
-    assert free.outline_offset_px[0] < -0.1
+    # -0.066 px, IoU 0.9849 against 0.9882 (-0.14 px with 3G's bound at 0.03, README "Real masks")
+    assert free.outline_offset_px[0] < -0.05
     assert iou_3d_mesh(result.superquadric, mesh) > iou_3d_mesh(free.superquadric, mesh) + 0.003
 
 
 def test_at_shape_bound():
     xi = paper_trial(1).gt.to_vector()
-    xi[3:5] = 0.5, 0.031
+    xi[3:5] = 0.5, C.SILHOUETTE_SHAPE_BOUNDS[0] + 0.001
     assert grazing.at_shape_bound(xi)
-    xi[4] = 0.1
+    xi[4] = C.SILHOUETTE_SHAPE_BOUNDS[0] + 2 * grazing.SHAPE_AT_BOUND
     assert not grazing.at_shape_bound(xi)
 
 

@@ -5,9 +5,12 @@ from hypothesis import strategies as st
 from scipy.spatial.transform import Rotation
 
 from sqfit import Superquadric
+from sqfit import constants as C
 from sqfit.geometry import superquadric as sqm
 
 EDGE_SHAPES = [(0.1, 0.1), (0.1, 1.9), (1.9, 0.1), (1.9, 1.9), (1.0, 1.0), (0.5, 1.5)]
+#: The sharpest edges the fitter makes (3G's bound) and accepts at all (the domain's end).
+SHARP_SHAPES = [(C.SILHOUETTE_SHAPE_BOUNDS[0],) * 2, (C.SILHOUETTE_SHAPE_BOUNDS[0], 1.0), (C.SHAPE_DOMAIN[0],) * 2]
 
 shape_st = st.floats(0.1, 1.9)
 size_st = st.floats(0.1, 5.0)
@@ -87,7 +90,7 @@ def test_implicit_is_finite_at_extremes():
     np.testing.assert_allclose(g3, [sq.size[0]])
 
 
-@pytest.mark.parametrize("shape", EDGE_SHAPES)
+@pytest.mark.parametrize("shape", EDGE_SHAPES + SHARP_SHAPES)
 def test_mesh_is_watertight_and_matches_closed_form_volume(shape):
     sq = make(shape=shape)
     mesh = sqm.to_mesh(sq, resolution=40)

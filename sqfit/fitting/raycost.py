@@ -300,13 +300,13 @@ def ray_kind(rays):
     return kind
 
 
-def _compiled_rows(kernels, X, rays, weight, d0, rtol=_D_RTOL, max_newton=_MAX_NEWTON):
+def _compiled_rows(kernels, X, rays, weight, d0, rtol=_D_RTOL, max_newton=_MAX_NEWTON, bounds=RAY_BOUNDS):
     """:func:`batch_ray_residuals` by :func:`sqfit.fitting.ray_kernels.ray_rows`."""
     f = np.ascontiguousarray
     warm = d0 is not None
     return kernels.ray_rows(f(X, dtype=np.float64), f(rays.origins), f(rays.directions), f(rays.weights),
                             ray_kind(rays), f(d0, dtype=np.float64).reshape(len(X), len(rays)) if warm else
-                            _NO_WARM[None], warm, *solver_args(rtol, max_newton), float(weight), *RAY_BOUNDS)
+                            _NO_WARM[None], warm, *solver_args(rtol, max_newton), float(weight), *bounds)
 
 
 def gauge_phi(log_m):
@@ -380,7 +380,8 @@ def ray_residuals(xi, rays, weight=C.PENALTY_ANALYTIC, d0=None):
     return r, J, d
 
 
-def batch_ray_residuals(X, rays, weight=C.PENALTY_ANALYTIC, d0=None, rtol=_D_RTOL, max_newton=_MAX_NEWTON):
+def batch_ray_residuals(X, rays, weight=C.PENALTY_ANALYTIC, d0=None, rtol=_D_RTOL, max_newton=_MAX_NEWTON,
+                        bounds=RAY_BOUNDS):
     """:func:`ray_residuals` of ``b`` superquadrics on the same rays (one vectorised ray solve).
 
     Parameters
@@ -393,6 +394,8 @@ def batch_ray_residuals(X, rays, weight=C.PENALTY_ANALYTIC, d0=None, rtol=_D_RTO
         Warm start of the ray minimisers.
     rtol, max_newton : float, int
         Tolerance and step budget of the ray minimisers (:func:`batch_ray_minima`).
+    bounds : ((11,) float, (11,) float)
+        Soft bounds of the penalty rows (default :data:`RAY_BOUNDS`).
 
     Returns
     -------
@@ -405,7 +408,7 @@ def batch_ray_residuals(X, rays, weight=C.PENALTY_ANALYTIC, d0=None, rtol=_D_RTO
         raise TypeError(f"rays must be a sqfit.views.rays.RaySet, got {type(rays).__name__}")
     kernels = compiled()
     if kernels is not None:
-        return _compiled_rows(kernels, X, rays, weight, d0, rtol, max_newton)
+        return _compiled_rows(kernels, X, rays, weight, d0, rtol, max_newton, bounds)
     b, n, k = len(X), len(rays), C.N_PARAMS
     d, _ = batch_ray_minima(X, rays.origins, rays.directions, d0, rtol, max_newton)
     r = np.empty((b, n + k))
@@ -424,8 +427,8 @@ def batch_ray_residuals(X, rays, weight=C.PENALTY_ANALYTIC, d0=None, rtol=_D_RTO
     J[:, :n] = (scale * dphi)[:, :, None] * d_log_m
     diag = np.arange(k)
     for i, xi in enumerate(X):
-        r[i, n:] = penalty(xi, weight, *RAY_BOUNDS)
-        J[i, n + diag, diag] = penalty_jacobian(xi, weight, *RAY_BOUNDS)
+        r[i, n:] = penalty(xi, weight, *bounds)
+        J[i, n + diag, diag] = penalty_jacobian(xi, weight, *bounds)
     return r, J, d
 
 

@@ -27,7 +27,7 @@ import numpy as np
 
 import sqfit
 from sqfit.geometry.superquadric import euler_to_matrix, matrix_to_euler
-from sqfit.limit import LIMIT_POINTS, LIMIT_STARTS, SEARCH_POINTS, best_superquadric
+from sqfit.limit import LIMIT_POINTS, LIMIT_SHAPE_BOUNDS, LIMIT_STARTS, SEARCH_POINTS, best_superquadric
 
 __all__ = ["LIMIT_SEED", "KEY_DECIMALS", "ObjectLimit", "LimitCache", "object_limit", "limit_key"]
 
@@ -80,7 +80,8 @@ def limit_key(obj):
     digest = hashlib.sha256()
     digest.update(np.ascontiguousarray(np.round(local, KEY_DECIMALS) + 0.0).tobytes())  # + 0.0: no -0.0
     digest.update(np.ascontiguousarray(faces).tobytes())
-    digest.update(repr((_SEARCH_VERSION, LIMIT_SEED, LIMIT_POINTS, SEARCH_POINTS, LIMIT_STARTS)).encode())
+    digest.update(repr((_SEARCH_VERSION, LIMIT_SEED, LIMIT_POINTS, SEARCH_POINTS, LIMIT_STARTS,
+                        tuple(LIMIT_SHAPE_BOUNDS))).encode())
     return digest.hexdigest()
 
 
