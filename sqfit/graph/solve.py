@@ -98,13 +98,17 @@ def _poses(values, n):
 
 
 def _initial_fit(problem, oid, frames, poses, options, pose_noise_refit=True):
-    """:func:`sqfit.fit` of object ``oid`` on ``frames`` at ``poses`` (frame -> (4, 4)), or on
-    ``frames`` given as its observations (an ObservationSet, ``poses`` None); a landmark ``(T, shape)``
-    or the failure message. ``pose_noise_refit``: the fit's option of that name."""
-    obs = frames if poses is None else [observation_at(problem.observations[f, oid], poses[f]) for f in frames]
+    """:func:`sqfit.fit` of object ``oid`` on ``frames`` at ``poses`` (frame -> (4, 4)): :func:`_landmark_fit`."""
+    obs = [observation_at(problem.observations[f, oid], poses[f]) for f in frames]
+    return _landmark_fit(obs, options, pose_noise_refit, f"frames {list(frames)}")
+
+
+def _landmark_fit(obs, options, pose_noise_refit, where):
+    """:func:`sqfit.fit` (chain ``init_chain``) on ``obs`` (observations, or an ObservationSet);
+    a landmark ``(T, shape)`` or the failure message (naming ``where``). ``pose_noise_refit``: the
+    fit's option of that name."""
     res = pipeline.fit(obs, options.init_chain, options={"pose_noise_refit": bool(pose_noise_refit)})
     if not res.ok or res.superquadric is None:
-        where = f"{len(obs)} frames" if poses is None else f"frames {list(frames)}"
         return None, f"initial fit on {where} failed: {res.status}: {res.message}"
     return superquadric_to_landmark(res.superquadric), ""
 
@@ -429,7 +433,7 @@ def _refit(problem, values, oids, options, result, rays_cache=None, overlap_only
         before = misfits[oid]
         if before <= options.refit_misfit and not disjoint:
             continue
-        landmark, _ = _initial_fit(problem, oid, obs, None, options, options.batch_pose_noise_refit)
+        landmark, _ = _landmark_fit(obs, options, options.batch_pose_noise_refit, f"frames {list(frames)}")
         if landmark is None:
             continue
         trial = gtsam.Values(values)
