@@ -97,7 +97,11 @@ def ray_phi(xi, rays, penalty):
 def outlier_rays(xi, rays, penalty):
     """``(mask, s)``: the rays of ``rays`` whose ray misses the superquadric ``xi`` ``(11,)`` by more
     than ``max(CUT s, PHI_MIN)`` (``phi > 0``), and the robust scale ``s`` of all rays' ``phi``."""
-    phi = ray_phi(xi, rays, penalty)
+    return _outliers(ray_phi(xi, rays, penalty))
+
+
+def _outliers(phi):
+    """:func:`outlier_rays` of the residuals ``phi``."""
     s = 1.4826 * float(np.median(np.abs(phi)))
     return phi > max(CUT * s, PHI_MIN), s
 
@@ -176,7 +180,7 @@ class Stretches:
 def stretches(xi, rays, penalty):
     """The :class:`Stretches` of the outline rays ``rays`` at ``xi`` ``(11,)``."""
     phi = ray_phi(xi, rays, penalty)
-    out, _ = outlier_rays(xi, rays, penalty)
+    out, _ = _outliers(phi)
     stretch = outline_runs(out, rays.view) >= RUN_RAYS
     return Stretches(int(np.count_nonzero(stretch)), len(np.unique(rays.view[stretch])),
                      int(np.count_nonzero(phi < -PHI_MIN)), int(np.count_nonzero(np.abs(phi) > PHI_MIN)))
