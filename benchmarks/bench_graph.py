@@ -77,7 +77,7 @@ def _row(method, result, seq):
     return row
 
 
-def _scene_sequence(path, seed, index=0, frames=None):
+def scene_sequence(path, seed, index=0, frames=None):
     """Sequence ``index`` of ``seed`` of a sequence scene, with observations as ``sqsim slam`` makes them;
     ``frames``: the trajectory's frame count instead of the scene's (same path, denser or sparser)."""
     from dataclasses import replace
@@ -166,7 +166,7 @@ def main(argv=None):
     for scene, seed, index in [(scene, seed, index) for scene in (args.scene or [None])
                                for seed in range(args.seed, args.seed + args.seeds)
                                for index in range(args.sequences if scene else 1)]:
-        seq = (_scene_sequence(scene, seed, index, args.scene_frames) if scene
+        seq = (scene_sequence(scene, seed, index, args.scene_frames) if scene
                else synthetic_sequence(seed, args.frames, args.objects))
         for k in range(args.perturb):
             options = {**base, "silhouette_sigma": sigma * (1.0 + k * 1e-9)} if k else (base or None)

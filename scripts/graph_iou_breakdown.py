@@ -32,14 +32,15 @@ from sqfit import graph  # noqa: E402
 from sqfit.fitting import pipeline  # noqa: E402
 from sqfit.geometry.superquadric import Superquadric, matrix_to_euler  # noqa: E402
 from sqfit.graph.problem import GraphOptions, observation_at  # noqa: E402
+from sqfit.graph.testing import trajectory_scale  # noqa: E402
 from sqfit.metrics import iou_3d  # noqa: E402
 from sqfit.views.visibility import INSTANCE  # noqa: E402
 
 
 def _scale_about_first(poses, true_poses):
-    p, q = poses[:, :3, 3] - poses[0, :3, 3], true_poses[:, :3, 3] - true_poses[0, :3, 3]
-    s = float(np.sum(p * q) / np.sum(p * p))
-    return s, np.eye(3), poses[0, :3, 3] - s * poses[0, :3, 3]
+    """``(s, R, t)`` of :func:`sqfit.graph.testing.trajectory_scale` about the first camera centre."""
+    s = trajectory_scale(poses, true_poses)
+    return s, np.eye(3), (1.0 - s) * poses[0, :3, 3]
 
 
 def _umeyama(poses, true_poses):
@@ -113,7 +114,7 @@ def main(argv=None):
     import sys
 
     sys.path.insert(0, os.path.join(os.path.dirname(__file__), "..", "benchmarks"))
-    from bench_graph import _scene_sequence
+    from bench_graph import scene_sequence
 
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--scene", action="append", required=True)
@@ -127,7 +128,7 @@ def main(argv=None):
     for scene in args.scene:
         for seed in map(int, args.seeds.split(",")):
             for index in map(int, args.sequences.split(",")):
-                seq = _scene_sequence(scene, seed, index)
+                seq = scene_sequence(scene, seed, index)
                 run, rows = breakdown(seq, options)
                 name = f"{os.path.basename(scene)} {seed}/{index}"
                 print(f"\n{name}: ATE {run['ate_m']:.4f} m, scale about frame 0 {run['scale']:.4f}, "
