@@ -119,19 +119,15 @@ _RAYS = weakref.WeakKeyDictionary()
 _OFFSET_LABEL = "outline offset [px]"
 
 
-def _rays(obs):
+def outline_rays(obs):
+    """The 3G rays of an :class:`sqfit.fitting.costs.ObservationSet` (cached with it), a
+    :class:`sqfit.views.rays.RaySet`."""
     key = (N_CONTOUR, BAND_PX, SMOOTH_PX)
     cached = _RAYS.get(obs)
     if cached is None or cached[0] != key:
         cached = (key, contour_rays(obs.observations, N_CONTOUR, BAND_PX, smooth_px=SMOOTH_PX))
         _RAYS[obs] = cached
     return cached[1]
-
-
-def outline_rays(obs):
-    """The 3G rays of an :class:`sqfit.fitting.costs.ObservationSet` (cached with it), a
-    :class:`sqfit.views.rays.RaySet`."""
-    return _rays(obs)
 
 
 @dataclass(frozen=True)
@@ -177,7 +173,7 @@ def silhouette_fit(state, obs, options, name="3G", plain_first=True, offsets=Non
     ``pose_scale`` given: that prior from the start, in one run (3H's other candidates, compared
     under one prior). Returns a :class:`SilhouetteFit`.
     """
-    rays = _rays(obs)
+    rays = outline_rays(obs)
     xi0 = np.array(state.xi, dtype=np.float64)
     sigma = np.radians(options.pose_sigma_deg)
     offset_sigma = float(options.outline_offset_sigma_px)
