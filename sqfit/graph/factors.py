@@ -22,7 +22,7 @@ import gtsam
 import numpy as np
 
 from .floor import floor_residual
-from .landmark import StackedRays, batch_silhouette_residuals, bounds_residuals, stack_rays
+from .landmark import StackedRays, batch_silhouette_residuals, bounded_residuals, bounds_residuals, stack_rays
 from .quadric import box_residuals
 
 __all__ = ["SilhouetteFactors", "silhouette_factor", "bounds_factor", "floor_factor", "box_factor"]
@@ -46,6 +46,7 @@ class SilhouetteFactors:
 
     def __init__(self):
         self._keys, self._rays, self._units, self._stacked = [], [], [], {}
+        self._bounds = []  # per factor: its rays' residual bound (inf: none; bounded_residuals)
         self._key_set = set()  # every factor's keys (holds)
         # Each variable's distinct values so far, by exact bytes (cheap to compare), numbered: a
         # factor's signature is the numbers of its variables' values, and it is re-evaluated when
@@ -71,7 +72,8 @@ class SilhouetteFactors:
         keys = tuple(factor.keys())
         return len(keys) >= 3 and keys in self._key_set
 
-    def factor(self, noise, camera_key, pose_key, shape_key, rays, offset_key=None, offset_unit_px=1.0):
+    def factor(self, noise, camera_key, pose_key, shape_key, rays, offset_key=None, offset_unit_px=1.0,
+               ray_bound=np.inf):
         """A new silhouette factor of this graph (arguments: :func:`silhouette_factor`)."""
         i = len(self._keys)
         keys = (camera_key, pose_key, shape_key) + (() if offset_key is None else (offset_key,))
@@ -86,6 +88,7 @@ class SilhouetteFactors:
         self._slots.append(slots + [-1] * (4 - len(slots)))
         self._signed = None
         self._units.append(float(offset_unit_px))
+        self._bounds.append(float(ray_bound))
         self._rays.append(rays)
         self._row.append(None)
         self._unpooled.append(i)
@@ -154,6 +157,9 @@ class SilhouetteFactors:
             r, Jc, Jl, Js, d = out[:5]
             # the offset variable is in units of `unit` px
             Jo = () if offset is None else (out[5] * unit[:, None],)
+            bound = np.array([self._bounds[i] for i in idx])
+            if np.isfinite(bound).any():
+                r, (Jc, Jl, Js, *Jo) = bounded_residuals(r, (Jc, Jl, Js) + Jo, bound)
             for j, i in enumerate(idx):
                 # copies, not views: a view would keep this evaluation's arrays alive for as long as
                 # any one of its factors is not re-evaluated (iSAM2 leaves old frames' factors alone)
@@ -199,7 +205,7 @@ def _read(values, key, pose):
 
 
 def silhouette_factor(noise, camera_key, pose_key, shape_key, rays, batch=None, offset_key=None,
-                      offset_unit_px=1.0):
+                      offset_unit_px=1.0, ray_bound=np.inf):
     """Silhouette factor of one view of one superquadric landmark.
 
     Parameters
@@ -219,11 +225,16 @@ def silhouette_factor(noise, camera_key, pose_key, shape_key, rays, batch=None, 
     offset_unit_px : float
         Pixels per unit of the offset variable, > 0 (an optimiser's damping sees a pixel's column
         ~40 times smaller than a metre's: :data:`sqfit.fitting.grazing.OFFSET_UNIT_PX`).
+    ray_bound : float
+        > 0: each ray's residual is bounded by this, in the residuals' own units
+        (:func:`sqfit.graph.landmark.bounded_residuals`); ``inf`` (the default): not bounded.
     """
     if not (np.isfinite(offset_unit_px) and offset_unit_px > 0):
         raise ValueError(f"offset_unit_px must be a finite number > 0, got {offset_unit_px}")
+    if not ray_bound > 0:
+        raise ValueError(f"ray_bound must be > 0 (inf: none), got {ray_bound}")
     return (SilhouetteFactors() if batch is None else batch).factor(noise, camera_key, pose_key, shape_key, rays,
-                                                                    offset_key, offset_unit_px)
+                                                                    offset_key, offset_unit_px, ray_bound)
 
 
 def bounds_factor(shape_key, weight):

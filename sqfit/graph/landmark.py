@@ -42,7 +42,7 @@ from ..geometry.superquadric import Superquadric
 
 __all__ = ["N_SHAPE", "camera_rays", "silhouette_residuals", "StackedRays", "stack_rays",
            "batch_silhouette_residuals", "bounds_residuals", "landmark_to_superquadric", "superquadric_to_landmark",
-           "relative_pose", "EVAL_LOWER", "EVAL_UPPER"]
+           "relative_pose", "bounded_residuals", "left_grazing", "EVAL_LOWER", "EVAL_UPPER"]
 
 #: Length of the size/shape vector ``[ax, ay, az, e1, e2]``.
 N_SHAPE = 5
@@ -277,6 +277,57 @@ def batch_silhouette_residuals(T_world_camera, T_world_sq, shape, rays, d0=None,
     J_camera, J_landmark, J_shape = (a * factor[..., None] for a in (J_camera, J_landmark, J_shape))
     J_offset = J_offset * factor - np.where(inward < 0, r / rays.radii, 0.0)
     return r, J_camera, J_landmark, J_shape, d, J_offset
+
+
+def bounded_residuals(r, jacobians, scale):
+    """Ray residuals bounded by ``scale``: ``r' = r / sqrt(1 + (r / c)^2)``, and their Jacobians.
+
+    For landmarks whose outline one superquadric cannot graze (a table's legs, a lamp's stand: the
+    initial fit's stage 3T left the grazing cost, :func:`sqfit.graph.solve`): a ray the part sticks
+    out along pulls with at most ``c``, so it cannot drag the landmark to it (a Geman-McClure-like
+    loss, ``r'^2 = r^2 / (1 + r^2 / c^2)``); small residuals are unchanged to second order. Exact
+    Jacobians (``d r' / d r = (1 + (r / c)^2)^(-3/2)``), so the factor stays a smooth function.
+
+    Parameters
+    ----------
+    r : (k, n) float
+        Ray residuals of ``k`` factors.
+    jacobians : sequence of (k, n, ...) float
+        Their Jacobians (any number; rows first).
+    scale : (k,) float
+        ``c`` per factor, > 0; ``inf``: that factor's rows unchanged.
+
+    Returns
+    -------
+    r : (k, n) float
+    jacobians : list of (k, n, ...) float
+    """
+    ratio = r / np.asarray(scale, dtype=np.float64)[:, None]
+    grow = 1.0 + ratio * ratio
+    slope = grow ** -1.5
+    return r / np.sqrt(grow), [J * slope.reshape(slope.shape + (1,) * (J.ndim - 2)) for J in jacobians]
+
+
+def left_grazing(result):
+    """Whether a fit's stage 3T (:mod:`sqfit.fitting.outline`) moved it: the grazing cost could not
+    be met (legs, a stand, a handle) and the fit is the one that overlaps the mask contours best.
+
+    Parameters
+    ----------
+    result : sqfit.FitResult
+
+    Returns
+    -------
+    bool
+        False when the chain has no 3T, or 3T kept its input.
+    """
+    before = None
+    for record in result.stages:
+        if (record.name == "3T" and before is not None and record.superquadric is not None
+                and not np.array_equal(record.superquadric.to_vector(), before.to_vector())):
+            return True
+        before = record.superquadric
+    return False
 
 
 def _moved(rays, origins, directions, offsets=None):

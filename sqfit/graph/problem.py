@@ -35,13 +35,16 @@ __all__ = ["INIT_CHAIN", "GraphOptions", "SlamResult", "Problem", "check_inputs"
            "parallax_deg",
            "ready_to_initialise"]
 
-#: The landmarks' fitting chain: the fitter's default without its last stage, 3R
+#: The landmarks' fitting chain: the fitter's default without its stage 3R
 #: (:mod:`sqfit.fitting.trimmed`; why 3R's gate lets odometry-pose misfits through was not
-#: analysed). With 3R, the batch on the evaluation scenes
-#: (``scenes/sequence-eval*.toml``, 12 sequences, one run each) changed 2 sequences, both worse
-#: (median object IoU 0.853 -> 0.809, 0.873 -> 0.837), object IoU 0.863 -> 0.850, CPU median
-#: 2.31 -> 2.63 s.
-INIT_CHAIN = "1-2M-3H"
+#: analysed; with 3R, the batch on the evaluation scenes (``scenes/sequence-eval*.toml``, 12
+#: sequences, one run each) changed 2 sequences, both worse (median object IoU 0.853 -> 0.809,
+#: 0.873 -> 0.837), object IoU 0.863 -> 0.850, CPU median 2.31 -> 2.63 s), then stage 3T
+#: (:mod:`sqfit.fitting.outline`): where no superquadric grazes the outline (a table's legs, a
+#: lamp's stand) the landmark starts from the fit that overlaps the mask contours best, and its
+#: silhouette factors are bounded (``GraphOptions.mismatch_ray_k``). 3T acts only above its 3G
+#: cost gate, which superquadric masks stay below.
+INIT_CHAIN = "1-2M-3H-3T"
 
 #: Fewest frames an object must be seen in to be fitted (a single silhouette fixes no depth).
 MIN_FRAMES = 2
@@ -75,6 +78,12 @@ class GraphOptions(Options):
         never does). Silhouettes from a short baseline fix the size and depth poorly.
     init_chain : str
         Default :data:`INIT_CHAIN`.
+    mismatch_ray_k : float
+        A landmark whose initial fit had to leave the grazing cost (stage 3T moved it:
+        :func:`sqfit.graph.landmark.left_grazing`; tables, lamps, monitors) gets silhouette factors
+        whose every ray's whitened residual is bounded by this
+        (:func:`sqfit.graph.landmark.bounded_residuals`), so the rays along its legs or stand do
+        not drag it back to the fit that grazes them; 0: not bounded.
     batch_pose_noise_refit : bool
         :attr:`sqfit.FitOptions.pose_noise_refit` of the batch's landmark fits (initial and
         re-fit; iSAM2's initial fits and the ``fixed`` baseline keep the fitter's default, True).
@@ -135,6 +144,10 @@ class GraphOptions(Options):
         Every this many frames, iSAM2 is rebuilt on the same factors at its estimate moved to the
         best scale (:mod:`sqfit.graph.scale`): its partial relinearisation never moves the whole map
         together, so the scale set by the first landmarks' first frames sticks (0: never).
+    isam2_refit : bool
+        At each of those rebuilds, the landmarks left in a poor minimum are re-fitted first, as after
+        the batch solve (``refit_misfit``; on the frames so far): without it iSAM2 never re-fits a
+        landmark, and one in 3G's far, huge minimum drags the trajectory with it.
     isam2_dogleg : bool
         iSAM2 steps by Powell's dogleg (trust region; evaluates the whole graph's error at every
         update) instead of Gauss-Newton.
@@ -166,6 +179,7 @@ class GraphOptions(Options):
     init_frames: int = 3
     init_parallax_deg: float = 20.0
     init_chain: str = INIT_CHAIN
+    mismatch_ray_k: float = 6.0
     batch_pose_noise_refit: bool = False
     bounds_weight: float = C.PENALTY_ANALYTIC
     landmark_prior_sigma_deg: float = 90.0
@@ -179,6 +193,7 @@ class GraphOptions(Options):
     refit_max_frames: int = 12
     isam2_relinearize_threshold: float = 0.01
     isam2_rescale_every: int = 10
+    isam2_refit: bool = True
     isam2_dogleg: bool = False
     outline_offset_sigma_px: float = 0.0
     floor_z: float | None = None
@@ -199,11 +214,12 @@ class GraphOptions(Options):
                                "isam2_relinearize_threshold", "window_relative_tolerance", "landmark_prior_sigma_m",
                                "shape_prior_sigma", "box_sigma_px", "relative_tolerance",
                                "final_relative_tolerance", "floor_sigma_m"),
-                     nonnegative=("bounds_weight", "refit_misfit", "outline_offset_sigma_px"))
+                     nonnegative=("bounds_weight", "refit_misfit", "outline_offset_sigma_px", "mismatch_ray_k"))
         if self.floor_z is not None and not np.isfinite(self.floor_z):
             raise ValueError(f"floor_z must be a finite height or None, got {self.floor_z}")
-        if not isinstance(self.batch_pose_noise_refit, (bool, np.bool_)):
-            raise ValueError(f"batch_pose_noise_refit must be True or False, got {self.batch_pose_noise_refit!r}")
+        for name in ("batch_pose_noise_refit", "isam2_refit"):
+            if not isinstance(getattr(self, name), (bool, np.bool_)):
+                raise ValueError(f"{name} must be True or False, got {getattr(self, name)!r}")
 
 
 @dataclass

@@ -20,7 +20,8 @@ Methods (every one returns a :class:`sqfit.graph.problem.SlamResult`):
   a last solve to ``final_relative_tolerance``;
 - ``graph-isam2``: the same graph grown frame by frame with iSAM2 (one update per frame; a landmark
   joins once its first frames are enough for its initial fit (``init_frames``, ``init_parallax_deg``),
-  or at the last frame if they never are);
+  or at the last frame if they never are); every ``isam2_rescale_every`` frames the landmarks in
+  poor minima are re-fitted on the frames so far and iSAM2 is rebuilt at the best scale;
 - ``quadric``: QuadricSLAM (:mod:`sqfit.graph.quadric`): ellipsoid landmarks ``L(j)``, radii
   ``Q(j)``, one box factor per (frame, object) whose mask does not touch the image border, batch
   Levenberg-Marquardt, initialised by the paper's linear method from all the object's boxes.
@@ -41,7 +42,7 @@ from ..fitting.grazing import OFFSET_UNIT_PX
 from ..fitting.stages import r_iou_m
 from .factors import SilhouetteFactors, bounds_factor, box_factor, floor_factor, silhouette_factor
 from .fixedlag import condition_on_past
-from .landmark import camera_rays, landmark_to_superquadric, superquadric_to_landmark
+from .landmark import camera_rays, landmark_to_superquadric, left_grazing, superquadric_to_landmark
 from .problem import GraphOptions, SlamResult, check_inputs, observation_at, ready_to_initialise
 from .quadric import initialise_quadric, observation_box, quadric_to_superquadric
 from .scale import best_scale, rescaled, scale_dependent_factors
@@ -105,15 +106,17 @@ def _initial_fit(problem, oid, frames, poses, options, pose_noise_refit=True):
 
 def _landmark_fit(obs, options, pose_noise_refit, where):
     """:func:`sqfit.fit` (chain ``init_chain``) on ``obs`` (observations, or an ObservationSet);
-    a landmark ``(T, shape)`` or the failure message (naming ``where``). ``pose_noise_refit``: the
-    fit's option of that name."""
+    ``(landmark, message, mismatched)``: a landmark ``(T, shape)`` or None and the failure message
+    (naming ``where``), and whether the fit had to leave the grazing cost
+    (:func:`sqfit.graph.landmark.left_grazing`: its silhouette factors are then bounded,
+    ``GraphOptions.mismatch_ray_k``). ``pose_noise_refit``: the fit's option of that name."""
     res = pipeline.fit(obs, options.init_chain, options={"pose_noise_refit": bool(pose_noise_refit)})
     if not res.ok or res.superquadric is None:
-        return None, f"initial fit on {where} failed: {res.status}: {res.message}"
-    return superquadric_to_landmark(res.superquadric), ""
+        return None, f"initial fit on {where} failed: {res.status}: {res.message}", False
+    return superquadric_to_landmark(res.superquadric), "", left_grazing(res)
 
 
-def _add_landmark(graph, values, problem, oid, frames, landmark, options, batch, rays_cache=None):
+def _add_landmark(graph, values, problem, oid, frames, landmark, options, batch, rays_cache=None, bounded=False):
     T, shape = landmark
     shape = np.asarray(shape, dtype=np.float64)
     values.insert(L(oid), gtsam.Pose3(T))
@@ -132,13 +135,15 @@ def _add_landmark(graph, values, problem, oid, frames, landmark, options, batch,
         graph.add(gtsam.PriorFactorVector(offset, np.zeros(1), gtsam.noiseModel.Isotropic.Sigma(
             1, options.outline_offset_sigma_px / OFFSET_UNIT_PX)))
     for f in frames:
-        graph.add(_silhouette(problem, f, oid, options, batch, rays_cache))
+        graph.add(_silhouette(problem, f, oid, options, batch, rays_cache, bounded))
 
 
-def _silhouette(problem, frame, oid, options, batch, rays_cache=None):
+def _silhouette(problem, frame, oid, options, batch, rays_cache=None, bounded=False):
     """The silhouette factor of ``(frame, oid)``, evaluated with the graph's other ones by ``batch``
     (a :class:`sqfit.graph.factors.SilhouetteFactors`); ``rays_cache`` (a dict) keeps the rays of
-    the factors made so far, for the re-fit's factors of the same views."""
+    the factors made so far, for the re-fit's factors of the same views. ``bounded``: each ray's
+    whitened residual bounded by ``mismatch_ray_k`` (a landmark whose outline one superquadric
+    cannot graze, :func:`_landmark_fit`)."""
     rays = None if rays_cache is None else rays_cache.get((frame, oid))
     if rays is None:
         rays = camera_rays(problem.observations[frame, oid], options.n_contour)
@@ -146,8 +151,9 @@ def _silhouette(problem, frame, oid, options, batch, rays_cache=None):
             rays_cache[frame, oid] = rays
     # the ray residuals carry contour_rays' weights 1 / sqrt(n): sigma per weighted row
     sigma = options.silhouette_sigma / np.sqrt(len(rays))
+    bound = options.mismatch_ray_k * sigma if bounded and options.mismatch_ray_k > 0 else np.inf
     return silhouette_factor(_robust(len(rays), sigma, options.huber_k), X(frame), L(oid),
-                             S(oid), rays, batch, _offset_key(oid, options), OFFSET_UNIT_PX)
+                             S(oid), rays, batch, _offset_key(oid, options), OFFSET_UNIT_PX, bound)
 
 
 def _offset_key(oid, options):
@@ -196,7 +202,7 @@ def fixed_pose_fits(intrinsics, odometry_poses, observations, options=None):
     result = SlamResult("fixed", problem.odometry_poses.copy(), skipped=dict(problem.skipped),
                         warnings=list(problem.warnings))
     for oid, frames in problem.frames.items():
-        landmark, message = _initial_fit(problem, oid, frames, problem.odometry_poses, options)
+        landmark, message, _ = _initial_fit(problem, oid, frames, problem.odometry_poses, options)
         if landmark is None:
             _skip(result, oid, message)
         else:
@@ -253,6 +259,7 @@ class _Growth:
             for f in frames:
                 self.by_frame.setdefault(f, []).append(oid)
         self.pending, self.added, self.failed, self.current = {}, [], set(), {}
+        self.bounded = set()  # landmarks whose silhouette factors are bounded (_landmark_fit)
         self.batch, self.rays = SilhouetteFactors(), {}
 
     def add(self, frames):
@@ -271,19 +278,23 @@ class _Growth:
         if oid in self.failed:
             return
         if oid in self.added:
-            graph.add(_silhouette(self.problem, i, oid, self.options, self.batch, self.rays))
+            graph.add(_silhouette(self.problem, i, oid, self.options, self.batch, self.rays, oid in self.bounded))
             return
         frames = self.pending.setdefault(oid, [])
         frames.append(i)
         last = i == self.problem.n_frames - 1
         if not (ready_to_initialise(self.problem, oid, frames, self.current, self.options) or (last and len(frames) >= 2)):
             return
-        landmark, message = _initial_fit(self.problem, oid, frames, self.current, self.options, self.pose_noise_refit)
+        landmark, message, mismatched = _initial_fit(self.problem, oid, frames, self.current, self.options,
+                                                     self.pose_noise_refit)
         if landmark is None:
             _skip(self.result, oid, message)
             self.failed.add(oid)
             return
-        _add_landmark(graph, values, self.problem, oid, frames, landmark, self.options, self.batch, self.rays)
+        if mismatched:
+            self.bounded.add(oid)
+        _add_landmark(graph, values, self.problem, oid, frames, landmark, self.options, self.batch, self.rays,
+                      mismatched)
         self.added.append(oid)
 
     def update(self, estimate, n):
@@ -322,12 +333,13 @@ def _batch(problem, options):
                 iterations = _window_solve(graph, values, growth, end, options)
             result.iterations += iterations
             growth.update(values, end)
-        _refit(problem, values, growth.added, options, result, growth.rays)
+        _refit(problem, values, growth.added, options, result, growth.rays, bounded=growth.bounded)
         final = replace(options, relative_tolerance=options.final_relative_tolerance)
         for check in (False, True):
             # the last solve moves far along the scale valley: a landmark it drops into 3G's far,
             # huge minimum is re-fitted (overlap test only) and the graph solved once more
-            if check and not _refit(problem, values, growth.added, options, result, growth.rays, overlap_only=True):
+            if check and not _refit(problem, values, growth.added, options, result, growth.rays, overlap_only=True,
+                                    bounded=growth.bounded):
                 break
             if options.rescale:
                 values = _rescale(graph, values, n, growth.added, growth.batch)
@@ -375,14 +387,22 @@ def _window_solve(graph, values, growth, end, options):
     return iterations
 
 
-def _object_misfits(problem, values, oids, options, rays_cache=None):
+def _object_misfits(problem, values, oids, options, rays_cache=None, bounded=frozenset(), n=None):
     """RMS whitened ray residual of each object's silhouette factors at ``values`` (1: a typical ray
-    one ``silhouette_sigma`` off), ``{oid: float}``; the factors of all ``oids`` evaluated together."""
+    one ``silhouette_sigma`` off), ``{oid: float}``; the factors of all ``oids`` evaluated together
+    (those of the landmarks in ``bounded`` bounded, as in the graph), in frames ``0 .. n-1`` (all
+    with None)."""
     batch, factors = SilhouetteFactors(), {}
     for oid in oids:
-        factors[oid] = [_silhouette(problem, f, oid, options, batch, rays_cache) for f in problem.frames[oid]]
+        factors[oid] = [_silhouette(problem, f, oid, options, batch, rays_cache, oid in bounded)
+                        for f in _frames_before(problem, oid, n)]
     return {oid: float(np.sqrt(2.0 * sum(factor.error(values) for factor in fs) / (len(fs) * options.n_contour)))
             for oid, fs in factors.items()}
+
+
+def _frames_before(problem, oid, n):
+    """The frames of object ``oid`` before frame ``n`` (all with None)."""
+    return [f for f in problem.frames[oid] if n is None or f < n]
 
 
 def _spread(frames, most):
@@ -408,43 +428,50 @@ def _overlap(values, oid, obs):
     return float(r_iou_m([sq], obs)[0])
 
 
-def _refit(problem, values, oids, options, result, rays_cache=None, overlap_only=False):
+def _refit(problem, values, oids, options, result, rays_cache=None, overlap_only=False, bounded=frozenset(), n=None,
+           pose_noise_refit=None):
     """Re-initialise the landmarks left in a poor minimum by :func:`sqfit.fit` on all their frames at
     the solved poses: those whose silhouettes disagree (misfit above ``refit_misfit``; a refit is
     kept if its misfit is lower) and those whose silhouettes barely overlap their masks (R-IOU-M
     below ``sqfit.constants.POOR_FIT_R_IOU_M``, 3G's "far, huge" minimum, whose misfit is low; a
     refit is kept if it overlaps more). The overlap and the fit use at most ``refit_max_frames`` of
     the landmark's frames (:func:`_spread`). ``overlap_only``: only the second kind. Returns whether
-    a landmark changed. ``rays_cache``: :func:`_silhouette`."""
+    a landmark changed. ``rays_cache``: :func:`_silhouette`; ``bounded``: the landmarks whose
+    silhouette factors are bounded (their misfits measured so, :func:`_object_misfits`). ``n``: only
+    frames ``0 .. n-1`` are in ``values`` (iSAM2, mid-sequence; None: all). ``pose_noise_refit``:
+    :func:`_landmark_fit`'s (None: ``batch_pose_noise_refit``)."""
     if options.refit_misfit <= 0:
         return False
-    poses = _poses(values, problem.n_frames)
-    misfits = {} if overlap_only else _object_misfits(problem, values, oids, options, rays_cache)
+    poses = _poses(values, problem.n_frames if n is None else n)
+    if pose_noise_refit is None:
+        pose_noise_refit = options.batch_pose_noise_refit
+    misfits = {} if overlap_only else _object_misfits(problem, values, oids, options, rays_cache, bounded, n)
     changed = False
     for oid in oids:
-        frames = _spread(problem.frames[oid], options.refit_max_frames)
+        frames = _spread(_frames_before(problem, oid, n), options.refit_max_frames)
         obs = _observation_set(problem, oid, poses, frames)
         overlap = _overlap(values, oid, obs)
         disjoint = overlap < C.POOR_FIT_R_IOU_M
         if overlap_only and not disjoint:
             continue
         if oid not in misfits:
-            misfits.update(_object_misfits(problem, values, [oid], options, rays_cache))
+            misfits.update(_object_misfits(problem, values, [oid], options, rays_cache, bounded, n))
         before = misfits[oid]
         if before <= options.refit_misfit and not disjoint:
             continue
-        landmark, _ = _landmark_fit(obs, options, options.batch_pose_noise_refit, f"frames {list(frames)}")
+        landmark, _, _ = _landmark_fit(obs, options, pose_noise_refit, f"frames {list(frames)}")
         if landmark is None:
             continue
         trial = gtsam.Values(values)
         trial.update(L(oid), gtsam.Pose3(landmark[0]))
         trial.update(S(oid), np.asarray(landmark[1], dtype=np.float64))
-        after = _object_misfits(problem, trial, [oid], options, rays_cache)[oid]
+        after = _object_misfits(problem, trial, [oid], options, rays_cache, bounded, n)[oid]
         overlap_after = _overlap(trial, oid, obs)
         if (overlap_after > overlap) if disjoint else (after < before):
             values.update(L(oid), gtsam.Pose3(landmark[0]))
             values.update(S(oid), np.asarray(landmark[1], dtype=np.float64))
             result.warnings.append(f"object {oid}: re-initialised from {len(frames)} of its {len(problem.frames[oid])} frames "
+                                   f"{'' if n is None else f'(at frame {n}) '}"
                                    f"(misfit {before:.2f} -> {after:.2f}, R-IOU-M {overlap:.2f} -> "
                                    f"{overlap_after:.2f})")
             changed = True
@@ -469,7 +496,7 @@ def _isam2(problem, options):
             isam.update(*growth.add([i]))
             estimate = isam.calculateEstimate()
             if every and (i + 1) % every == 0 and growth.added:
-                isam, estimate = _isam2_rescaled(isam, estimate, params, i + 1, growth.added, growth.batch)
+                isam, estimate = _isam2_rescaled(isam, estimate, params, i + 1, growth, options, result)
         except _SOLVER_ERRORS as exc:
             result.fail(f"iSAM2 update at frame {i}", exc)
             result.seconds, result.cpu_seconds = clock.elapsed()
@@ -485,15 +512,20 @@ def _isam2(problem, options):
     return result
 
 
-def _isam2_rescaled(isam, estimate, params, n, oids, batch):
+def _isam2_rescaled(isam, estimate, params, n, growth, options, result):
     """iSAM2 moved to the best scale (:func:`_rescale`): iSAM2 relinearises only variables whose
     update exceeds its threshold, one Gauss-Newton step per update, so the scale the first landmarks
     took from the first frames' odometry is never corrected by the later odometry (the whole map
-    must move together). A new iSAM2 on the same factors, linearised at the rescaled estimate; the
-    old one is kept when the scale is already right."""
+    must move together). With ``isam2_refit``, the landmarks left in a poor minimum are re-fitted
+    there as after the batch solve (:func:`_refit` on frames ``0 .. n-1``): in the two failed runs
+    of the evaluation scenes, at frame 10 landmarks sat in 3G's far, huge minimum (R-IOU-M 0.00) or
+    far off (misfit 7.7), and their silhouettes then pulled the trajectory away. A new
+    iSAM2 on the same factors, linearised at the result; the old one is kept when nothing moved."""
     graph = isam.getFactorsUnsafe()
-    moved = _rescale(graph, estimate, n, oids, batch)
-    if abs(moved.atPose3(X(n - 1)).translation() - estimate.atPose3(X(n - 1)).translation()).max() < 1e-6:
+    moved = _rescale(graph, estimate, n, growth.added, growth.batch)
+    refitted = options.isam2_refit and _refit(growth.problem, moved, growth.added, options, result, growth.rays,
+                                              bounded=growth.bounded, n=n, pose_noise_refit=growth.pose_noise_refit)
+    if not refitted and abs(moved.atPose3(X(n - 1)).translation() - estimate.atPose3(X(n - 1)).translation()).max() < 1e-6:
         return isam, estimate
     fresh = gtsam.ISAM2(params)
     fresh.update(graph, moved)
