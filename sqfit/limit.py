@@ -28,6 +28,10 @@ Method (all seeded by ``rng``):
 4. **Report**: the accurate IoU of the refined candidates by an exact mesh boolean
    (:func:`sqfit.metrics.iou_3d_mesh`); the best one is the limit.
 
+Steps 2-3 are :func:`search_volume`, which takes any uniform sample of a solid's inside and its
+volume (the mesh path adds the oriented bounding box as a frame and sizes the whole-mesh starts on
+the vertices); ``scripts/hull_volume.py`` runs it on a carved visual hull.
+
 The search is local and seeded, so the limit it reports is a lower bound of the true one: on
 nine kinds of the household catalogue (two objects each) a search four times as long
 (``starts=24``, 600 / 2000 evaluations, 4 final candidates, 4 parts, one more start scale) found
