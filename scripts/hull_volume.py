@@ -36,7 +36,7 @@ bottles, cans, books, bowls and plant pots (by 0.01-0.34), where the rule keeps 
 table 0.038 / 0.251 / 0.221 / 0.324 / 0.730, chair 0.071 / 0.108 / 0.127 / 0.127 / 0.483, lamp
 0.337 / 0.539 / 0.590 / 0.590 / 0.670, monitor 0.269 / 0.479 / 0.275 / 0.525 / 0.851, toy 0.636 /
 0.627 / 0.639 / 0.639 / 0.715. The hull's search takes 10-17 s per object on a loaded 2-core
-machine (the mesh's limit search there: about half of that).
+machine (the mesh's limit search in the same runs: median 14 s).
 """
 
 from __future__ import annotations
