@@ -28,6 +28,10 @@ Method (all seeded by ``rng``):
 4. **Report**: the accurate IoU of the refined candidates by an exact mesh boolean
    (:func:`sqfit.metrics.iou_3d_mesh`); the best one is the limit.
 
+Steps 2-3 are :func:`search_volume`, which takes any uniform sample of a solid's inside and its
+volume (the mesh path adds the oriented bounding box as a frame and sizes the whole-mesh starts on
+the vertices); ``scripts/hull_volume.py`` runs it on a carved visual hull.
+
 The search is local and seeded, so the limit it reports is a lower bound of the true one: on
 nine kinds of the household catalogue (two objects each) a search four times as long
 (``starts=24``, 600 / 2000 evaluations, 4 final candidates, 4 parts, one more start scale) found
@@ -64,7 +68,7 @@ from .geometry.superquadric import Superquadric, log_implicit_unit, matrix_to_eu
 from .metrics import iou_3d_mesh
 
 __all__ = ["LIMIT_POINTS", "LIMIT_SHAPE_BOUNDS", "SEARCH_POINTS", "LIMIT_STARTS", "RepresentationLimit", "best_superquadric",
-           "interior_points"]
+           "interior_points", "search_volume"]
 
 #: Interior sample of the refinement (points inside the mesh, about).
 LIMIT_POINTS = 2**13
@@ -296,18 +300,17 @@ def _principal_axes(points):
     return np.linalg.eigh(centred.T @ centred)[1]
 
 
-def _frames(mesh, vertices, points, rng):
+def _frames(points, extent, rotations, rng):
     """Candidate frames ``(R (3, 3), centre (3,), half-extents (3,))``.
 
-    The whole mesh in its principal axes and in its oriented bounding box, then the parts of the
-    interior sample found by k-means (k = 2 .. :data:`PART_CLUSTERS`), each in its own principal
-    axes: the best superquadric of a shape with parts often covers one part (a chair's seat and
-    back, a lamp's shade) rather than the whole.
+    The whole volume in the principal axes of its sample ``points`` and in each of ``rotations``
+    (boxes measured on ``extent``), then the parts of the sample found by k-means (k = 2 ..
+    :data:`PART_CLUSTERS`), each in its own principal axes: the best superquadric of a shape with
+    parts often covers one part (a chair's seat and back, a lamp's shade) rather than the whole.
     """
     from scipy.cluster.vq import kmeans2
 
-    frames = [_frame_of(_principal_axes(points), vertices),
-              _frame_of(np.asarray(mesh.bounding_box_oriented.primitive.transform)[:3, :3], vertices)]
+    frames = [_frame_of(R, extent) for R in (_principal_axes(points), *rotations)]
     for k in range(2, PART_CLUSTERS + 1):
         _, labels = kmeans2(points, k, minit="++", seed=rng)
         for part in range(k):
@@ -349,6 +352,78 @@ def _refine(objective, R0, z, points, evaluations, step):
     return -float(res.fun), res.x
 
 
+def search_volume(sample, volume, rng=None, *, extent=None, rotations=(), search_points=SEARCH_POINTS,
+                  starts=LIMIT_STARTS, final=FINAL_STARTS):
+    """Superquadrics of highest estimated 3D IoU with a solid given by a uniform sample of its inside.
+
+    Steps 2-3 of the module docstring, for any solid: a mesh (:func:`best_superquadric`), a
+    carved visual hull (:mod:`sqfit.fitting.hull_volume`).
+
+    Parameters
+    ----------
+    sample : (n, 3) float
+        Points uniformly distributed inside the solid (n >= 64), metres.
+    volume : float
+        The solid's volume, cubic metres (> 0): the intersection with a superquadric is
+        ``volume * (fraction of the sample inside it)``.
+    rng : numpy.random.Generator or int, optional
+        Seeds the search subset and the k-means of the parts.
+    extent : (m, 3) float, optional
+        Points whose bounding boxes size the whole-solid starts (a mesh's vertices); default
+        ``sample``.
+    rotations : sequence of (3, 3) float
+        More whole-solid frames besides the sample's principal axes (columns: the axes).
+    search_points : int
+        Subset of the sample for the global search (>= 64, at most ``n``).
+    starts : int
+        (frame, z axis) pairs refined at length (1 to 24).
+    final : int
+        Candidates refined on the whole sample and returned (>= 1).
+
+    Returns
+    -------
+    candidates : list of (float, Superquadric)
+        ``final`` candidates (fewer if the starts are fewer) with their estimated IoU on the whole
+        sample, best first.
+    evaluations : int
+        IoU evaluations of the search.
+    """
+    sample = check_shape(sample, (None, 3), "sample")
+    if len(sample) < 64:
+        raise ValueError(f"sample must hold >= 64 points, got {len(sample)}")
+    if not np.isfinite(volume) or volume <= 0:
+        raise ValueError(f"volume must be a positive number of cubic metres, got {volume!r}")
+    extent = sample if extent is None else check_shape(extent, (None, 3), "extent")
+    if int(search_points) != search_points or search_points < 64:
+        raise ValueError(f"search_points must be an integer >= 64, got {search_points!r}")
+    if int(starts) != starts or not 1 <= starts <= 24:
+        raise ValueError(f"starts must be an integer in [1, 24], got {starts!r}")
+    if int(final) != final or final < 1:
+        raise ValueError(f"final must be an integer >= 1, got {final!r}")
+    rng = np.random.default_rng(rng)
+    subset = sample[rng.choice(len(sample), min(int(search_points), len(sample)), replace=False)]
+    frames = _frames(sample, extent, rotations, rng)
+    objective = _Objective(sample, volume, max(h.max() for _, _, h in frames))
+
+    best_per_pair = {}
+    for estimate, key, R0, z in _starts(objective, frames, subset):
+        best_per_pair.setdefault(key, (estimate, R0, z))
+    # Successive halving: every (frame, z axis) pair briefly, the best ``starts`` longer, the best
+    # ``final`` on the whole sample.
+    pool = [(estimate, R0, z) for estimate, R0, z in best_per_pair.values()]
+    for keep, evaluations, step in ((len(pool), SCREEN_EVALUATIONS, 1.0), (int(starts), SEARCH_EVALUATIONS, 0.5)):
+        pool = sorted(pool, key=lambda t: -t[0])[:keep]
+        pool = [(*_refine(objective, R0, z, subset, evaluations, step), R0) for _, R0, z in pool]
+        pool = [(estimate, R0, z) for estimate, z, R0 in pool]
+    pool.sort(key=lambda t: -t[0])
+    candidates = []
+    for _, R0, z in pool[:int(final)]:
+        estimate, z = _refine(objective, R0, z, None, FINAL_EVALUATIONS, 0.25)
+        candidates.append((float(estimate), objective.superquadric(R0, z)))
+    candidates.sort(key=lambda t: -t[0])
+    return candidates, objective.evaluations
+
+
 def best_superquadric(mesh, rng=None, *, points=LIMIT_POINTS, search_points=SEARCH_POINTS, starts=LIMIT_STARTS):
     """The superquadric of highest 3D IoU with a watertight mesh (module docstring: method).
 
@@ -379,25 +454,9 @@ def best_superquadric(mesh, rng=None, *, points=LIMIT_POINTS, search_points=SEAR
     sample = interior_points(mesh, points, rng)
     if len(sample) < 64:
         raise ValueError(f"mesh has too little volume for an interior sample ({len(sample)} points)")
-    subset = sample[rng.choice(len(sample), min(int(search_points), len(sample)), replace=False)]
-    frames = _frames(mesh, vertices, sample, rng)
-    objective = _Objective(sample, mesh.volume, max(h.max() for _, _, h in frames))
-
-    best_per_pair = {}
-    for estimate, key, R0, z in _starts(objective, frames, subset):
-        best_per_pair.setdefault(key, (estimate, R0, z))
-    # Successive halving: every (frame, z axis) pair briefly, the best ``starts`` longer, the best
-    # FINAL_STARTS on the whole sample.
-    pool = [(estimate, R0, z) for estimate, R0, z in best_per_pair.values()]
-    for keep, evaluations, step in ((len(pool), SCREEN_EVALUATIONS, 1.0), (int(starts), SEARCH_EVALUATIONS, 0.5)):
-        pool = sorted(pool, key=lambda t: -t[0])[:keep]
-        pool = [(*_refine(objective, R0, z, subset, evaluations, step), R0) for _, R0, z in pool]
-        pool = [(estimate, R0, z) for estimate, z, R0 in pool]
-    pool.sort(key=lambda t: -t[0])
-    candidates = []
-    for _, R0, z in pool[:FINAL_STARTS]:
-        estimate, z = _refine(objective, R0, z, None, FINAL_EVALUATIONS, 0.25)
-        sq = objective.superquadric(R0, z)
-        candidates.append((iou_3d_mesh(sq, mesh, BOOLEAN_RESOLUTION), estimate, sq))
+    obb = np.asarray(mesh.bounding_box_oriented.primitive.transform)[:3, :3]
+    found, evaluations = search_volume(sample, mesh.volume, rng, extent=vertices, rotations=(obb,),
+                                       search_points=search_points, starts=starts)
+    candidates = [(iou_3d_mesh(sq, mesh, BOOLEAN_RESOLUTION), estimate, sq) for estimate, sq in found]
     iou, estimate, sq = max(candidates, key=lambda t: (t[0], t[1]))
-    return RepresentationLimit(sq, float(iou), float(estimate), objective.evaluations, time.perf_counter() - t0)
+    return RepresentationLimit(sq, float(iou), float(estimate), evaluations, time.perf_counter() - t0)

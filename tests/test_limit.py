@@ -8,8 +8,8 @@ import trimesh
 
 import sqfit
 
-from sqfit.geometry.superquadric import Superquadric, to_mesh, unit_volume, volume
-from sqfit.limit import best_superquadric, interior_points
+from sqfit.geometry.superquadric import Superquadric, contains, to_mesh, unit_volume, volume
+from sqfit.limit import best_superquadric, interior_points, search_volume
 from sqfit.metrics import iou_3d
 from sqsim.world.household import build_household
 from sqsim.world.limit import LimitCache, limit_key, object_limit
@@ -94,6 +94,27 @@ def test_bad_meshes_and_settings_are_refused_naming_them():
         best_superquadric(box, starts=0)
     with pytest.raises(ValueError, match="n must be an integer >= 64"):
         interior_points(box, 10)
+
+
+def test_search_volume_finds_the_superquadric_a_uniform_sample_was_drawn_from():
+    true = Superquadric((0.8, 0.5, 0.3), (0.4, 1.3), (0.5, -0.2, 1.0), (0.4, -0.3, 1.1))
+    rng = np.random.default_rng(3)
+    box = rng.uniform(-1.0, 1.0, (60000, 3)) + true.position
+    sample = box[contains(true, box)]
+    (estimate, found), *_ = search_volume(sample, volume(true), 0, final=1)[0]
+    assert estimate > 0.95 and iou_3d(found, true) > 0.95
+
+
+def test_search_volume_refuses_bad_samples_and_settings_naming_them():
+    sample = np.random.default_rng(0).uniform(-1.0, 1.0, (200, 3))
+    with pytest.raises(ValueError, match=r"sample must hold >= 64 points"):
+        search_volume(sample[:10], 1.0)
+    with pytest.raises(ValueError, match="volume must be a positive number"):
+        search_volume(sample, 0.0)
+    with pytest.raises(ValueError, match="final must be an integer >= 1"):
+        search_volume(sample, 1.0, final=0)
+    with pytest.raises(ValueError, match=r"starts must be an integer in \[1, 24\]"):
+        search_volume(sample, 1.0, starts=30)
 
 
 def test_object_limits_are_cached_per_mesh_up_to_pose_and_scale(tmp_path):
