@@ -14,13 +14,14 @@ dash-joined list of them (``"1-2M-3H"``).
 - :mod:`.restarts` — stage 3S: symmetric restarts of 3G;
 - :mod:`.axis_screen` — stage 3H (the default's last stage): choose the axes, then 3G;
 - :mod:`.outline` — stage 3T (chain ``tolerant``): G2 on the mask contours where 3G's cost is not met;
-- :mod:`.trimmed` — stage 3R (chain ``tolerant``): 3G without the outline rays no superquadric grazes;
+- :mod:`.trimmed` — stages 3R (default chain) and 3RH (chain ``tolerant``: 3R, then from the visual hull's fit):
+  3G without the outline rays no superquadric grazes;
 - :mod:`.pointcloud` — an outlier-tolerant superquadric fit to a point cloud (EMS);
 - :mod:`.hull` — stage HULL (the visual-hull baseline, chain ``hull``): carve, then the point fit;
 - :mod:`.pipeline` — options, results and :func:`fit`.
 """
 
-from . import axis_screen, grazing, hull, moments, outline, restarts, trimmed  # noqa: F401  (register 3H, 3G, HULL, 2M, 3T, 3S, 3R)
+from . import axis_screen, grazing, hull, moments, outline, restarts, trimmed  # noqa: F401  (register 3H, 3G, HULL, 2M, 3T, 3S, 3R, 3RH)
 from .pipeline import (CHAIN_ALIASES, DEFAULT_CHAIN, HULL_CHAIN, PAPER_CHAINS, FitOptions, FitResult, StageRecord, fit,
                        parse_chain)
 from .stages import STAGES
