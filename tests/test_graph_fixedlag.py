@@ -80,10 +80,8 @@ def test_conditioning_names_what_it_cannot_keep():
 @pytest.mark.parametrize("n, most, expected", [
     (10, 0, list(range(10))), (5, 12, list(range(5))), (10, 4, [0, 3, 6, 9]), (30, 12, None)])
 def test_spread_keeps_the_ends_and_at_most_what_is_asked(n, most, expected):
-    from sqfit.graph.solve import _spread
-
     frames = list(range(100, 100 + n))
-    got = _spread(frames, most)
+    got = fixedlag.evenly_spread(frames, most)
     if expected is not None:
         assert got == [100 + i for i in expected]
     assert got[0] == frames[0] and got[-1] == frames[-1] and len(got) <= (most or n) and got == sorted(set(got))
@@ -113,3 +111,24 @@ def test_many_mixed_factors_keep_their_residuals():
     sub, sub_values = fixedlag.condition_on_past(g, values, active)
     touching = [g.at(k) for k in range(g.size()) if set(g.at(k).keys()) & active]
     assert sub.error(sub_values) == pytest.approx(sum(f.error(values) for f in touching))
+
+
+def test_a_sampled_history_keeps_its_weight():
+    # 40 identical views of the fixed v0 on the active v4: 4 of them, weighted 40 / 4, are the same
+    # quadratic as all 40 (the same error and the same solution)
+    g, values = _chain()
+    for _ in range(40):
+        g.add(_linear([KEYS[4], KEYS[0]], [1.0, -0.5], np.array([0.7, 0.1])))
+    active = {KEYS[3], KEYS[4]}
+    full, full_values = fixedlag.condition_on_past(g, values, active)
+    sampled, sampled_values = fixedlag.condition_on_past(g, values, active, most=4)
+    assert sampled.error(sampled_values) == pytest.approx(full.error(full_values))
+    a, b = _solve(full, full_values), _solve(sampled, sampled_values)
+    for k in active:
+        np.testing.assert_allclose(b.atVector(k), a.atVector(k), atol=1e-9)
+    # a list of the factors touching the active variables conditions as the whole graph does
+    touching = [g.at(k) for k in range(g.size()) if set(g.at(k).keys()) & active]
+    listed, listed_values = fixedlag.condition_on_past(touching, values, active, most=4)
+    assert listed.error(listed_values) == pytest.approx(sampled.error(sampled_values))
+    with pytest.raises(ValueError, match="most must be >= 0"):
+        fixedlag.condition_on_past(g, values, active, most=-1)

@@ -103,6 +103,12 @@ class GraphOptions(Options):
         re-optimised landmarks enter linearised (:func:`sqfit.graph.fixedlag.condition_on_past`), so
         a window's cost does not grow with the frames before it. The last window solves the whole
         graph. 0: every window solves the whole graph (the cost grows with the square of the length).
+    batch_past_views : int
+        In those window solves, each re-optimised landmark's older views (those of the fixed
+        frames) enter as at most this many linearised views, evenly spread over them and weighted
+        to count as all of them (:func:`sqfit.graph.fixedlag.condition_on_past`): without a bound,
+        a window's cost grows with the landmark's history, so the batch's with the square of the
+        length. 0: all of them.
     window_relative_tolerance : float
         Relative error decrease at which the solves of the windows before the last stop: they only
         bring the new frames near (measured, 3 seeds of the benchmark: 0.03 instead of 1e-3 cut the
@@ -174,6 +180,7 @@ class GraphOptions(Options):
     box_sigma_px: float = 2.0
     batch_window: int = 10
     batch_free_frames: int = 20
+    batch_past_views: int = 12
     window_relative_tolerance: float = 0.03
     refit_misfit: float = 0.5
     refit_max_frames: int = 12
@@ -192,7 +199,8 @@ class GraphOptions(Options):
 
     def __post_init__(self):
         check_fields(self, integers={"n_contour": 3, "init_frames": MIN_FRAMES, "max_iterations": 1, "batch_window": 0,
-                                         "batch_free_frames": 0, "refit_max_frames": 0,
+                                         "batch_free_frames": 0, "batch_past_views": 0,
+                                         "refit_max_frames": 0,
                                          "isam2_rescale_every": 0},
                      positive=("silhouette_sigma", "huber_k", "odometry_sigma_deg", "odometry_sigma_m",
                                "prior_sigma_deg", "prior_sigma_m", "landmark_prior_sigma_deg", "init_parallax_deg",
