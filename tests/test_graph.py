@@ -389,6 +389,8 @@ def test_bad_options_and_methods_are_named():
         graph.GraphOptions(init_frames=1)
     with pytest.raises(ValueError, match="silhouette_sigma must be a finite number > 0"):
         graph.GraphOptions(silhouette_sigma=0.0)
+    with pytest.raises(ValueError, match="batch_past_views must be an integer >= 0"):
+        graph.GraphOptions(batch_past_views=-1)
     with pytest.raises(ValueError, match="batch_pose_noise_refit must be True or False"):
         graph.GraphOptions(batch_pose_noise_refit="no")
     with pytest.raises(TypeError, match="options must be None, a dict or a GraphOptions"):

@@ -87,11 +87,14 @@ def test_spread_keeps_the_ends_and_at_most_what_is_asked(n, most, expected):
     assert got[0] == frames[0] and got[-1] == frames[-1] and len(got) <= (most or n) and got == sorted(set(got))
 
 
-def test_windows_with_a_fixed_past_match_the_full_resolve():
-    # 4-frame windows, 6 free frames: from the third window on, the past is held fixed
+@pytest.mark.parametrize("past_views", [0, 2])
+def test_windows_with_a_fixed_past_match_the_full_resolve(past_views):
+    # 4-frame windows, 6 free frames: from the third window on, the past is held fixed (with
+    # past_views 2, each landmark's older views sampled down to 2)
     seq = synthetic_sequence(1, n_frames=16, n_objects=3)
     res = {free: graph.superquadric_graph(seq.intrinsics, seq.odometry_poses, seq.observations,
-                                          {"batch_window": 4, "batch_free_frames": free}) for free in (0, 6)}
+                                          {"batch_window": 4, "batch_free_frames": free, "batch_past_views": past_views})
+           for free in (0, 6)}
     ate = {free: position_rmse(r.poses, seq.true_poses) for free, r in res.items()}
     iou = {free: np.median(list(object_ious(r.objects, seq.objects).values())) for free, r in res.items()}
     assert all(r.ok for r in res.values())
