@@ -135,3 +135,4 @@ def test_a_sampled_history_keeps_its_weight():
     assert listed.error(listed_values) == pytest.approx(sampled.error(sampled_values))
     with pytest.raises(ValueError, match="most must be >= 0"):
         fixedlag.condition_on_past(g, values, active, most=-1)
+

@@ -168,10 +168,14 @@ def _offsets(values, oids, options):
     return {oid: float(values.atVector(O(oid))[0]) * OFFSET_UNIT_PX for oid in oids}
 
 
-def _lm(graph, values, options):
+def _lm(graph, values, options, max_lambda=None):
+    """Levenberg-Marquardt from ``values`` to ``options.relative_tolerance``; ``max_lambda``: the
+    damping at which it gives up (GTSAM's default when None). ``(values, iterations)``."""
     params = gtsam.LevenbergMarquardtParams()
     params.setMaxIterations(int(options.max_iterations))
     params.setRelativeErrorTol(options.relative_tolerance)
+    if max_lambda is not None:
+        params.setlambdaUpperBound(float(max_lambda))
     optimizer = gtsam.LevenbergMarquardtOptimizer(graph, values, params)
     out = optimizer.optimize()
     return out, optimizer.iterations()
@@ -334,7 +338,7 @@ def _batch(problem, options):
             if options.rescale:
                 values = _rescale(graph, values, n, growth.added, growth.batch)
             result.error_initial = graph.error(values)
-            values, iterations = _lm(graph, values, final)
+            values, iterations = _lm(graph, values, final, options.final_max_lambda)
             result.iterations += iterations
     except _SOLVER_ERRORS as exc:
         result.fail("Levenberg-Marquardt", exc)
