@@ -389,6 +389,8 @@ def test_bad_options_and_methods_are_named():
         graph.GraphOptions(init_frames=1)
     with pytest.raises(ValueError, match="silhouette_sigma must be a finite number > 0"):
         graph.GraphOptions(silhouette_sigma=0.0)
+    with pytest.raises(ValueError, match="batch_past_views must be an integer >= 0"):
+        graph.GraphOptions(batch_past_views=-1)
     with pytest.raises(ValueError, match="batch_pose_noise_refit must be True or False"):
         graph.GraphOptions(batch_pose_noise_refit="no")
     with pytest.raises(TypeError, match="options must be None, a dict or a GraphOptions"):
@@ -626,3 +628,18 @@ def test_silhouette_factor_with_outline_offset_linearizes_as_central_differences
         np.testing.assert_allclose(b, n, atol=1e-5 * max(1.0, np.abs(n).max()))
     with pytest.raises(ValueError, match="offset_unit_px"):
         factors.silhouette_factor(gtsam.noiseModel.Unit.Create(len(rays)), *keys[:3], rays, None, O(1), 0.0)
+
+
+def test_a_lower_final_max_lambda_keeps_the_result():
+    # the last solves' rejected trials change nothing: giving up at 1e-3 instead of GTSAM's 1e5
+    # ends the same solves sooner, at the same poses and objects
+    seq = synthetic_sequence(0, n_frames=12, n_objects=2)
+    res = {bound: graph.superquadric_graph(seq.intrinsics, seq.odometry_poses, seq.observations,
+                                           {"final_max_lambda": bound}) for bound in (1e5, 1e-3)}
+    assert all(r.ok for r in res.values())
+    np.testing.assert_allclose(res[1e-3].poses, res[1e5].poses, atol=1e-9)
+    assert res[1e-3].iterations == res[1e5].iterations
+    for oid, sq in res[1e5].objects.items():
+        np.testing.assert_allclose(res[1e-3].objects[oid].to_vector(), sq.to_vector(), atol=1e-9)
+    with pytest.raises(ValueError, match="final_max_lambda must be a finite number > 0"):
+        graph.GraphOptions(final_max_lambda=0.0)

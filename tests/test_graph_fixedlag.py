@@ -80,20 +80,21 @@ def test_conditioning_names_what_it_cannot_keep():
 @pytest.mark.parametrize("n, most, expected", [
     (10, 0, list(range(10))), (5, 12, list(range(5))), (10, 4, [0, 3, 6, 9]), (30, 12, None)])
 def test_spread_keeps_the_ends_and_at_most_what_is_asked(n, most, expected):
-    from sqfit.graph.solve import _spread
-
     frames = list(range(100, 100 + n))
-    got = _spread(frames, most)
+    got = fixedlag.evenly_spread(frames, most)
     if expected is not None:
         assert got == [100 + i for i in expected]
     assert got[0] == frames[0] and got[-1] == frames[-1] and len(got) <= (most or n) and got == sorted(set(got))
 
 
-def test_windows_with_a_fixed_past_match_the_full_resolve():
-    # 4-frame windows, 6 free frames: from the third window on, the past is held fixed
+@pytest.mark.parametrize("past_views", [0, 2])
+def test_windows_with_a_fixed_past_match_the_full_resolve(past_views):
+    # 4-frame windows, 6 free frames: from the third window on, the past is held fixed (with
+    # past_views 2, each landmark's older views sampled down to 2)
     seq = synthetic_sequence(1, n_frames=16, n_objects=3)
     res = {free: graph.superquadric_graph(seq.intrinsics, seq.odometry_poses, seq.observations,
-                                          {"batch_window": 4, "batch_free_frames": free}) for free in (0, 6)}
+                                          {"batch_window": 4, "batch_free_frames": free, "batch_past_views": past_views})
+           for free in (0, 6)}
     ate = {free: position_rmse(r.poses, seq.true_poses) for free, r in res.items()}
     iou = {free: np.median(list(object_ious(r.objects, seq.objects).values())) for free, r in res.items()}
     assert all(r.ok for r in res.values())
@@ -113,3 +114,25 @@ def test_many_mixed_factors_keep_their_residuals():
     sub, sub_values = fixedlag.condition_on_past(g, values, active)
     touching = [g.at(k) for k in range(g.size()) if set(g.at(k).keys()) & active]
     assert sub.error(sub_values) == pytest.approx(sum(f.error(values) for f in touching))
+
+
+def test_a_sampled_history_keeps_its_weight():
+    # 40 identical views of the fixed v0 on the active v4: 4 of them, weighted 40 / 4, are the same
+    # quadratic as all 40 (the same error and the same solution)
+    g, values = _chain()
+    for _ in range(40):
+        g.add(_linear([KEYS[4], KEYS[0]], [1.0, -0.5], np.array([0.7, 0.1])))
+    active = {KEYS[3], KEYS[4]}
+    full, full_values = fixedlag.condition_on_past(g, values, active)
+    sampled, sampled_values = fixedlag.condition_on_past(g, values, active, most=4)
+    assert sampled.error(sampled_values) == pytest.approx(full.error(full_values))
+    a, b = _solve(full, full_values), _solve(sampled, sampled_values)
+    for k in active:
+        np.testing.assert_allclose(b.atVector(k), a.atVector(k), atol=1e-9)
+    # a list of the factors touching the active variables conditions as the whole graph does
+    touching = [g.at(k) for k in range(g.size()) if set(g.at(k).keys()) & active]
+    listed, listed_values = fixedlag.condition_on_past(touching, values, active, most=4)
+    assert listed.error(listed_values) == pytest.approx(sampled.error(sampled_values))
+    with pytest.raises(ValueError, match="most must be >= 0"):
+        fixedlag.condition_on_past(g, values, active, most=-1)
+

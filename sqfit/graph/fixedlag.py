@@ -11,7 +11,10 @@ current estimate. Conditioning on those fixed values turns the graph into:
   ``gtsam.JacobianFactor`` and wrapped in a ``gtsam.LinearContainerFactor`` (GTSAM's carrier of a
   linearised factor in a nonlinear graph, as its fixed-lag smoothers use for marginals): each window
   solve relinearises them once, so a landmark's history costs one evaluation per window instead of
-  one per Levenberg-Marquardt iteration;
+  one per Levenberg-Marquardt iteration; with ``most``, a group of more than ``most`` such factors
+  (a landmark seen in many old frames) is represented by ``most`` of them, evenly spread over the
+  group in the graph's order, their rows scaled by ``sqrt(group / most)`` so the group keeps its
+  weight: a window's cost then stays bounded however long the landmark's history;
 - the factors of fixed variables only, dropped (constant).
 
 The whole graph is still solved at the end (the last window), so the fixed past is an approximation
@@ -23,7 +26,7 @@ from __future__ import annotations
 import gtsam
 import numpy as np
 
-__all__ = ["condition_on_past"]
+__all__ = ["condition_on_past", "evenly_spread"]
 
 
 def _subset(values, keys):
@@ -35,6 +38,16 @@ def _subset(values, keys):
     return out
 
 
+def _sampled(mixed, most):
+    """``(factor, keys, row weight)`` of the mixed factors, at most ``most`` per group (0: all):
+    :func:`evenly_spread`, each kept factor's rows weighted ``sqrt(group / kept)``."""
+    for group in mixed.values():
+        kept = evenly_spread(group, most)
+        weight = np.sqrt(len(group) / len(kept))
+        for factor, keys in kept:
+            yield factor, keys, weight
+
+
 def _jacobian(keys, blocks, b):
     """One whitened ``JacobianFactor`` on 1-3 ``keys`` (GTSAM's Python constructors stop at 3)."""
     if not 1 <= len(keys) <= 3:
@@ -44,16 +57,26 @@ def _jacobian(keys, blocks, b):
     return gtsam.JacobianFactor(*args, b, model)
 
 
-def condition_on_past(graph, values, active):
+def evenly_spread(items, most):
+    """At most ``most`` of ``items`` (all of them with 0), evenly spread, the first and the last kept."""
+    if most == 0 or len(items) <= most:
+        return list(items)
+    return [items[i] for i in np.unique(np.round(np.linspace(0, len(items) - 1, most)).astype(int))]
+
+
+def condition_on_past(graph, values, active, most=0):
     """The graph on the ``active`` variables with every other variable fixed at ``values``.
 
     Parameters
     ----------
-    graph : gtsam.NonlinearFactorGraph
+    graph : gtsam.NonlinearFactorGraph or sequence of gtsam factors
+        Factors without an active variable may be left out of a sequence (they would be dropped).
     values : gtsam.Values
         Holds every variable of ``graph``.
     active : set of int
         Keys of the variables to re-optimise.
+    most : int
+        At most this many linearised factors per set of active variables (module docstring); 0: all.
 
     Returns
     -------
@@ -68,21 +91,27 @@ def condition_on_past(graph, values, active):
         A factor mixing active and fixed variables keeps more than 3 active ones, or linearises to a
         constrained (hard) noise model.
     """
-    active = set(active)
-    kept, mixed = gtsam.NonlinearFactorGraph(), []
-    for k in range(graph.size()):
-        factor = graph.at(k)
+    active, most = set(active), int(most)
+    if most < 0:
+        raise ValueError(f"most must be >= 0, got {most}")
+    if isinstance(graph, gtsam.NonlinearFactorGraph):
+        graph = [graph.at(k) for k in range(graph.size())]
+    kept, mixed = gtsam.NonlinearFactorGraph(), {}
+    for factor in graph:
         keys = list(factor.keys())
-        n_active = sum(key in active for key in keys)
-        if n_active == len(keys):
+        on = tuple(key for key in keys if key in active)
+        if len(on) == len(keys):
             kept.add(factor)
-        elif n_active:
-            mixed.append((factor, keys))
+        elif on:
+            mixed.setdefault(on, []).append((factor, keys))
     if mixed:
-        at = _subset(values, active | {key for _, keys in mixed for key in keys})
+        # only the sampled factors' variables: a silhouette factor is evaluated with every other
+        # one whose variables the values hold (sqfit.graph.factors.SilhouetteFactors)
+        sampled = list(_sampled(mixed, most))
+        at = _subset(values, active | {key for _, keys, _ in sampled for key in keys})
         zero = at.zeroVectors()
         groups = {}
-        for factor, keys in mixed:
+        for factor, keys, weight in sampled:
             lin = gtsam.JacobianFactor(factor.linearize(at))
             if lin.isConstrained():
                 raise ValueError(f"cannot condition a constrained factor on keys {keys}")
@@ -94,8 +123,8 @@ def condition_on_past(graph, values, active):
                     cols.append((key, A[:, offset:offset + dim]))
                 offset += dim
             group = groups.setdefault(tuple(key for key, _ in cols), ([], []))
-            group[0].append(np.hstack([block for _, block in cols]))
-            group[1].append(b)
+            group[0].append(weight * np.hstack([block for _, block in cols]))
+            group[1].append(weight * b)
         for keys, (blocks, bs) in groups.items():
             A, b = np.vstack(blocks), np.concatenate(bs)
             dims = np.cumsum([0] + [zero.at(key).size for key in keys])

@@ -41,7 +41,7 @@ from ..fitting import pipeline
 from ..fitting.grazing import OFFSET_UNIT_PX
 from ..fitting.stages import r_iou_m
 from .factors import SilhouetteFactors, bounds_factor, box_factor, floor_factor, silhouette_factor
-from .fixedlag import condition_on_past
+from .fixedlag import condition_on_past, evenly_spread
 from .landmark import camera_rays, landmark_to_superquadric, left_grazing, superquadric_to_landmark
 from .problem import GraphOptions, SlamResult, check_inputs, observation_at, ready_to_initialise
 from .quadric import initialise_quadric, observation_box, quadric_to_superquadric
@@ -174,10 +174,14 @@ def _offsets(values, oids, options):
     return {oid: float(values.atVector(O(oid))[0]) * OFFSET_UNIT_PX for oid in oids}
 
 
-def _lm(graph, values, options):
+def _lm(graph, values, options, max_lambda=None):
+    """Levenberg-Marquardt from ``values`` to ``options.relative_tolerance``; ``max_lambda``: the
+    damping at which it gives up (GTSAM's default when None). ``(values, iterations)``."""
     params = gtsam.LevenbergMarquardtParams()
     params.setMaxIterations(int(options.max_iterations))
     params.setRelativeErrorTol(options.relative_tolerance)
+    if max_lambda is not None:
+        params.setlambdaUpperBound(float(max_lambda))
     optimizer = gtsam.LevenbergMarquardtOptimizer(graph, values, params)
     out = optimizer.optimize()
     return out, optimizer.iterations()
@@ -318,19 +322,21 @@ def _batch(problem, options):
     result = SlamResult("graph", problem.odometry_poses.copy(), skipped=dict(problem.skipped),
                         warnings=list(problem.warnings))
     growth = _Growth(problem, options, result, options.batch_pose_noise_refit)
-    graph, values = gtsam.NonlinearFactorGraph(), gtsam.Values()
+    graph, values, by_key = gtsam.NonlinearFactorGraph(), gtsam.Values(), {}
     window = options.batch_window or n
     try:
         for start in range(0, n, window):
             end = min(start + window, n)
             new_graph, new_values = growth.add(range(start, end))
             for k in range(new_graph.size()):
+                for key in new_graph.at(k).keys():
+                    by_key.setdefault(key, []).append(graph.size())
                 graph.add(new_graph.at(k))
             values.insert(new_values)
             if end >= n:
                 values, iterations = _lm(graph, values, replace(options, relative_tolerance=options.window_relative_tolerance))
             else:
-                iterations = _window_solve(graph, values, growth, end, options)
+                iterations = _window_solve(graph, by_key, values, growth, end, options)
             result.iterations += iterations
             growth.update(values, end)
         _refit(problem, values, growth.added, options, result, growth.rays, bounded=growth.bounded)
@@ -344,7 +350,7 @@ def _batch(problem, options):
             if options.rescale:
                 values = _rescale(graph, values, n, growth.added, growth.batch)
             result.error_initial = graph.error(values)
-            values, iterations = _lm(graph, values, final)
+            values, iterations = _lm(graph, values, final, options.final_max_lambda)
             result.iterations += iterations
     except _SOLVER_ERRORS as exc:
         result.fail("Levenberg-Marquardt", exc)
@@ -367,11 +373,13 @@ def _rescale(graph, values, n, oids, batch):
     return rescaled(values, centre, best_scale(changing, values, centre, *keys), *keys)
 
 
-def _window_solve(graph, values, growth, end, options):
+def _window_solve(graph, by_key, values, growth, end, options):
     """Solve a window before the last (frames ``0 .. end-1`` in ``graph``) to
     ``window_relative_tolerance``, updating ``values`` in place: only the poses of the last
-    ``batch_free_frames`` frames and the landmarks they see move (all of them with 0). Returns the
-    iterations."""
+    ``batch_free_frames`` frames and the landmarks they see move (all of them with 0), the older
+    views of those landmarks at most ``batch_past_views`` per landmark
+    (:func:`sqfit.graph.fixedlag.condition_on_past`). ``by_key``: the positions in ``graph`` of
+    the factors on each variable. Returns the iterations."""
     coarse = replace(options, relative_tolerance=options.window_relative_tolerance)
     first = end - options.batch_free_frames
     if options.batch_free_frames == 0 or first <= 0:
@@ -381,7 +389,9 @@ def _window_solve(graph, values, growth, end, options):
     active = {X(f) for f in range(first, end)}
     active |= {key for f in range(first, end) for oid in growth.by_frame.get(f, []) if oid in growth.added
                for key in _landmark_keys(oid, options)}
-    sub_graph, sub_values = condition_on_past(graph, values, active)
+    touching = sorted({k for key in active for k in by_key.get(key, ())})
+    sub_graph, sub_values = condition_on_past([graph.at(k) for k in touching], values, active,
+                                              options.batch_past_views)
     out, iterations = _lm(sub_graph, sub_values, coarse)
     values.update(out)
     return iterations
@@ -403,13 +413,6 @@ def _object_misfits(problem, values, oids, options, rays_cache=None, bounded=fro
 def _frames_before(problem, oid, n):
     """The frames of object ``oid`` before frame ``n`` (all with None)."""
     return [f for f in problem.frames[oid] if n is None or f < n]
-
-
-def _spread(frames, most):
-    """At most ``most`` of ``frames`` (all with 0), evenly spread, the first and the last kept."""
-    if most == 0 or len(frames) <= most:
-        return list(frames)
-    return [frames[i] for i in np.unique(np.round(np.linspace(0, len(frames) - 1, most)).astype(int))]
 
 
 def _observation_set(problem, oid, poses, frames):
@@ -435,7 +438,7 @@ def _refit(problem, values, oids, options, result, rays_cache=None, overlap_only
     kept if its misfit is lower) and those whose silhouettes barely overlap their masks (R-IOU-M
     below ``sqfit.constants.POOR_FIT_R_IOU_M``, 3G's "far, huge" minimum, whose misfit is low; a
     refit is kept if it overlaps more). The overlap and the fit use at most ``refit_max_frames`` of
-    the landmark's frames (:func:`_spread`). ``overlap_only``: only the second kind. Returns whether
+    the landmark's frames (:func:`sqfit.graph.fixedlag.evenly_spread`). ``overlap_only``: only the second kind. Returns whether
     a landmark changed. ``rays_cache``: :func:`_silhouette`; ``bounded``: the landmarks whose
     silhouette factors are bounded (their misfits measured so, :func:`_object_misfits`). ``n``: only
     frames ``0 .. n-1`` are in ``values`` (iSAM2, mid-sequence; None: all). ``pose_noise_refit``:
@@ -448,7 +451,7 @@ def _refit(problem, values, oids, options, result, rays_cache=None, overlap_only
     misfits = {} if overlap_only else _object_misfits(problem, values, oids, options, rays_cache, bounded, n)
     changed = False
     for oid in oids:
-        frames = _spread(_frames_before(problem, oid, n), options.refit_max_frames)
+        frames = evenly_spread(_frames_before(problem, oid, n), options.refit_max_frames)
         obs = _observation_set(problem, oid, poses, frames)
         overlap = _overlap(values, oid, obs)
         disjoint = overlap < C.POOR_FIT_R_IOU_M
