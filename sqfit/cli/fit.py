@@ -72,8 +72,9 @@ def add_arguments(parser):
     parser.add_argument("-o", "--output", required=True, help="JSON-lines file to write")
     parser.add_argument("--chain", default=DEFAULT_CHAIN,
                         help="stages joined by '-', e.g. 1-2-3D-3A; or 'default', 'hull' (the visual-hull baseline), "
-                             "'tolerant' (the default, then G2 on the mask contours where no superquadric grazes "
-                             "the outline: objects with legs, handles, stands)")
+                             "'tolerant' (the default with 3R also re-fitted from the visual hull's fit, slower where it "
+                             "acts, then G2 on the mask contours where no superquadric grazes the outline: objects "
+                             "with legs, handles, stands)")
     parser.add_argument("--samples", type=int, default=C.DEFAULT_SAMPLES, help="samples N per observation")
     parser.add_argument("--sampling", default="uniform", choices=SAMPLING_METHODS)
     parser.add_argument("--polygon", default="hull", choices=POLYGON_KINDS,
