@@ -71,7 +71,9 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from .grazing import minimise, outline_rays
+from .hull import object_hull
 from .outline import TRIGGER_COST
+from .pointcloud import fit_points
 from .raycost import ray_residuals
 from .stages import NUMERICAL_ERRORS, StageError, register
 from ..geometry.superquadric import euler_to_matrix, matrix_to_euler
@@ -268,9 +270,6 @@ def hull_starts(obs):
     """The visual hull's superquadric (stage ``HULL``'s carving and EMS fit, :mod:`sqfit.fitting.hull`) and
     the cylinder-like starts about its axes, as ``(name, xi, rounds)``; empty when the carving keeps
     too few surface points or the point-cloud fit fails."""
-    from .hull import object_hull
-    from .pointcloud import fit_points
-
     try:
         points = object_hull(obs).surface_points()
         if len(points) < HULL_MIN_POINTS:
