@@ -6,7 +6,9 @@
 With ``--scene``: sequence 0 (``--sequences``) of each seed of a sequence scene (``sqsim.imaging.sequence.simulate_sequence``,
 rendered masks with the scene's noise and odometry), observations from its instance images at the
 odometry poses as ``sqsim slam`` makes them (the time to make them is not part of a method's time);
-``--frames`` and ``--objects`` are then ignored.
+``--frames`` and ``--objects`` are then ignored. The graph is given the scene's odometry noise as
+its odometry sigmas (``sqsim.runs.slam.scene_graph_options``, as ``sqsim slam`` does; ``--options``
+overrides them) and with ``--floor`` the floor the objects stand on.
 
 Sequences: :func:`sqfit.graph.testing.synthetic_sequence` (a camera on a 120 degree arc of radius
 5 m around ``--objects`` superquadrics, ``--frames`` frames, odometry drifted by 0.5 deg and 5 mm
@@ -95,7 +97,7 @@ def scene_sequence(path, seed, index=0, frames=None):
     observations = graph.observations_from_instances(seq.intrinsics, seq.odometry_poses, seq.images,
                                                      min_area_px=max(scene.masks.min_area_px, 1), rng=rng)
     return SimpleNamespace(intrinsics=seq.intrinsics, odometry_poses=seq.odometry_poses, true_poses=seq.true_poses,
-                           objects=seq.objects, observations=observations)
+                           objects=seq.objects, observations=observations, scene=scene)
 
 
 def _spread(rows, key):
@@ -144,7 +146,11 @@ def main(argv=None):
     parser.add_argument("--frames", type=int, default=40)
     parser.add_argument("--objects", type=int, default=6)
     parser.add_argument("--methods", default=",".join(graph.METHODS))
-    parser.add_argument("--options", default=None, help="GraphOptions fields as JSON, e.g. '{\"refit_misfit\": 0}'")
+    parser.add_argument("--options", default=None, help="GraphOptions fields as JSON, e.g. '{\"refit_misfit\": 0}'; "
+                        "with --scene they override the scene's odometry noise, which is passed as sqsim slam does "
+                        "(sqsim.runs.slam.scene_graph_options)")
+    parser.add_argument("--floor", action="store_true", help="with --scene: give the graph the floor the objects "
+                        "stand on, as sqsim slam --floor")
     parser.add_argument("--scene", action="append", default=None, help="a sequence scene (e.g. scenes/sequence.toml) "
                         "instead of the synthetic sequences; repeat for several (their sequences are pooled)")
     parser.add_argument("--repeat", type=int, default=1, help="runs per method and sequence; the least CPU time is "
@@ -168,8 +174,13 @@ def main(argv=None):
                                for index in range(args.sequences if scene else 1)]:
         seq = (scene_sequence(scene, seed, index, args.scene_frames) if scene
                else synthetic_sequence(seed, args.frames, args.objects))
+        given = base
+        if scene:
+            from sqsim.runs.slam import scene_graph_options
+
+            given = scene_graph_options(seq.scene, base, floor=args.floor)
         for k in range(args.perturb):
-            options = {**base, "silhouette_sigma": sigma * (1.0 + k * 1e-9)} if k else (base or None)
+            options = {**given, "silhouette_sigma": sigma * (1.0 + k * 1e-9)} if k else (given or None)
             for m in methods:
                 runs = [_row(m, graph.run(seq.intrinsics, seq.odometry_poses, seq.observations, [m], options)[m],
                              seq) for _ in range(args.repeat)]

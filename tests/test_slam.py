@@ -14,7 +14,7 @@ from sqfit.geometry.superquadric import Superquadric  # noqa: E402
 from sqsim.cli import main  # noqa: E402
 from sqsim.world.scene import parse_scene  # noqa: E402
 from sqsim.imaging.sequence import simulate_sequence  # noqa: E402
-from sqsim.runs.slam import evaluate_sequence, run_slam, trajectory_errors  # noqa: E402
+from sqsim.runs.slam import evaluate_sequence, run_slam, scene_graph_options, trajectory_errors  # noqa: E402
 
 TINY = {
     "experiment": {"name": "tiny", "seed": 0, "trials": 1},
@@ -145,6 +145,23 @@ def test_slam_refuses_a_non_sequence_scene(tmp_path):
 def test_slam_bad_arguments(tmp_path, kwargs, match):
     with pytest.raises(ValueError, match=match):
         run_slam(parse_scene(TINY), tmp_path / "o", progress=False, **kwargs)
+
+
+def test_slam_records_the_graph_options_the_scene_implies(run_dir):
+    """The odometry's noise is passed as the graph's odometry sigma (not the graph's 5 mm default)."""
+    options = json.loads((run_dir / "slam.json").read_text())["options"]
+    assert options == {"odometry_sigma_m": 0.02, "odometry_sigma_deg": 0.5}
+
+
+def test_scene_graph_options_floor_and_overrides():
+    scene = parse_scene(TINY)
+    assert scene_graph_options(scene, {"odometry_sigma_m": 0.01}, floor=True) == {
+        "odometry_sigma_m": 0.01, "odometry_sigma_deg": 0.5, "floor_z": 0.0}
+    quiet = parse_scene({**TINY, "noise": {}})
+    assert scene_graph_options(quiet) == {}  # no noise declared: the graph's own defaults
+    free = parse_scene({**TINY, "objects": {**TINY["objects"], "layout": "free", "upright": False}})
+    with pytest.raises(ValueError, match="--floor needs objects.layout"):
+        scene_graph_options(free, floor=True)
 
 
 def test_slam_cli_bad_options(tmp_path, capsys):

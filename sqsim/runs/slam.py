@@ -48,7 +48,7 @@ from ..data.files import atomic_write_text, check_or_write_run_config
 from ..reports.slam import footprint_hull
 
 __all__ = ["add_arguments", "run", "run_slam", "slam_sequence", "evaluate_sequence", "trajectory_errors",
-           "parse_methods", "FORMAT"]
+           "parse_methods", "scene_graph_options", "FORMAT"]
 
 FORMAT = "sqkit-slam"
 FORMAT_VERSION = 1
@@ -80,7 +80,13 @@ example: sqsim slam scenes/sequence.toml -o /tmp/slam --sequences 5 --workers 2"
     parser.add_argument("--methods", default=None,
                         help="comma-separated subset of odometry,fixed,quadric,graph,graph-isam2 (default: all)")
     parser.add_argument("--options", default=None,
-                        help="sqfit.graph.GraphOptions fields as JSON, e.g. '{\"batch_window\": 15}'")
+                        help="sqfit.graph.GraphOptions fields as JSON, e.g. '{\"batch_window\": 15}'; they override "
+                        "the odometry noise taken from the scene (noise.odometry_translation_m and "
+                        "odometry_rotation_deg become odometry_sigma_m and odometry_sigma_deg)")
+    parser.add_argument("--floor", action="store_true",
+                        help="give the graph the floor the objects stand on (objects.layout = \"ground\": the plane "
+                        "z = 0 of the first pose's world frame), as a robot with a level camera at a known height "
+                        "knows it: it measures the map's scale, which the masks cannot")
     parser.add_argument("--workers", type=int, default=1, help="local worker processes")
     parser.add_argument("--scheduler", default=None, help="Dask scheduler address tcp://HOST:PORT (overrides --workers)")
     parser.add_argument("--no-figures", action="store_true", help="no top-down figures")
@@ -92,7 +98,7 @@ def run(args):
 
     options = _parse_options(args.options)
     summary = run_slam(load_scene(args.scene), args.output, sequences=args.sequences, seed=args.seed,
-                       methods=parse_methods(args.methods), options=options, workers=args.workers,
+                       methods=parse_methods(args.methods), options=options, floor=args.floor, workers=args.workers,
                        scheduler=args.scheduler, progress=not args.no_progress, figures=not args.no_figures)
     print(Path(args.output, "table.md").read_text())
     print(f"wrote {Path(args.output) / 'summary.json'}, table.md and sequences/NNNNNN/ "
@@ -115,6 +121,47 @@ def _parse_options(text):
     return options
 
 
+def scene_graph_options(scene, options=None, *, floor=False):
+    """The ``sqfit.graph.GraphOptions`` fields a sequence scene implies, overridden by ``options``.
+
+    The odometry's noise is the sensor's specification, which a SLAM system is given: the scene's
+    ``noise.odometry_translation_m`` and ``noise.odometry_rotation_deg`` (per step and axis) become
+    ``odometry_sigma_m`` and ``odometry_sigma_deg`` where they are positive (the graph's defaults,
+    5 mm and 0.5 deg, are five times too confident for ``scenes/sequence-eval.toml``'s 2.5 cm; the
+    README, "Issue 23, third pass", measures what that cost). With ``floor`` the plane the objects
+    stand on is given too (``floor_z = 0``: ``objects.layout = "ground"`` rests every object on the
+    plane z = 0 of the world frame of the first pose, which the graph holds at the first odometry
+    pose, the true one): what a robot with a level camera at a known height over the floor knows.
+
+    Parameters
+    ----------
+    scene : sqsim.world.scene.Scene
+    options : dict, optional
+        Explicit ``GraphOptions`` fields; they win over the scene's.
+    floor : bool
+
+    Returns
+    -------
+    dict
+
+    Raises
+    ------
+    ValueError
+        ``floor`` on a scene whose objects do not stand on a floor.
+    """
+    implied = {}
+    if scene.noise.odometry_translation_m > 0:
+        implied["odometry_sigma_m"] = float(scene.noise.odometry_translation_m)
+    if scene.noise.odometry_rotation_deg > 0:
+        implied["odometry_sigma_deg"] = float(scene.noise.odometry_rotation_deg)
+    if floor:
+        if scene.objects.layout != "ground":
+            raise ValueError(f"{scene.source}: --floor needs objects.layout = \"ground\" (objects resting on the "
+                             f"plane z = 0), got {scene.objects.layout!r}")
+        implied["floor_z"] = 0.0
+    return {**implied, **dict(options or {})}
+
+
 def parse_methods(text):
     """Method list from ``--methods`` (``None``: every method of ``sqfit.graph.METHODS``)."""
     from sqfit.graph import METHODS
@@ -130,8 +177,8 @@ def parse_methods(text):
 
 # --------------------------------------------------------------------------- driver
 
-def run_slam(scene, output, *, sequences=None, seed=None, methods=None, options=None, workers=1, scheduler=None,
-             progress=True, figures=True):
+def run_slam(scene, output, *, sequences=None, seed=None, methods=None, options=None, floor=False, workers=1,
+             scheduler=None, progress=True, figures=True):
     """Run (or resume) the SLAM evaluation of a sequence scene and write all outputs (module docstring).
 
     Parameters
@@ -144,7 +191,10 @@ def run_slam(scene, output, *, sequences=None, seed=None, methods=None, options=
     methods : list of str, optional
         Default: every method.
     options : dict, optional
-        ``sqfit.graph.GraphOptions`` fields.
+        ``sqfit.graph.GraphOptions`` fields; they override those the scene implies
+        (:func:`scene_graph_options`: its odometry noise). ``slam.json`` records the options used.
+    floor : bool
+        Give the graph the floor the objects stand on (:func:`scene_graph_options`).
     workers : int
     scheduler : str, optional
         Dask scheduler address.
@@ -161,10 +211,10 @@ def run_slam(scene, output, *, sequences=None, seed=None, methods=None, options=
         raise ValueError(f"{scene.source}: trajectory.kind = {scene.trajectory.kind!r} is not a sequence scene; "
                          "sqsim slam needs trajectory.kind = \"orbit\" or \"waypoints\" (e.g. scenes/sequence.toml)")
     methods = parse_methods(None) if methods is None else parse_methods(",".join(methods))
-    options = dict(options or {})
     from sqfit.graph import GraphOptions
 
-    GraphOptions.coerce(options)
+    GraphOptions.coerce(dict(options or {}))
+    options = scene_graph_options(scene, options, floor=floor)
     n = scene.experiment.trials if sequences is None else int(sequences)
     if n < 1:
         raise ValueError(f"--sequences must be >= 1, got {sequences}")
