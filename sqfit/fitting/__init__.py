@@ -2,8 +2,8 @@
 
 Above :mod:`sqfit.views`. Stages are registered by name in :data:`STAGES` (paper codes: ``1``,
 ``2``, ``3A``-``3F`` in :mod:`.stages`; ``3G`` in :mod:`.grazing`; ``3S`` in :mod:`.restarts`;
-``3H`` in :mod:`.axis_screen`; ``2M`` in :mod:`.moments`; ``3T`` in :mod:`.outline`; ``3TP`` in :mod:`.parts`; ``3R`` in :mod:`.trimmed`; ``HULL`` in :mod:`.hull`), and a chain is a
-dash-joined list of them (``"1-2M-3H"``).
+``3H`` in :mod:`.axis_screen`; ``2M`` in :mod:`.moments`; ``3T`` in :mod:`.outline`; ``3TP`` in :mod:`.parts`; ``3R`` in :mod:`.trimmed`; ``HULL`` in
+:mod:`.hull`), and a chain is a dash-joined list of them (``"1-2M-3H"``).
 
 - :mod:`.costs` — the paper's costs: R-IOU (G2), the analytic G3-G5, penalty, bounds;
 - :mod:`.raycost` — the grazing-ray cost: ray residuals and their batched minimisers;
