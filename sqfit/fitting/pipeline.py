@@ -38,16 +38,17 @@ PAPER_CHAINS = ("3A", "3B", "1-3A", "1-2-3A", "1-2-3B", "3E", "1-3E", "1-2-3C", 
                 "1-2-3D-3E", "1-2-3D-3A", "1-2-3D-3F")
 #: 2M: :mod:`sqfit.fitting.moments`; 3H: :mod:`sqfit.fitting.axis_screen` (README "Beyond the paper"); 3R:
 #: :mod:`sqfit.fitting.trimmed`, 3G without a stretch of outline rays that sticks out of the fit (a handle, a
-#: bottle's neck), acting only where 3H's cost is moderate and the misfit is such a stretch (README "Real objects").
-DEFAULT_CHAIN = "1-2M-3H-3R"
+#: bottle's neck), acting only where 3H's cost is moderate and the misfit is such a stretch; 3TP:
+#: :mod:`sqfit.fitting.parts`, G2 on the mask contours where 3G's cost is high (stage 3T), kept only where
+#: what it lets go is such a stretch in several views (a table's legs, a monitor's stand) (README "Real objects").
+DEFAULT_CHAIN = "1-2M-3H-3R-3TP"
 #: Chain of :func:`fit` when a starting superquadric is given (``initial=``) and no chain is: a
 #: local refinement from it.
 INITIAL_CHAIN = "3G"
 #: The default with stage 3RH in place of 3R (3R, then where none of its re-fits is kept the same from
-#: the visual hull's superquadric: mugs whose fit turned to the handle) and followed by stage 3T
-#: (:mod:`sqfit.fitting.outline`: G2 on the mask contours where 3G's cost is high: legs, stands);
-#: opt-in, measured in the README ("Real objects").
-TOLERANT_CHAIN = DEFAULT_CHAIN.removesuffix("-3R") + "-3RH-3T"
+#: the visual hull's superquadric: mugs whose fit turned to the handle); opt-in (the carving runs wherever
+#: 3R keeps nothing), measured in the README ("Real objects").
+TOLERANT_CHAIN = DEFAULT_CHAIN.replace("-3R-", "-3RH-")
 #: Names that stand for a whole chain wherever a chain is given (:func:`parse_chain`); ``hull`` is the
 #: visual-hull baseline (:data:`sqfit.fitting.hull.HULL_CHAIN`), ``tolerant`` :data:`TOLERANT_CHAIN`.
 CHAIN_ALIASES = {"default": DEFAULT_CHAIN, "hull": HULL_CHAIN, "tolerant": TOLERANT_CHAIN}
@@ -382,7 +383,7 @@ def fit(observations, chain=None, *, initial=None, rng=None, options=None):
     chain : str or list of str, optional
         Stage names joined by ``-`` (see :mod:`sqfit.fitting.stages`), e.g. ``"1-2-3D-3A"``, or a name of
         :data:`CHAIN_ALIASES` (``"default"``, ``"hull"``: the visual-hull baseline, ``"tolerant"``: the
-        default then stage 3T). Default
+        default with stage 3RH in place of 3R). Default
         :data:`DEFAULT_CHAIN`, or :data:`INITIAL_CHAIN` when ``initial`` is given.
     initial : Superquadric or (11,) float, optional
         Start of the first stage instead of the default guess (a unit sphere at the origin): e.g.
