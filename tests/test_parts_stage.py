@@ -27,9 +27,9 @@ def _household(kind, seed, index):
     return sim.objects[0], observations(sim, sim.objects[0].id, scene)
 
 
-def test_the_default_ends_with_3tp_and_tolerant_differs_only_in_3rh():
+def test_the_default_ends_with_3tp_and_tolerant_with_ungated_3t():
     assert sqfit.DEFAULT_CHAIN == "1-2M-3H-3R-3TP"
-    assert sqfit.fitting.pipeline.TOLERANT_CHAIN == "1-2M-3H-3RH-3TP"
+    assert sqfit.fitting.pipeline.TOLERANT_CHAIN == "1-2M-3H-3RH-3T"
     assert (parts.PART_RAYS, parts.PART_VIEWS) == (8, 2)
 
 

@@ -73,7 +73,7 @@ def add_arguments(parser):
     parser.add_argument("--chain", default=DEFAULT_CHAIN,
                         help="stages joined by '-', e.g. 1-2-3D-3A; or 'default', 'hull' (the visual-hull baseline), "
                              "'tolerant' (the default with 3R also re-fitted from the visual hull's fit, slower where it "
-                             "acts). The default ends with 3TP: G2 on the mask contours where no superquadric grazes "
+                             "acts, and 3T without the part gate). The default ends with 3TP: G2 on the mask contours where no superquadric grazes "
                              "the outline and what that fit leaves out is a part seen in several views (legs, stands)")
     parser.add_argument("--samples", type=int, default=C.DEFAULT_SAMPLES, help="samples N per observation")
     parser.add_argument("--sampling", default="uniform", choices=SAMPLING_METHODS)

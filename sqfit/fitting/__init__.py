@@ -15,7 +15,7 @@ Above :mod:`sqfit.views`. Stages are registered by name in :data:`STAGES` (paper
 - :mod:`.axis_screen` — stage 3H (the default's last stage): choose the axes, then 3G;
 - :mod:`.outline` — stage 3T: G2 on the mask contours where 3G's cost is not met;
 - :mod:`.parts` — stage 3TP (the default's last stage): 3T, kept only where what it lets go is a part (legs, a stand);
-- :mod:`.trimmed` — stages 3R (default chain) and 3RH (chain ``tolerant``: 3R, then from the visual hull's fit):
+- :mod:`.trimmed` — stages 3R (default chain) and 3RH (chain ``tolerant``, which also ends in 3T without 3TP's gate: 3R, then from the visual hull's fit):
   3G without the outline rays no superquadric grazes;
 - :mod:`.pointcloud` — an outlier-tolerant superquadric fit to a point cloud (EMS);
 - :mod:`.hull` — stage HULL (the visual-hull baseline, chain ``hull``): carve, then the point fit;
