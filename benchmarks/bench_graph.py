@@ -6,9 +6,9 @@
 With ``--scene``: sequence 0 (``--sequences``) of each seed of a sequence scene (``sqsim.imaging.sequence.simulate_sequence``,
 rendered masks with the scene's noise and odometry), observations from its instance images at the
 odometry poses as ``sqsim slam`` makes them (the time to make them is not part of a method's time);
-``--frames`` and ``--objects`` are then ignored. The graph is given the scene's odometry noise as
-its odometry sigmas (``sqsim.runs.slam.scene_graph_options``, as ``sqsim slam`` does; ``--options``
-overrides them) and with ``--floor`` the floor the objects stand on.
+``--frames`` and ``--objects`` are then ignored. With ``--scene-odometry-noise`` the graph is given
+the scene's odometry noise as its odometry sigmas and with ``--floor`` the floor the objects stand
+on (``sqsim.runs.slam.scene_graph_options``, as ``sqsim slam`` does; ``--options`` overrides them).
 
 Sequences: :func:`sqfit.graph.testing.synthetic_sequence` (a camera on a 120 degree arc of radius
 5 m around ``--objects`` superquadrics, ``--frames`` frames, odometry drifted by 0.5 deg and 5 mm
@@ -147,8 +147,9 @@ def main(argv=None):
     parser.add_argument("--objects", type=int, default=6)
     parser.add_argument("--methods", default=",".join(graph.METHODS))
     parser.add_argument("--options", default=None, help="GraphOptions fields as JSON, e.g. '{\"refit_misfit\": 0}'; "
-                        "with --scene they override the scene's odometry noise, which is passed as sqsim slam does "
-                        "(sqsim.runs.slam.scene_graph_options)")
+                        "with --scene they override what --scene-odometry-noise and --floor give")
+    parser.add_argument("--scene-odometry-noise", action="store_true", help="with --scene: give the graph the "
+                        "scene's odometry noise as its odometry sigmas, as sqsim slam --scene-odometry-noise")
     parser.add_argument("--floor", action="store_true", help="with --scene: give the graph the floor the objects "
                         "stand on, as sqsim slam --floor")
     parser.add_argument("--scene", action="append", default=None, help="a sequence scene (e.g. scenes/sequence.toml) "
@@ -178,7 +179,7 @@ def main(argv=None):
         if scene:
             from sqsim.runs.slam import scene_graph_options
 
-            given = scene_graph_options(seq.scene, base, floor=args.floor)
+            given = scene_graph_options(seq.scene, base, floor=args.floor, odometry_noise=args.scene_odometry_noise)
         for k in range(args.perturb):
             options = {**given, "silhouette_sigma": sigma * (1.0 + k * 1e-9)} if k else (given or None)
             for m in methods:

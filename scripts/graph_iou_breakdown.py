@@ -120,8 +120,10 @@ def main(argv=None):
     parser.add_argument("--scene", action="append", required=True)
     parser.add_argument("--seeds", default="0")
     parser.add_argument("--sequences", default="0")
-    parser.add_argument("--options", default=None, help="GraphOptions fields as JSON; they override the scene's "
-                        "odometry noise, which is passed as sqsim slam does")
+    parser.add_argument("--options", default=None, help="GraphOptions fields as JSON; they override what "
+                        "--scene-odometry-noise and --floor give")
+    parser.add_argument("--scene-odometry-noise", action="store_true", help="the scene's odometry noise as the graph's "
+                        "odometry sigmas (sqsim slam --scene-odometry-noise)")
     parser.add_argument("--floor", action="store_true", help="give the graph the floor (sqsim slam --floor)")
     parser.add_argument("--json", default=None)
     args = parser.parse_args(argv)
@@ -133,7 +135,8 @@ def main(argv=None):
         for seed in map(int, args.seeds.split(",")):
             for index in map(int, args.sequences.split(",")):
                 seq = scene_sequence(scene, seed, index)
-                run, rows = breakdown(seq, scene_graph_options(seq.scene, given, floor=args.floor))
+                run, rows = breakdown(seq, scene_graph_options(seq.scene, given, floor=args.floor,
+                                                                  odometry_noise=args.scene_odometry_noise))
                 name = f"{os.path.basename(scene)} {seed}/{index}"
                 print(f"\n{name}: ATE {run['ate_m']:.4f} m, scale about frame 0 {run['scale']:.4f}, "
                       f"Sim(3) scale {run['sim3_scale']:.4f}, CPU {run['cpu_seconds']:.1f} s; {run['warnings']}")

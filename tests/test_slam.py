@@ -147,18 +147,23 @@ def test_slam_bad_arguments(tmp_path, kwargs, match):
         run_slam(parse_scene(TINY), tmp_path / "o", progress=False, **kwargs)
 
 
-def test_slam_records_the_graph_options_the_scene_implies(run_dir):
-    """The odometry's noise is passed as the graph's odometry sigma (not the graph's 5 mm default)."""
-    options = json.loads((run_dir / "slam.json").read_text())["options"]
-    assert options == {"odometry_sigma_m": 0.02, "odometry_sigma_deg": 0.5}
+def test_slam_records_the_graph_options(run_dir, tmp_path):
+    assert json.loads((run_dir / "slam.json").read_text())["options"] == {}  # the graph's own defaults
+    out = tmp_path / "o"
+    assert main(["slam", str(tiny_scene(tmp_path)), "-o", str(out), "--sequences", "1", "--methods", "odometry",
+                 "--scene-odometry-noise", "--floor", "--options", '{"floor_sigma_m": 0.02}', "--no-progress",
+                 "--no-figures"]) == 0
+    assert json.loads((out / "slam.json").read_text())["options"] == {
+        "odometry_sigma_m": 0.02, "odometry_sigma_deg": 0.5, "floor_z": 0.0, "floor_sigma_m": 0.02}
 
 
 def test_scene_graph_options_floor_and_overrides():
     scene = parse_scene(TINY)
-    assert scene_graph_options(scene, {"odometry_sigma_m": 0.01}, floor=True) == {
+    assert scene_graph_options(scene) == {}
+    assert scene_graph_options(scene, {"odometry_sigma_m": 0.01}, floor=True, odometry_noise=True) == {
         "odometry_sigma_m": 0.01, "odometry_sigma_deg": 0.5, "floor_z": 0.0}
     quiet = parse_scene({**TINY, "noise": {}})
-    assert scene_graph_options(quiet) == {}  # no noise declared: the graph's own defaults
+    assert scene_graph_options(quiet, odometry_noise=True) == {}  # no noise declared: the graph's own defaults
     free = parse_scene({**TINY, "objects": {**TINY["objects"], "layout": "free", "upright": False}})
     with pytest.raises(ValueError, match="--floor needs objects.layout"):
         scene_graph_options(free, floor=True)
