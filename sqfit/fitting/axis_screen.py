@@ -39,13 +39,7 @@ therefore decides before 3G, from the 3G cost itself:
    ellipsoid is far off and 3G slides into its "far, huge" minimum: a large superquadric behind the
    object that grazes every outline ray), the input is fitted again through 3D and 3A
    (:data:`RESCUE_STAGES`, costs without that minimum) and steps 1-3, and the fit with the higher
-   R-IOU-M is kept; if both still miss the masks and 3H's input overlaps them more, the input is
-   kept (flagged as a poor fit as any fit below the threshold). In that minimum the superquadric's
-   surface passes through the cameras, so every ray touches it at its camera (``m ~ 1``, a near-zero
-   cost); cameras close to a common surface (a walking camera at a constant height) let it grow
-   from the 3G refinement of a good start: on ``scenes/sequence-eval-waypoints.toml`` (seed 1,
-   sequence 2) the first 4-6 frames of two objects gave 18-43 m fits (R-IOU-M 0.00-0.02) where
-   stage 2M's ellipsoid scored 0.58-0.69, and the factor graph started its landmarks there. It costs one R-IOU-M evaluation (~0.4 ms) on every fit and ~60 ms on the
+   R-IOU-M is kept. It costs one R-IOU-M evaluation (~0.4 ms) on every fit and ~60 ms on the
    rescued ones. One answer (issue 22): R-IOU-M here is taken against the hull of each whole
    outline (:func:`sqfit.views.grid.with_outline_samples`; :data:`DECISION_MARGIN` says when the
    samples' hull suffices) and 3D-3A run on a regular grid of samples inside the outline
@@ -302,14 +296,6 @@ def axis_search_stage(state, obs, options):
     keep, lost = (other, new) if other_score > score else (new, other)
     note = (f"rescue: R-IOU-M {score:.3f} < {RESCUE_R_IOU_M}, re-fitted through {path} to {other_score:.3f}; "
             f"kept the {'rescue' if keep is other else 'first fit'}")
-    best = max(score, other_score)
-    if best < RESCUE_R_IOU_M:
-        before = _visible_r_iou_m(state, outline, options)
-        if before > best:
-            # both slid into 3G's far, huge minimum (a superquadric whose surface passes through
-            # the cameras: every ray touches it there): the input overlaps the masks more
-            return replace(state, nfev=state.nfev + new.nfev + other.nfev + nfev,
-                           message=f"{note}; both below the input's {before:.3f}: kept the input")
     return replace(keep, nfev=keep.nfev + lost.nfev + nfev, message=f"{note}; {keep.message}")
 
 
