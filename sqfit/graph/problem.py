@@ -176,7 +176,9 @@ class GraphOptions(Options):
         The height (world ``z``, metres, +z up) of a floor every object stands on, when the caller
         knows it (:mod:`sqfit.graph.floor`: a metric cue the images and odometry do not carry;
         e.g. a camera at a known height in a gravity-aligned frame); None (the default): no floor.
-        Each landmark then gets a Huber-robust factor putting its lowest point on it.
+        Each landmark then gets a Huber-robust factor putting its lowest point on it, but for those
+        whose initial fit left the grazing cost (stage 3T moved it: a table fitted as its top, a
+        lamp as its shade; ``mismatch_ray_k``), whose lowest point need not touch the floor.
     floor_sigma_m : float
         Standard deviation of a landmark's lowest point about the floor, metres, > 0.
     max_iterations : int

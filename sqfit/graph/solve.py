@@ -127,7 +127,7 @@ def _add_landmark(graph, values, problem, oid, frames, landmark, options, batch,
     rot, pos, size = np.radians(options.landmark_prior_sigma_deg), options.landmark_prior_sigma_m, options.shape_prior_sigma
     graph.add(gtsam.PriorFactorPose3(L(oid), gtsam.Pose3(T), gtsam.noiseModel.Diagonal.Sigmas(np.array([rot] * 3 + [pos] * 3))))
     graph.add(gtsam.PriorFactorVector(S(oid), shape, gtsam.noiseModel.Isotropic.Sigma(len(shape), size)))
-    if options.floor_z is not None:
+    if options.floor_z is not None and not bounded:  # a landmark 3T moved (a table top) need not touch the floor
         graph.add(floor_factor(_robust(1, options.floor_sigma_m, options.huber_k), L(oid), S(oid), options.floor_z))
     offset = _offset_key(oid, options)
     if offset is not None:  # the masks' outline offset, px / OFFSET_UNIT_PX, prior at 0
