@@ -116,7 +116,10 @@ def _landmark_fit(obs, options, pose_noise_refit, where):
     return superquadric_to_landmark(res.superquadric), "", left_grazing(res)
 
 
-def _add_landmark(graph, values, problem, oid, frames, landmark, options, batch, rays_cache=None, bounded=False):
+def _add_landmark(graph, values, problem, oid, frames, landmark, options, batch, rays_cache=None, mismatched=False):
+    """Landmark ``oid``'s variables at ``landmark`` ``(T, shape)``, its priors and its silhouette factors in
+    ``frames``; ``mismatched``: its initial fit left the grazing cost (:func:`_landmark_fit`): its rays
+    are bounded and it gets no floor factor (a table fitted as its top need not touch the floor)."""
     T, shape = landmark
     shape = np.asarray(shape, dtype=np.float64)
     values.insert(L(oid), gtsam.Pose3(T))
@@ -127,7 +130,7 @@ def _add_landmark(graph, values, problem, oid, frames, landmark, options, batch,
     rot, pos, size = np.radians(options.landmark_prior_sigma_deg), options.landmark_prior_sigma_m, options.shape_prior_sigma
     graph.add(gtsam.PriorFactorPose3(L(oid), gtsam.Pose3(T), gtsam.noiseModel.Diagonal.Sigmas(np.array([rot] * 3 + [pos] * 3))))
     graph.add(gtsam.PriorFactorVector(S(oid), shape, gtsam.noiseModel.Isotropic.Sigma(len(shape), size)))
-    if options.floor_z is not None and not bounded:  # a landmark 3T moved (a table top) need not touch the floor
+    if options.floor_z is not None and not mismatched:
         graph.add(floor_factor(_robust(1, options.floor_sigma_m, options.huber_k), L(oid), S(oid), options.floor_z))
     offset = _offset_key(oid, options)
     if offset is not None:  # the masks' outline offset, px / OFFSET_UNIT_PX, prior at 0
@@ -135,7 +138,7 @@ def _add_landmark(graph, values, problem, oid, frames, landmark, options, batch,
         graph.add(gtsam.PriorFactorVector(offset, np.zeros(1), gtsam.noiseModel.Isotropic.Sigma(
             1, options.outline_offset_sigma_px / OFFSET_UNIT_PX)))
     for f in frames:
-        graph.add(_silhouette(problem, f, oid, options, batch, rays_cache, bounded))
+        graph.add(_silhouette(problem, f, oid, options, batch, rays_cache, mismatched))
 
 
 def _silhouette(problem, frame, oid, options, batch, rays_cache=None, bounded=False):
