@@ -102,9 +102,14 @@ class SilhouetteFactors:
         def error(this, values, jacobians):
             with self._lock:
                 last = self._last[i]
-                if last is None or any(
-                        seen.get((values.atPose3(key).matrix() if pose else values.atVector(key)).tobytes()) != number
-                        for (key, pose, seen), number in zip(checks, last)):
+                stale = last is None
+                if not stale:
+                    # a plain loop, not any(<generator>): this runs once per factor and pass
+                    for (key, pose, seen), number in zip(checks, last):
+                        if seen.get((values.atPose3(key).matrix() if pose else values.atVector(key)).tobytes()) != number:
+                            stale = True
+                            break
+                if stale:
                     self._evaluate(values)
                 out = self._out[i]
             if out is None:

@@ -18,6 +18,8 @@ convention (``T' = T Exp([omega, v])``): ``n' = n + n x omega``, ``t' = t + R v`
 
 from __future__ import annotations
 
+from math import copysign
+
 import numpy as np
 
 from .landmark import EVAL_LOWER, N_SHAPE
@@ -32,19 +34,23 @@ _E_STEP = 1e-6
 
 
 def _support(m, e):
-    """``(h, dh/dm (3,))`` of the direction ``m = a * n`` for exponents ``e = (e1, e2)``."""
+    """``(h, dh/dm)`` of the direction ``m = a * n`` (3 floats) for exponents ``e = (e1, e2)``, in
+    plain floats: the floor factor runs this at every evaluation, where numpy's per-call overhead
+    on 3-vectors cost ~10 times the arithmetic (``benchmarks/bench_graph.py`` profile)."""
     q1, q2 = 2.0 / (2.0 - e[0]), 2.0 / (2.0 - e[1])
-    x = np.abs(m)
-    A = x[0] ** q2 + x[1] ** q2
-    h = (A ** (q1 / q2) + x[2] ** q1) ** (1.0 / q1)
+    x0, x1, x2 = abs(m[0]), abs(m[1]), abs(m[2])
+    A = x0 ** q2 + x1 ** q2
+    h = (A ** (q1 / q2) + x2 ** q1) ** (1.0 / q1)
     if h == 0.0:
-        return 0.0, np.zeros(3)
+        return 0.0, (0.0, 0.0, 0.0)
     c = h ** (1.0 - q1)
-    g = np.zeros(3)
-    g[2] = c * x[2] ** (q1 - 1.0)
+    g2 = c * x2 ** (q1 - 1.0)
     if A > 0.0:
-        g[:2] = c * A ** (q1 / q2 - 1.0) * x[:2] ** (q2 - 1.0)
-    return h, g * np.sign(m)
+        cA = c * A ** (q1 / q2 - 1.0)
+        g0, g1 = cA * x0 ** (q2 - 1.0), cA * x1 ** (q2 - 1.0)
+    else:
+        g0 = g1 = 0.0
+    return h, tuple(copysign(g, mi) if mi != 0.0 else 0.0 for g, mi in zip((g0, g1, g2), m))
 
 
 def lowest_point_height(T_world_sq, shape):
@@ -64,7 +70,7 @@ def lowest_point_height(T_world_sq, shape):
     """
     T, shape = np.asarray(T_world_sq, dtype=np.float64), np.asarray(shape, dtype=np.float64)
     a, e = _clipped(shape)
-    return float(T[2, 3] - _support(a * T[2, :3], e)[0])
+    return float(T[2, 3] - _support((a * T[2, :3]).tolist(), e.tolist())[0])
 
 
 def _clipped(shape):
@@ -92,17 +98,25 @@ def floor_residual(T_world_sq, shape, floor_z):
     J_shape : (1, 5) float
         ``d r / d s``; the exponents' columns by central differences, zero where clipped.
     """
-    R, t = T_world_sq[:3, :3], T_world_sq[:3, 3]
-    a, e = _clipped(shape)
-    n = R[2]
-    h, g = _support(a * n, e)
-    gn = g * a  # dh/dn
-    J_pose = np.concatenate([-np.cross(gn, n), n])  # dh/domega = gn . (n x omega) = (gn x n) . omega
-    J_shape = np.zeros(N_SHAPE)
-    J_shape[:3] = -g * n * (shape[:3] >= EVAL_LOWER[:3])
+    n = T_world_sq[2, :3].tolist()
+    s = shape.tolist()
+    lo = EVAL_LOWER.tolist()
+    a = [max(s[k], lo[k]) for k in range(3)]
+    e = [min(max(s[3 + k], lo[3 + k]), FLOOR_SHAPE_MAX) for k in range(2)]
+    m = [a[k] * n[k] for k in range(3)]
+    h, g = _support(m, e)
+    gn = [g[k] * a[k] for k in range(3)]  # dh/dn
+    # dh/domega = gn . (n x omega) = (gn x n) . omega; the pose rows are -(gn x n) and n
+    J_pose = np.array([[gn[2] * n[1] - gn[1] * n[2], gn[0] * n[2] - gn[2] * n[0], gn[1] * n[0] - gn[0] * n[1],
+                        n[0], n[1], n[2]]])
+    J_shape = np.zeros((1, N_SHAPE))
+    for k in range(3):
+        if s[k] >= lo[k]:
+            J_shape[0, k] = -g[k] * n[k]
     for k in range(2):
-        if EVAL_LOWER[3 + k] <= shape[3 + k] <= FLOOR_SHAPE_MAX:
-            step = np.zeros(2)
-            step[k] = _E_STEP
-            J_shape[3 + k] = -(_support(a * n, e + step)[0] - _support(a * n, e - step)[0]) / (2.0 * _E_STEP)
-    return np.array([t[2] - h - floor_z]), J_pose[None], J_shape[None]
+        if lo[3 + k] <= s[3 + k] <= FLOOR_SHAPE_MAX:
+            up, down = list(e), list(e)
+            up[k] += _E_STEP
+            down[k] -= _E_STEP
+            J_shape[0, 3 + k] = -(_support(m, up)[0] - _support(m, down)[0]) / (2.0 * _E_STEP)
+    return np.array([float(T_world_sq[2, 3]) - h - floor_z]), J_pose, J_shape
