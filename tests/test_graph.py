@@ -418,7 +418,7 @@ def test_an_optimiser_error_is_flagged_in_the_result(monkeypatch):
 
 
 def test_a_landmark_left_in_a_poor_minimum_is_refitted(small):
-    from sqfit.graph import problem as gproblem, solve
+    from sqfit.graph import problem as gproblem, refit
 
     seq, _ = small
     options = graph.GraphOptions()
@@ -432,24 +432,24 @@ def test_a_landmark_left_in_a_poor_minimum_is_refitted(small):
         T, s = landmark.superquadric_to_landmark(sq)
         values.insert(L(oid), gtsam.Pose3(T))
         values.insert(S(oid), s)
-    misfit = solve._object_misfits(prob, values, list(seq.objects), options)
+    misfit = refit.object_misfits(prob, values, list(seq.objects), options)
     # evaluated together, as alone
     for oid in seq.objects:
-        assert solve._object_misfits(prob, values, [oid], options)[oid] == pytest.approx(misfit[oid], rel=1e-9)
+        assert refit.object_misfits(prob, values, [oid], options)[oid] == pytest.approx(misfit[oid], rel=1e-9)
     cache = {}  # the batch solve hands the re-fit the graph's rays: the same misfit from them
-    assert solve._object_misfits(prob, values, [2], options, cache)[2] == pytest.approx(misfit[2], rel=1e-9)
+    assert refit.object_misfits(prob, values, [2], options, cache)[2] == pytest.approx(misfit[2], rel=1e-9)
     assert sorted(cache) == [(f, 2) for f in prob.frames[2]]
-    assert solve._object_misfits(prob, values, [2], options, cache)[2] == pytest.approx(misfit[2], rel=1e-9)
+    assert refit.object_misfits(prob, values, [2], options, cache)[2] == pytest.approx(misfit[2], rel=1e-9)
     assert misfit[2] > options.refit_misfit > max(misfit[1], misfit[3]), misfit
     result = graph.SlamResult("graph", seq.true_poses)
     # the check after the batch's last solve looks at the overlap only: this minimum overlaps its masks
-    assert not solve._refit(prob, values, list(seq.objects), options, result, overlap_only=True)
-    assert solve._refit(prob, values, list(seq.objects), options, result)
+    assert not refit.refit_landmarks(prob, values, list(seq.objects), options, result, overlap_only=True)
+    assert refit.refit_landmarks(prob, values, list(seq.objects), options, result)
     assert [w.split(":")[0] for w in result.warnings] == ["object 2"]
-    refit = landmark.landmark_to_superquadric(values.atPose3(L(2)).matrix(), values.atVector(S(2)))
-    assert solve._object_misfits(prob, values, [2], options)[2] < options.refit_misfit
-    assert iou_3d(refit, seq.objects[2]) > 0.8
-    assert not solve._refit(prob, values, list(seq.objects), graph.GraphOptions(refit_misfit=0), result)
+    refitted = landmark.landmark_to_superquadric(values.atPose3(L(2)).matrix(), values.atVector(S(2)))
+    assert refit.object_misfits(prob, values, [2], options)[2] < options.refit_misfit
+    assert iou_3d(refitted, seq.objects[2]) > 0.8
+    assert not refit.refit_landmarks(prob, values, list(seq.objects), graph.GraphOptions(refit_misfit=0), result)
 
 
 def test_the_batch_fits_skip_the_fitters_pose_noise_branch(monkeypatch):
@@ -517,7 +517,7 @@ def test_observations_from_instances_are_labelled():
 def test_a_landmark_whose_silhouettes_miss_the_masks_is_refitted(small):
     # 3G's "far, huge" minimum has a low ray misfit: the overlap with the masks (R-IOU-M) catches it.
     # With the misfit test switched off (refit_misfit huge), only the overlap can call the re-fit.
-    from sqfit.graph import problem as gproblem, solve
+    from sqfit.graph import problem as gproblem, refit
 
     seq, _ = small
     options = graph.GraphOptions(refit_misfit=1e9)
@@ -531,15 +531,15 @@ def test_a_landmark_whose_silhouettes_miss_the_masks_is_refitted(small):
         T, s = landmark.superquadric_to_landmark(sq)
         values.insert(L(oid), gtsam.Pose3(T))
         values.insert(S(oid), s)
-    overlap = {oid: solve._overlap(values, oid, solve._observation_set(prob, oid, seq.true_poses, prob.frames[oid]))
+    overlap = {oid: refit.landmark_overlap(values, oid, refit.observation_set(prob, oid, seq.true_poses, prob.frames[oid]))
                for oid in seq.objects}
     assert overlap[2] < sqfit.constants.POOR_FIT_R_IOU_M < min(overlap[1], overlap[3]), overlap
     result = graph.SlamResult("graph", seq.true_poses)
-    assert solve._refit(prob, values, list(seq.objects), options, result, overlap_only=True)
+    assert refit.refit_landmarks(prob, values, list(seq.objects), options, result, overlap_only=True)
     assert [w.split(":")[0] for w in result.warnings] == ["object 2"] and "R-IOU-M" in result.warnings[0]
-    refit = landmark.landmark_to_superquadric(values.atPose3(L(2)).matrix(), values.atVector(S(2)))
-    assert solve._overlap(values, 2, solve._observation_set(prob, 2, seq.true_poses, prob.frames[2])) > 0.7
-    assert iou_3d(refit, seq.objects[2]) > 0.8
+    refitted = landmark.landmark_to_superquadric(values.atPose3(L(2)).matrix(), values.atVector(S(2)))
+    assert refit.landmark_overlap(values, 2, refit.observation_set(prob, 2, seq.true_poses, prob.frames[2])) > 0.7
+    assert iou_3d(refitted, seq.objects[2]) > 0.8
 
 
 # --- the outline offset (issue "Masks as real segmenters make them") ------------------------------

@@ -97,10 +97,10 @@ def test_no_floor_under_a_landmark_whose_fit_left_the_grazing_cost(monkeypatch):
     """A landmark 3T moved (a table fitted as its top, a lamp as its shade) need not touch the floor:
     it gets no floor factor (household sequences, both --floor and --scene-odometry-noise: graph median
     IoU 0.081 / 0.099 with a floor under every landmark, 0.195 / 0.373 without one under those)."""
-    from sqfit.graph import solve
+    from sqfit.graph import growth
 
     seq = synthetic_sequence(0, n_frames=12, n_objects=2)
-    monkeypatch.setattr(solve, "left_grazing", lambda result: True)  # every initial fit "mismatched"
+    monkeypatch.setattr(growth, "left_grazing", lambda result: True)  # every initial fit "mismatched"
     runs = [graph.run(seq.intrinsics, seq.odometry_poses, seq.observations, ["graph"], options)["graph"]
             for options in ({"odometry_sigma_m": 0.03}, {"odometry_sigma_m": 0.03, "floor_z": 0.0})]
     np.testing.assert_array_equal(runs[0].poses, runs[1].poses)

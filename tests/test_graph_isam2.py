@@ -8,7 +8,7 @@ gtsam = pytest.importorskip("gtsam")
 
 import sqfit  # noqa: E402
 from sqfit import graph  # noqa: E402
-from sqfit.graph import landmark, solve  # noqa: E402
+from sqfit.graph import landmark, refit, solve  # noqa: E402
 from sqfit.graph import problem as gproblem  # noqa: E402
 from sqfit.graph.testing import synthetic_sequence  # noqa: E402
 from sqfit.metrics import iou_3d  # noqa: E402
@@ -36,23 +36,23 @@ def test_refit_mid_sequence_uses_only_the_frames_so_far(seq):
         values.insert(S(oid), s)
     result = graph.SlamResult("graph-isam2", seq.true_poses)
     with pytest.raises(RuntimeError):  # all frames: the later poses are not there
-        solve._refit(prob, gtsam.Values(values), list(seq.objects), graph.GraphOptions(), result)
-    assert solve._refit(prob, values, list(seq.objects), graph.GraphOptions(), result, n=n)
+        refit.refit_landmarks(prob, gtsam.Values(values), list(seq.objects), graph.GraphOptions(), result)
+    assert refit.refit_landmarks(prob, values, list(seq.objects), graph.GraphOptions(), result, n=n)
     assert [w.split(":")[0] for w in result.warnings] == ["object 2"] and f"(at frame {n})" in result.warnings[0]
-    refit = landmark.landmark_to_superquadric(values.atPose3(L(2)).matrix(), values.atVector(S(2)))
-    assert iou_3d(refit, seq.objects[2]) > 0.8
+    refitted = landmark.landmark_to_superquadric(values.atPose3(L(2)).matrix(), values.atVector(S(2)))
+    assert iou_3d(refitted, seq.objects[2]) > 0.8
 
 
 @pytest.mark.parametrize("on", [True, False])
 def test_isam2_refits_at_its_rebuilds(monkeypatch, seq, on):
     calls = []
-    real = solve._refit
+    real = solve.refit_landmarks
 
     def refit(*args, **kw):
         calls.append(kw.get("n"))
         return real(*args, **kw)
 
-    monkeypatch.setattr(solve, "_refit", refit)
+    monkeypatch.setattr(solve, "refit_landmarks", refit)
     result = graph.run(seq.intrinsics, seq.odometry_poses, seq.observations, ["graph-isam2"],
                        {"isam2_refit": on, "isam2_rescale_every": 5})["graph-isam2"]
     assert result.status == "ok"

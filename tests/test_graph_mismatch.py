@@ -8,7 +8,7 @@ gtsam = pytest.importorskip("gtsam")
 
 import sqfit  # noqa: E402
 from sqfit.fitting.pipeline import FitResult, StageRecord  # noqa: E402
-from sqfit.graph import factors, landmark, solve  # noqa: E402
+from sqfit.graph import factors, growth, landmark, solve  # noqa: E402
 from sqfit.graph.testing import synthetic_sequence  # noqa: E402
 from sqfit.testing import polygon_mask  # noqa: E402
 from _numeric import central_difference  # noqa: E402
@@ -91,7 +91,7 @@ def test_landmarks_whose_fit_left_grazing_get_bounded_factors(monkeypatch, k, bo
     # the plumbing: a landmark whose initial fit 3T moved has its silhouette factors (and the
     # re-fit's misfit) bounded at mismatch_ray_k whitened; the others and k = 0 are not
     seq = synthetic_sequence(0, n_frames=6, n_objects=2)
-    monkeypatch.setattr(solve, "left_grazing", lambda res: True)
+    monkeypatch.setattr(growth, "left_grazing", lambda res: True)
     made = []
     real = factors.SilhouetteFactors.factor
 

@@ -11,7 +11,8 @@ Quick start::
 Methods (:data:`METHODS`): ``odometry``, ``fixed`` (per-object fits on the odometry poses),
 ``quadric`` (QuadricSLAM: dual quadrics from boxes), ``graph`` (batch Levenberg-Marquardt) and
 ``graph-isam2`` (iSAM2, frame by frame). Inputs and bad input: :mod:`sqfit.graph.problem`; the
-graph: :mod:`sqfit.graph.solve`; the silhouette factor: :mod:`sqfit.graph.landmark`.
+methods: :mod:`sqfit.graph.solve`; building the graph as frames arrive: :mod:`sqfit.graph.growth`;
+re-initialising landmarks: :mod:`sqfit.graph.refit`; the silhouette factor: :mod:`sqfit.graph.landmark`.
 """
 
 from .landmark import (bounds_residuals, camera_rays, landmark_to_superquadric, silhouette_residuals,

@@ -1,0 +1,234 @@
+"""Building the superquadric graph (:mod:`sqfit.graph.solve`) as frames arrive: its noise models,
+the pose factors, each landmark's initial fit and variables, and one silhouette factor per (frame,
+object); :class:`Growth` adds them frame by frame for the batch windows and for iSAM2.
+
+A landmark is initialised by :func:`sqfit.fit` (``GraphOptions.init_chain``) from the first frames
+that see it, at the current pose estimates, once they are enough (:func:`sqfit.graph.problem.
+ready_to_initialise`). An initial fit whose silhouettes barely overlap its own masks (R-IOU-M below
+``GraphOptions.init_min_overlap``: 3G's "far, huge" minimum, a superquadric whose surface passes
+through the cameras) is not put in the graph: the landmark waits for its next frame and is fitted
+again, at most ``GraphOptions.init_retries`` times, and then (or at the last frame) starts from the
+best-overlapping of its fits (:meth:`Growth.add`).
+"""
+
+from __future__ import annotations
+
+from typing import NamedTuple
+
+import gtsam
+import numpy as np
+from gtsam.symbol_shorthand import L, O, S, X
+
+from ..fitting import pipeline
+from ..fitting.grazing import OFFSET_UNIT_PX
+from .factors import SilhouetteFactors, bounds_factor, floor_factor, silhouette_factor
+from .landmark import camera_rays, left_grazing, superquadric_to_landmark
+from .problem import observation_at, ready_to_initialise
+
+__all__ = ["LandmarkFit", "Growth", "noise_models", "robust_noise", "pose_factors", "pose_matrices", "skip_object",
+           "initial_fit", "landmark_fit", "add_landmark", "view_factor", "offset_key", "landmark_keys"]
+
+
+class LandmarkFit(NamedTuple):
+    """A landmark's fit (:func:`landmark_fit`)."""
+
+    #: ``(T_world_sq (4, 4), shape (5,))``, or None when the fit failed
+    landmark: tuple | None
+    #: why it failed ("" when it did not)
+    message: str
+    #: the fit had to leave the grazing cost (:func:`sqfit.graph.landmark.left_grazing`)
+    mismatched: bool
+    #: its R-IOU-M on the observations it was fitted to (0 when it failed)
+    overlap: float
+
+
+def noise_models(options):
+    rot, pos = np.radians(options.odometry_sigma_deg), options.odometry_sigma_m
+    prot, ppos = np.radians(options.prior_sigma_deg), options.prior_sigma_m
+    return {
+        "odometry": gtsam.noiseModel.Diagonal.Sigmas(np.array([rot] * 3 + [pos] * 3)),
+        "prior": gtsam.noiseModel.Diagonal.Sigmas(np.array([prot] * 3 + [ppos] * 3)),
+    }
+
+
+def robust_noise(dim, sigma, k):
+    """Huber on the factor's whitened norm; ``sigma`` and ``k`` per row (a factor of ``dim`` inlier
+    rows has a whitened norm of about ``sqrt(dim)``, so the threshold is ``k sqrt(dim)``)."""
+    return gtsam.noiseModel.Robust.Create(gtsam.noiseModel.mEstimator.Huber.Create(k * np.sqrt(dim)),
+                                          gtsam.noiseModel.Isotropic.Sigma(dim, sigma))
+
+
+def pose_factors(problem, noise, frames):
+    """Prior on frame 0 and odometry between consecutive frames, for ``frames``."""
+    graph, poses = gtsam.NonlinearFactorGraph(), problem.odometry_poses
+    for i in frames:
+        if i == 0:
+            graph.add(gtsam.PriorFactorPose3(X(0), gtsam.Pose3(poses[0]), noise["prior"]))
+        else:
+            delta = gtsam.Pose3(np.linalg.inv(poses[i - 1]) @ poses[i])
+            graph.add(gtsam.BetweenFactorPose3(X(i - 1), X(i), delta, noise["odometry"]))
+    return graph
+
+
+def pose_matrices(values, n):
+    return np.stack([values.atPose3(X(i)).matrix() for i in range(n)])
+
+
+def skip_object(result, oid, reason):
+    result.skipped[oid] = reason
+    result.warnings.append(f"object {oid}: skipped, {reason}")
+
+
+def initial_fit(problem, oid, frames, poses, options, pose_noise_refit=True):
+    """:func:`sqfit.fit` of object ``oid`` on ``frames`` at ``poses`` (frame -> (4, 4)): :func:`landmark_fit`."""
+    obs = [observation_at(problem.observations[f, oid], poses[f]) for f in frames]
+    return landmark_fit(obs, options, pose_noise_refit, f"frames {list(frames)}")
+
+
+def landmark_fit(obs, options, pose_noise_refit, where):
+    """:func:`sqfit.fit` (chain ``init_chain``) on ``obs`` (observations, or an ObservationSet), as
+    a :class:`LandmarkFit`: the landmark ``(T, shape)`` or None and the failure message (naming
+    ``where``), whether the fit had to leave the grazing cost
+    (:func:`sqfit.graph.landmark.left_grazing`: its silhouette factors are then bounded,
+    ``GraphOptions.mismatch_ray_k``) and its R-IOU-M on ``obs``. ``pose_noise_refit``: the fit's
+    option of that name."""
+    res = pipeline.fit(obs, options.init_chain, options={"pose_noise_refit": bool(pose_noise_refit)})
+    if not res.ok or res.superquadric is None:
+        return LandmarkFit(None, f"initial fit on {where} failed: {res.status}: {res.message}", False, 0.0)
+    return LandmarkFit(superquadric_to_landmark(res.superquadric), "", left_grazing(res), float(res.r_iou_m))
+
+
+def add_landmark(graph, values, problem, oid, frames, landmark, options, batch, rays_cache=None, mismatched=False):
+    """Landmark ``oid``'s variables at ``landmark`` ``(T, shape)``, its priors and its silhouette factors in
+    ``frames``; ``mismatched``: its initial fit left the grazing cost (:func:`landmark_fit`): its rays
+    are bounded and it gets no floor factor (a table fitted as its top need not touch the floor)."""
+    T, shape = landmark
+    shape = np.asarray(shape, dtype=np.float64)
+    values.insert(L(oid), gtsam.Pose3(T))
+    values.insert(S(oid), shape)
+    graph.add(bounds_factor(S(oid), options.bounds_weight))
+    # Weak priors at the initial fit: the rotation of a shape with a symmetry axis (and e.g. e1 of a
+    # shape seen only side-on) is not observed, which iSAM2's undamped Gauss-Newton cannot solve.
+    rot, pos, size = np.radians(options.landmark_prior_sigma_deg), options.landmark_prior_sigma_m, options.shape_prior_sigma
+    graph.add(gtsam.PriorFactorPose3(L(oid), gtsam.Pose3(T), gtsam.noiseModel.Diagonal.Sigmas(np.array([rot] * 3 + [pos] * 3))))
+    graph.add(gtsam.PriorFactorVector(S(oid), shape, gtsam.noiseModel.Isotropic.Sigma(len(shape), size)))
+    if options.floor_z is not None and not mismatched:
+        graph.add(floor_factor(robust_noise(1, options.floor_sigma_m, options.huber_k), L(oid), S(oid), options.floor_z))
+    offset = offset_key(oid, options)
+    if offset is not None:  # the masks' outline offset, px / OFFSET_UNIT_PX, prior at 0
+        values.insert(offset, np.zeros(1))
+        graph.add(gtsam.PriorFactorVector(offset, np.zeros(1), gtsam.noiseModel.Isotropic.Sigma(
+            1, options.outline_offset_sigma_px / OFFSET_UNIT_PX)))
+    for f in frames:
+        graph.add(view_factor(problem, f, oid, options, batch, rays_cache, mismatched))
+
+
+def view_factor(problem, frame, oid, options, batch, rays_cache=None, bounded=False):
+    """The silhouette factor of ``(frame, oid)``, evaluated with the graph's other ones by ``batch``
+    (a :class:`sqfit.graph.factors.SilhouetteFactors`); ``rays_cache`` (a dict) keeps the rays of
+    the factors made so far, for the re-fit's factors of the same views. ``bounded``: each ray's
+    whitened residual bounded by ``mismatch_ray_k`` (a landmark whose outline one superquadric
+    cannot graze, :func:`landmark_fit`)."""
+    rays = None if rays_cache is None else rays_cache.get((frame, oid))
+    if rays is None:
+        rays = camera_rays(problem.observations[frame, oid], options.n_contour)
+        if rays_cache is not None:
+            rays_cache[frame, oid] = rays
+    # the ray residuals carry contour_rays' weights 1 / sqrt(n): sigma per weighted row
+    sigma = options.silhouette_sigma / np.sqrt(len(rays))
+    bound = options.mismatch_ray_k * sigma if bounded and options.mismatch_ray_k > 0 else np.inf
+    return silhouette_factor(robust_noise(len(rays), sigma, options.huber_k), X(frame), L(oid),
+                             S(oid), rays, batch, offset_key(oid, options), OFFSET_UNIT_PX, bound)
+
+
+def offset_key(oid, options):
+    """Key of landmark ``oid``'s outline offset, or None when the graph does not estimate offsets."""
+    return O(oid) if options.outline_offset_sigma_px > 0 else None
+
+
+def landmark_keys(oid, options):
+    """The keys of landmark ``oid``'s variables: pose, size/shape and, if estimated, outline offset."""
+    offset = offset_key(oid, options)
+    return (L(oid), S(oid)) + (() if offset is None else (offset,))
+
+
+class Growth:
+    """Grows the graph frame by frame (shared by the batch windows and iSAM2): each new frame's pose,
+    chained from the current estimate of the previous one by the odometry step, its odometry factor,
+    its silhouette factors, and the landmarks whose first frames have become enough for their
+    initial fit (at the current pose estimates; ``pose_noise_refit``: :func:`initial_fit`), or whose
+    deferred initial fit (module docstring) is tried again."""
+
+    def __init__(self, problem, options, result, pose_noise_refit=True):
+        self.problem, self.options, self.result = problem, options, result
+        self.pose_noise_refit = pose_noise_refit
+        self.noise = noise_models(options)
+        self.by_frame = {}
+        for oid, frames in problem.frames.items():
+            for f in frames:
+                self.by_frame.setdefault(f, []).append(oid)
+        self.pending, self.added, self.failed, self.current = {}, [], set(), {}
+        self.bounded = set()  # landmarks whose silhouette factors are bounded (landmark_fit)
+        # landmarks whose initial fit was put off (module docstring): how often, and the best fit so far
+        self.tries, self.deferred = {}, {}
+        self.batch, self.rays = SilhouetteFactors(), {}
+
+    def add(self, frames):
+        """``(graph, values)`` of the new factors and variables for ``frames`` (the next frames)."""
+        problem, odo = self.problem, self.problem.odometry_poses
+        graph, values = pose_factors(problem, self.noise, frames), gtsam.Values()
+        for i in frames:
+            T = odo[0] if i == 0 else self.current[i - 1] @ np.linalg.inv(odo[i - 1]) @ odo[i]
+            values.insert(X(i), gtsam.Pose3(T))
+            self.current[i] = T
+            for oid in self.by_frame.get(i, []):
+                self._observe(graph, values, i, oid)
+        return graph, values
+
+    def _observe(self, graph, values, i, oid):
+        if oid in self.failed:
+            return
+        if oid in self.added:
+            graph.add(view_factor(self.problem, i, oid, self.options, self.batch, self.rays, oid in self.bounded))
+            return
+        frames = self.pending.setdefault(oid, [])
+        frames.append(i)
+        last = i == self.problem.n_frames - 1
+        if not (ready_to_initialise(self.problem, oid, frames, self.current, self.options) or (last and len(frames) >= 2)):
+            return
+        fit = initial_fit(self.problem, oid, frames, self.current, self.options, self.pose_noise_refit)
+        earlier = self.deferred.get(oid)
+        final = last or i == self.problem.frames[oid][-1]
+        if fit.landmark is not None and fit.overlap < self.options.init_min_overlap and not final:
+            tries = self.tries.get(oid, 0)
+            if tries < self.options.init_retries:
+                # 3G's far, huge minimum (module docstring): wait for the next frame
+                self.tries[oid] = tries + 1
+                if earlier is None or fit.overlap > earlier.overlap:
+                    self.deferred[oid] = fit
+                return
+        if earlier is not None and (fit.landmark is None or earlier.overlap > fit.overlap):
+            fit = earlier
+        if fit.landmark is None:
+            skip_object(self.result, oid, fit.message)
+            self.failed.add(oid)
+            return
+        if oid in self.tries:
+            self.result.warnings.append(
+                f"object {oid}: initial fit deferred {self.tries[oid]} time(s) (R-IOU-M below "
+                f"{self.options.init_min_overlap}), started at R-IOU-M {fit.overlap:.2f} with {len(frames)} frames")
+        if fit.mismatched:
+            self.bounded.add(oid)
+        add_landmark(graph, values, self.problem, oid, frames, fit.landmark, self.options, self.batch, self.rays,
+                     fit.mismatched)
+        self.added.append(oid)
+
+    def update(self, estimate, n):
+        """Take the estimate of frames ``0 .. n-1``."""
+        for f in range(n):
+            self.current[f] = estimate.atPose3(X(f)).matrix()
+
+    def finish(self):
+        for oid in self.problem.frames:
+            if oid not in self.added and oid not in self.result.skipped:
+                skip_object(self.result, oid, f"seen in {len(self.pending.get(oid, []))} frames, too few to initialise")

@@ -1,0 +1,103 @@
+"""Re-initialising the landmarks a solve left in a poor minimum (:func:`refit_landmarks`, used by the
+batch after its solves and by iSAM2 at its rebuilds, :mod:`sqfit.graph.solve`), and the per-object
+misfit and overlap it decides by."""
+
+from __future__ import annotations
+
+import gtsam
+import numpy as np
+from gtsam.symbol_shorthand import L, S
+
+from .. import constants as C
+from ..fitting.stages import r_iou_m
+from .factors import SilhouetteFactors
+from .fixedlag import evenly_spread
+from .growth import landmark_fit, pose_matrices, view_factor
+from .landmark import landmark_to_superquadric
+from .problem import observation_at
+
+__all__ = ["refit_landmarks", "object_misfits", "landmark_overlap", "observation_set", "frames_before"]
+
+
+def object_misfits(problem, values, oids, options, rays_cache=None, bounded=frozenset(), n=None):
+    """RMS whitened ray residual of each object's silhouette factors at ``values`` (1: a typical ray
+    one ``silhouette_sigma`` off), ``{oid: float}``; the factors of all ``oids`` evaluated together
+    (those of the landmarks in ``bounded`` bounded, as in the graph), in frames ``0 .. n-1`` (all
+    with None)."""
+    batch, factors = SilhouetteFactors(), {}
+    for oid in oids:
+        factors[oid] = [view_factor(problem, f, oid, options, batch, rays_cache, oid in bounded)
+                        for f in frames_before(problem, oid, n)]
+    return {oid: float(np.sqrt(2.0 * sum(factor.error(values) for factor in fs) / (len(fs) * options.n_contour)))
+            for oid, fs in factors.items()}
+
+
+def frames_before(problem, oid, n):
+    """The frames of object ``oid`` before frame ``n`` (all with None)."""
+    return [f for f in problem.frames[oid] if n is None or f < n]
+
+
+def observation_set(problem, oid, poses, frames):
+    """Object ``oid``'s observations in ``frames`` at ``poses``, as one
+    :class:`sqfit.fitting.costs.ObservationSet` (its caches shared by the overlap tests and the fit)."""
+    from ..fitting.costs import ObservationSet
+
+    return ObservationSet([observation_at(problem.observations[f, oid], poses[f]) for f in frames])
+
+
+def landmark_overlap(values, oid, obs):
+    """R-IOU-M of object ``oid``'s landmark at ``values`` against ``obs`` (an ObservationSet): how
+    much its silhouettes overlap its masks (``sqfit.fitting.stages.r_iou_m``; 3G's "far, huge"
+    minimum has a low misfit but almost no overlap)."""
+    sq = landmark_to_superquadric(values.atPose3(L(oid)).matrix(), values.atVector(S(oid)))
+    return float(r_iou_m([sq], obs)[0])
+
+
+def refit_landmarks(problem, values, oids, options, result, rays_cache=None, overlap_only=False, bounded=frozenset(), n=None,
+           pose_noise_refit=None):
+    """Re-initialise the landmarks left in a poor minimum by :func:`sqfit.fit` on all their frames at
+    the solved poses: those whose silhouettes disagree (misfit above ``refit_misfit``; a refit is
+    kept if its misfit is lower) and those whose silhouettes barely overlap their masks (R-IOU-M
+    below ``sqfit.constants.POOR_FIT_R_IOU_M``, 3G's "far, huge" minimum, whose misfit is low; a
+    refit is kept if it overlaps more). The overlap and the fit use at most ``refit_max_frames`` of
+    the landmark's frames (:func:`sqfit.graph.fixedlag.evenly_spread`). ``overlap_only``: only the second kind. Returns whether
+    a landmark changed. ``rays_cache``: :func:`view_factor`; ``bounded``: the landmarks whose
+    silhouette factors are bounded (their misfits measured so, :func:`object_misfits`). ``n``: only
+    frames ``0 .. n-1`` are in ``values`` (iSAM2, mid-sequence; None: all). ``pose_noise_refit``:
+    :func:`landmark_fit`'s (None: ``batch_pose_noise_refit``)."""
+    if options.refit_misfit <= 0:
+        return False
+    poses = pose_matrices(values, problem.n_frames if n is None else n)
+    if pose_noise_refit is None:
+        pose_noise_refit = options.batch_pose_noise_refit
+    misfits = {} if overlap_only else object_misfits(problem, values, oids, options, rays_cache, bounded, n)
+    changed = False
+    for oid in oids:
+        frames = evenly_spread(frames_before(problem, oid, n), options.refit_max_frames)
+        obs = observation_set(problem, oid, poses, frames)
+        overlap = landmark_overlap(values, oid, obs)
+        disjoint = overlap < C.POOR_FIT_R_IOU_M
+        if overlap_only and not disjoint:
+            continue
+        if oid not in misfits:
+            misfits.update(object_misfits(problem, values, [oid], options, rays_cache, bounded, n))
+        before = misfits[oid]
+        if before <= options.refit_misfit and not disjoint:
+            continue
+        landmark = landmark_fit(obs, options, pose_noise_refit, f"frames {list(frames)}").landmark
+        if landmark is None:
+            continue
+        trial = gtsam.Values(values)
+        trial.update(L(oid), gtsam.Pose3(landmark[0]))
+        trial.update(S(oid), np.asarray(landmark[1], dtype=np.float64))
+        after = object_misfits(problem, trial, [oid], options, rays_cache, bounded, n)[oid]
+        overlap_after = landmark_overlap(trial, oid, obs)
+        if (overlap_after > overlap) if disjoint else (after < before):
+            values.update(L(oid), gtsam.Pose3(landmark[0]))
+            values.update(S(oid), np.asarray(landmark[1], dtype=np.float64))
+            result.warnings.append(f"object {oid}: re-initialised from {len(frames)} of its {len(problem.frames[oid])} frames "
+                                   f"{'' if n is None else f'(at frame {n}) '}"
+                                   f"(misfit {before:.2f} -> {after:.2f}, R-IOU-M {overlap:.2f} -> "
+                                   f"{overlap_after:.2f})")
+            changed = True
+    return changed
