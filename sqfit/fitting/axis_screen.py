@@ -106,7 +106,7 @@ from .. import constants as C
 from .._checks import check_shape
 from .restarts import N_SCREEN_CONTOUR, screen_rays, symmetric_candidates
 from .backend import compiled
-from .raycost import RAY_BOUNDS, batch_ray_residuals, ray_kind, solver_args
+from .raycost import RAY_BOUNDS, batch_ray_residuals, ray_bounds, ray_kind, solver_args
 from .grazing import describe_values, offset_groups, shifted_rays, silhouette_fit
 from .costs import ObservationSet
 from .stages import NUMERICAL_ERRORS, STAGES, FitState, StageError, ellipsoid_depths, r_iou_m, register, to_superquadric
@@ -188,7 +188,7 @@ def axis_candidates(xi):
 
 
 def batch_levenberg_marquardt(X0, rays, iterations, weight=C.PENALTY_ANALYTIC, prune_after=None,
-                              prune_ratio=np.inf):
+                              prune_ratio=np.inf, bounds=SCREEN_BOUNDS):
     """A fixed number of Levenberg-Marquardt steps on the 3G cost for ``b`` starts at once.
 
     The same damping and acceptance as :func:`sqfit.fitting.lm.levenberg_marquardt` (identity scaling,
@@ -206,6 +206,8 @@ def batch_levenberg_marquardt(X0, rays, iterations, weight=C.PENALTY_ANALYTIC, p
     prune_after, prune_ratio : int or None, float
         After ``prune_after`` steps, starts whose cost is above ``prune_ratio`` times the lowest
         stop (their point and cost are returned as they are).
+    bounds : ((11,) float, (11,) float)
+        Soft bounds of the penalty rows (default :data:`SCREEN_BOUNDS`).
 
     Returns
     -------
@@ -221,12 +223,12 @@ def batch_levenberg_marquardt(X0, rays, iterations, weight=C.PENALTY_ANALYTIC, p
     if kernels is not None:  # the same loop, compiled (sqfit.fitting.ray_kernels.screen_lm)
         with np.errstate(all="ignore"):
             return kernels.screen_lm(X, rays.origins, rays.directions, rays.weights, ray_kind(rays), int(iterations),
-                                     *solver_args(SCREEN_RTOL, SCREEN_MAX_NEWTON), float(weight), *SCREEN_BOUNDS,
+                                     *solver_args(SCREEN_RTOL, SCREEN_MAX_NEWTON), float(weight), *bounds,
                                      _LAMBDA0, _LAMBDA_MAX, -1 if prune_after is None else int(prune_after),
                                      float(prune_ratio))
     with np.errstate(all="ignore"):
         r, J, d = batch_ray_residuals(X, rays, weight, rtol=SCREEN_RTOL, max_newton=SCREEN_MAX_NEWTON,
-                                      bounds=SCREEN_BOUNDS)
+                                      bounds=bounds)
         cost = 0.5 * np.einsum("bm,bm->b", r, r)
         ok = np.isfinite(cost) & np.isfinite(J).all(axis=(1, 2))
         cost = np.where(ok, cost, np.inf)
@@ -248,7 +250,7 @@ def batch_levenberg_marquardt(X0, rays, iterations, weight=C.PENALTY_ANALYTIC, p
             trial = np.where(finite[:, None], X[act] + dx, X[act])
             dx = np.where(finite[:, None], dx, 0.0)
             r_new, J_new, d_new = batch_ray_residuals(trial, rays, weight, d[act], rtol=SCREEN_RTOL,
-                                                      max_newton=SCREEN_MAX_NEWTON, bounds=SCREEN_BOUNDS)
+                                                      max_newton=SCREEN_MAX_NEWTON, bounds=bounds)
             cost_new = 0.5 * np.einsum("bm,bm->b", r_new, r_new)
             Jdx = np.einsum("bmk,bk->bm", J[act], dx)
             predicted = -np.einsum("bk,bk->b", g[act], dx) - 0.5 * np.einsum("bm,bm->b", Jdx, Jdx)
@@ -329,7 +331,7 @@ def _screen_refine_once(state, obs, options, shift=None):
     if shift is not None:
         rays = shifted_rays(rays, shift, offset_groups(rays, options))
     ends, costs = batch_levenberg_marquardt(candidates, rays, SCREEN_ITERATIONS, options.penalty_analytic,
-                                            PRUNE_AFTER, PRUNE_RATIO)
+                                            PRUNE_AFTER, PRUNE_RATIO, ray_bounds(options.size_min_m, SCREEN_BOUNDS))
     order = np.argsort(costs, kind="stable")
     refine = replace(options, ftol_analytic=max(options.ftol_analytic, REFINE_FTOL))
     fits = [silhouette_fit(replace(state, xi=ends[order[0]]), obs, refine, name="3H", plain_first=False, offsets=shift)]

@@ -58,7 +58,7 @@ import numpy as np
 
 from .. import constants as C
 from .lm import DenseJacobian, levenberg_marquardt
-from .raycost import offset_groups_of, posed_ray_residuals, ray_residuals
+from .raycost import offset_groups_of, posed_ray_residuals, ray_bounds, ray_residuals
 from ..views.rays import RaySet, contour_rays
 from .stages import StageError, register
 
@@ -308,15 +308,16 @@ def minimise(rays, x0, options, sigma, offset_sigma=0.0, groups=None, pose_scale
     g = len(x0) - k - p if offset_sigma > 0 else 0
     unit = np.ones(len(x0))
     unit[len(x0) - g:] = OFFSET_UNIT_PX if g else 1.0
+    bounds = ray_bounds(options.size_min_m)
     warm = {}
 
     def model(y):
         x = y * unit
         if not nuisance:
-            r, J, d = ray_residuals(x, rays, options.penalty_analytic, warm.get("d"))
+            r, J, d = ray_residuals(x, rays, options.penalty_analytic, warm.get("d"), bounds)
         else:
             r, J, d = posed_ray_residuals(x, rays, sigma, options.penalty_analytic, warm.get("d"), offset_sigma,
-                                          groups, warm.get("prior"))
+                                          groups, warm.get("prior"), bounds)
             if g and "prior" not in warm:  # the first evaluation, at x0, sets the prior (its noise level)
                 warm["prior"] = prior = offset_prior(offset_sigma, r[:n], g, options.outline_offset_view_sigma_px)
                 r[-g:] = prior @ x[-g:]

@@ -65,7 +65,7 @@ from ..views.rays import RaySet
 
 __all__ = ["ray_minima", "batch_ray_minima", "ray_residuals", "batch_ray_residuals", "posed_ray_residuals",
            "log_gauge_jacobian", "batch_log_gauge_jacobian", "gauge_minima", "gauge_phi", "ray_kind", "solver_args",
-           "offset_groups_of", "RAY_BOUNDS"]
+           "offset_groups_of", "RAY_BOUNDS", "ray_bounds"]
 
 #: Newton iterations of :func:`ray_minima` at most, and its relative stopping tolerance on ``d``.
 _MAX_NEWTON = 30
@@ -84,6 +84,18 @@ _GRID_T = np.linspace(0.0, 1.0, _GRID)
 #: Soft bounds of the 3G penalty rows: those of eq. 7 but with ``C.SILHOUETTE_SHAPE_BOUNDS``.
 RAY_BOUNDS = (np.r_[LOWER_BOUNDS[:3], [C.SILHOUETTE_SHAPE_BOUNDS[0]] * 2, LOWER_BOUNDS[5:]],
                np.r_[UPPER_BOUNDS[:3], [C.SILHOUETTE_SHAPE_BOUNDS[1]] * 2, UPPER_BOUNDS[5:]])
+
+
+def ray_bounds(size_min=C.SIZE_MIN, bounds=RAY_BOUNDS):
+    """``bounds`` (default :data:`RAY_BOUNDS`) with the half-axes' lower bound set to ``size_min``
+    (metres, > 0; ``FitOptions.size_min_m``); ``bounds`` itself when that is its bound already."""
+    if float(size_min) == bounds[0][0] == bounds[0][1] == bounds[0][2]:
+        return bounds
+    if not (np.isfinite(size_min) and size_min > 0):
+        raise ValueError(f"size_min must be a finite number > 0 (metres), got {size_min}")
+    lower = bounds[0].copy()
+    lower[C.SIZE] = float(size_min)
+    return lower, bounds[1]
 
 
 def _line_log_gauge(q0, u, d, e1, e2):
@@ -348,7 +360,7 @@ def _ray_terms(xi, rays, directions, d0, d=None):
     return scale * phi, scale * dphi, d_log_m, d
 
 
-def ray_residuals(xi, rays, weight=C.PENALTY_ANALYTIC, d0=None):
+def ray_residuals(xi, rays, weight=C.PENALTY_ANALYTIC, d0=None, bounds=RAY_BOUNDS):
     """3G residuals (see the module docstring) and their analytic Jacobian.
 
     Parameters
@@ -359,6 +371,8 @@ def ray_residuals(xi, rays, weight=C.PENALTY_ANALYTIC, d0=None):
         ``c_p`` of the penalty rows (eq. 7).
     d0 : (n,) float, optional
         Warm start of the ray minimisers.
+    bounds : ((11,) float, (11,) float)
+        Soft bounds of the penalty rows (default :data:`RAY_BOUNDS`; :func:`ray_bounds`).
 
     Returns
     -------
@@ -372,11 +386,12 @@ def ray_residuals(xi, rays, weight=C.PENALTY_ANALYTIC, d0=None):
     xi = np.asarray(xi, dtype=np.float64)
     kernels = compiled()
     if kernels is not None:
-        r, J, d = _compiled_rows(kernels, xi[None], rays, weight, None if d0 is None else np.asarray(d0)[None])
+        r, J, d = _compiled_rows(kernels, xi[None], rays, weight, None if d0 is None else np.asarray(d0)[None],
+                                 bounds=bounds)
         return r[0], J[0], d[0]
     r_rays, coef, d_log_m, d = _ray_terms(xi, rays, rays.directions, d0)
-    r = np.concatenate([r_rays, penalty(xi, weight, *RAY_BOUNDS)])
-    J = np.vstack([coef[:, None] * d_log_m, np.diag(penalty_jacobian(xi, weight, *RAY_BOUNDS))])
+    r = np.concatenate([r_rays, penalty(xi, weight, *bounds)])
+    J = np.vstack([coef[:, None] * d_log_m, np.diag(penalty_jacobian(xi, weight, *bounds))])
     return r, J, d
 
 
@@ -456,7 +471,7 @@ def batch_log_gauge_jacobian(X, points):
 
 
 def posed_ray_residuals(x, rays, sigma_rad, weight=C.PENALTY_ANALYTIC, d0=None, offset_sigma_px=0.0,
-                        offset_groups=None, offset_prior=None):
+                        offset_groups=None, offset_prior=None, bounds=RAY_BOUNDS):
     """3G residuals with nuisance unknowns -- a small rotation correction per view and an outline
     offset per group of rays -- and their analytic Jacobian.
 
@@ -498,6 +513,8 @@ def posed_ray_residuals(x, rays, sigma_rad, weight=C.PENALTY_ANALYTIC, d0=None, 
         The offsets' prior rows are ``offset_prior @ o`` instead of ``o / offset_sigma_px`` (a
         square root of the prior's information matrix, px^-1: correlated offsets, such as views'
         offsets that share the object's).
+    bounds : ((11,) float, (11,) float)
+        Soft bounds of the penalty rows (default :data:`RAY_BOUNDS`; :func:`ray_bounds`).
 
     Returns
     -------
@@ -527,7 +544,7 @@ def posed_ray_residuals(x, rays, sigma_rad, weight=C.PENALTY_ANALYTIC, d0=None, 
         return kernels.posed_rows(f(x), f(rays.origins), f(rays.directions), f(rays.offsets), f(rays.weights),
                                   f(rays.radii), ray_kind(rays), f(rays.view), groups, p,
                                   f(d0, dtype=np.float64) if warm else _NO_WARM,
-                                  warm, *solver_args(_D_RTOL, _MAX_NEWTON), float(weight), *RAY_BOUNDS,
+                                  warm, *solver_args(_D_RTOL, _MAX_NEWTON), float(weight), *bounds,
                                   float(sigma_rad), f(prior, dtype=np.float64).reshape(g, g))
     xi, w, o = x[:k], x[k:k + p].reshape(-1, 3), x[k + p:]
     b = rays.directions + o[groups][:, None] * rays.offsets if g else rays.directions
@@ -548,10 +565,10 @@ def posed_ray_residuals(x, rays, sigma_rad, weight=C.PENALTY_ANALYTIC, d0=None, 
         r_rays = r_rays * factor
         J[:n] *= factor[:, None]
         J[rows, k + p + groups] -= np.where(inward < 0, r_rays / rays.radii, 0.0)
-    J[n:n + k, :k] = np.diag(penalty_jacobian(xi, weight, *RAY_BOUNDS))
+    J[n:n + k, :k] = np.diag(penalty_jacobian(xi, weight, *bounds))
     J[n + k:n + k + p, k:k + p] = np.eye(p) / sigma_rad if p else 0.0
     J[n + k + p:, k + p:] = prior
-    r = np.concatenate([r_rays, penalty(xi, weight, *RAY_BOUNDS), w.ravel() / sigma_rad if p else [], prior @ o])
+    r = np.concatenate([r_rays, penalty(xi, weight, *bounds), w.ravel() / sigma_rad if p else [], prior @ o])
     return r, J, d
 
 

@@ -298,7 +298,8 @@ def fit_trial(scene_dict, index, chains, limits=None):
                "penalty_analytic": scene.fit.penalty_analytic, "pose_sigma_deg": scene.fit.pose_sigma_deg,
                "occlusion_aware": scene.fit.occlusion_aware,
                "outline_offset_sigma_px": scene.fit.outline_offset_sigma_px, "outline_offset": scene.fit.outline_offset,
-               "outline_offset_view_sigma_px": scene.fit.outline_offset_view_sigma_px}
+               "outline_offset_view_sigma_px": scene.fit.outline_offset_view_sigma_px,
+               "size_min_m": scene.fit.size_min_m}
     limit_cache = None
     if scene.experiment.limit:
         from ..world.limit import LimitCache, object_limit

@@ -141,6 +141,7 @@ class FitConfig:
     outline_offset_sigma_px: float = sqfit.FitOptions.outline_offset_sigma_px
     outline_offset: str = sqfit.FitOptions.outline_offset
     outline_offset_view_sigma_px: float = sqfit.FitOptions.outline_offset_view_sigma_px
+    size_min_m: float = sqfit.FitOptions.size_min_m
 
 
 _CHECKS = {
@@ -170,7 +171,8 @@ _CHECKS = {
     "fit": {"polygon": choice(POLYGON_KINDS), "penalty_riou": number(0, lo_open=True),
             "penalty_analytic": number(0, lo_open=True), "pose_sigma_deg": number(0),
             "occlusion_aware": boolean, "outline_offset_sigma_px": number(0),
-            "outline_offset": choice(OUTLINE_OFFSETS), "outline_offset_view_sigma_px": number(0, lo_open=True)},
+            "outline_offset": choice(OUTLINE_OFFSETS), "outline_offset_view_sigma_px": number(0, lo_open=True),
+            "size_min_m": number(0, lo_open=True)},
 }
 _SECTIONS = {"experiment": ExperimentConfig, "camera": CameraConfig, "trajectory": TrajectoryConfig,
              "objects": ObjectsConfig, "masks": MasksConfig, "noise": NoiseConfig, "fit": FitConfig}

@@ -1,0 +1,62 @@
+"""The silhouette stages' size floor ``FitOptions.size_min_m`` (default the paper's 0.1 m)."""
+import numpy as np
+import pytest
+
+import sqfit
+from sqfit import constants as C
+from sqfit.fitting.raycost import RAY_BOUNDS, ray_bounds
+from sqfit.metrics import iou_3d
+from sqfit.testing import paper_cameras, polygon_mask
+
+# A book-like slab: half-thickness 0.07 m, below the paper's floor, seen by four elevated views.
+SLAB = sqfit.Superquadric((0.07, 0.7, 1.0), (0.1, 0.1), (0.3, -0.2, 0.1), (0.3, -0.4, 0.8))
+
+
+@pytest.fixture(scope="module")
+def slab_observations():
+    rng = np.random.default_rng(0)
+    cams = paper_cameras(4, height=4.0)
+    return [sqfit.Observation.from_mask(cam, polygon_mask(SLAB, cam), 100, "uniform", rng) for cam in cams]
+
+
+def test_ray_bounds_sets_the_size_floor_only():
+    lower, upper = ray_bounds(0.01)
+    np.testing.assert_array_equal(lower[C.SIZE], 0.01)
+    np.testing.assert_array_equal(lower[3:], RAY_BOUNDS[0][3:])
+    assert upper is RAY_BOUNDS[1]
+    assert ray_bounds(C.SIZE_MIN) is RAY_BOUNDS
+
+
+@pytest.mark.parametrize("value", [0.0, -0.1, np.nan, np.inf])
+def test_size_floor_must_be_positive(value):
+    with pytest.raises(ValueError, match="size_min_m must be a finite number > 0"):
+        sqfit.FitOptions(size_min_m=value)
+    with pytest.raises(ValueError, match="size_min must be a finite number > 0"):
+        ray_bounds(value)
+
+
+def test_default_floor_holds_a_thin_slab_thick_and_a_lower_one_lets_it_go(slab_observations):
+    held = sqfit.fit(slab_observations, "default")
+    free = sqfit.fit(slab_observations, "default", options={"size_min_m": 0.01})
+    thick = [min(r.superquadric.size) for r in (held, free)]
+    assert thick[0] > 0.095  # held at the paper's floor, 0.1 m, and its shape rounded (IoU 0.74)
+    assert abs(thick[1] - 0.07) < 0.01  # (IoU 0.94)
+    assert iou_3d(free.superquadric, SLAB) > iou_3d(held.superquadric, SLAB) + 0.1
+
+
+def test_scene_key_defaults_to_the_option_and_reaches_the_fit():
+    from pathlib import Path
+
+    from sqsim.runs.experiment import fit_trial
+    from sqsim.world.scene import load_scene
+
+    scene = load_scene(Path(__file__).resolve().parents[1] / "scenes" / "paper.toml")
+    assert scene.fit.size_min_m == sqfit.FitOptions().size_min_m == C.SIZE_MIN
+    with pytest.raises(ValueError, match=r"fit.size_min_m must be > 0"):
+        scene.with_overrides({"fit.size_min_m": 0.0})
+    # household books, seed 0, trial 18: half-thickness 0.061 m
+    books = load_scene(Path(__file__).resolve().parents[1] / "scenes" / "household.toml").with_overrides(
+        {"experiment.limit": False, "experiment.seed": 0, "objects.catalogue": ["book"]})
+    sizes = [min(fit_trial(books.with_overrides({"fit.size_min_m": m}).to_dict(), 18, ["default"])[0]["params"][:3])
+             for m in (C.SIZE_MIN, 0.01)]
+    assert sizes[0] > 0.095 and sizes[1] < 0.075
