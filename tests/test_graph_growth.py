@@ -91,3 +91,33 @@ def test_init_options_are_checked():
         GraphOptions(init_retries=-1)
     with pytest.raises(ValueError, match="init_min_overlap"):
         GraphOptions(init_min_overlap=-0.1)
+
+
+def test_once_put_off_a_landmark_waits_for_a_fit_that_is_not_poor(monkeypatch, seq):
+    # the first fit far, huge (0.01), the second poor but above init_min_overlap (0.3): a landmark
+    # put off once waits on until the fitter no longer flags its fit (R-IOU-M >= POOR_FIT_R_IOU_M)
+    from sqfit import constants as C
+
+    real_initial, calls, counts = growth.initial_fit, [], {}
+    reported = {1: 0.01, 2: 0.3}
+
+    def initial_fit(problem, oid, frames, poses, options, pose_noise_refit=True):
+        out = real_initial(problem, oid, frames, poses, options, pose_noise_refit)
+        counts[oid] = counts.get(oid, 0) + 1
+        if counts[oid] in reported:
+            out = out._replace(overlap=reported[counts[oid]])
+        calls.append((oid, out.overlap))
+        return out
+
+    monkeypatch.setattr(growth, "initial_fit", initial_fit)
+    result = solve.run(seq.intrinsics, seq.odometry_poses, seq.observations, ["graph"], {})["graph"]
+    assert result.status == "ok" and sorted(result.objects) == sorted(seq.objects)
+    for oid in seq.objects:
+        mine = [overlap for o, overlap in calls if o == oid]
+        assert mine[:2] == [0.01, 0.3] and len(mine) == 3 and mine[2] >= C.POOR_FIT_R_IOU_M
+    # a first fit at 0.3 is not put off at all
+    calls.clear(), counts.clear()
+    reported.clear()
+    reported[1] = 0.3
+    solve.run(seq.intrinsics, seq.odometry_poses, seq.observations, ["graph"], {})
+    assert [overlap for _, overlap in calls] == [0.3] * len(seq.objects)

@@ -7,8 +7,10 @@ that see it, at the current pose estimates, once they are enough (:func:`sqfit.g
 ready_to_initialise`). An initial fit whose silhouettes barely overlap its own masks (R-IOU-M below
 ``GraphOptions.init_min_overlap``: 3G's "far, huge" minimum, a superquadric whose surface passes
 through the cameras) is not put in the graph: the landmark waits for its next frame and is fitted
-again, at most ``GraphOptions.init_retries`` times, and then (or at the last frame) starts from the
-best-overlapping of its fits (:meth:`Growth.add`).
+again until a fit is no longer poor (R-IOU-M ``sqfit.constants.POOR_FIT_R_IOU_M`` or more: a fit
+between the two pulls the poses where a far, huge one barely acts), at most
+``GraphOptions.init_retries`` times, and then (or at its last frame) starts from the best-overlapping
+of its fits (:meth:`Growth.add`).
 """
 
 from __future__ import annotations
@@ -19,6 +21,7 @@ import gtsam
 import numpy as np
 from gtsam.symbol_shorthand import L, O, S, X
 
+from .. import constants as C
 from ..fitting import pipeline
 from ..fitting.grazing import OFFSET_UNIT_PX
 from .factors import SilhouetteFactors, bounds_factor, floor_factor, silhouette_factor
@@ -199,7 +202,9 @@ class Growth:
         fit = initial_fit(self.problem, oid, frames, self.current, self.options, self.pose_noise_refit)
         earlier = self.deferred.get(oid)
         final = last or i == self.problem.frames[oid][-1]
-        if fit.landmark is not None and fit.overlap < self.options.init_min_overlap and not final:
+        # a landmark put off once waits until a fit is no longer poor (the fitter's own flag)
+        wanted = C.POOR_FIT_R_IOU_M if oid in self.tries else self.options.init_min_overlap
+        if fit.landmark is not None and fit.overlap < wanted and not final:
             tries = self.tries.get(oid, 0)
             if tries < self.options.init_retries:
                 # 3G's far, huge minimum (module docstring): wait for the next frame

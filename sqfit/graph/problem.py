@@ -79,8 +79,9 @@ class GraphOptions(Options):
     init_retries, init_min_overlap : int, float
         An initial fit whose silhouettes overlap its masks with R-IOU-M below ``init_min_overlap``
         (3G's far, huge minimum) is not put in the graph: the landmark waits for its next frame and
-        is fitted again, at most ``init_retries`` times (>= 0), then starts from the best of its
-        fits (:mod:`sqfit.graph.growth`); 0: it starts from its first fit, however poor. Default 0.1:
+        is fitted again until a fit is no longer poor (``sqfit.constants.POOR_FIT_R_IOU_M``), at most
+        ``init_retries`` times (>= 0), then starts from the best of its fits
+        (:mod:`sqfit.graph.growth`); 0: it starts from its first fit, however poor. Default 0.1:
         the far, huge fits on the evaluation scenes overlap 0.001-0.05, while the first fits of
         objects no superquadric follows (tables, chairs) overlap 0.3-0.6 and gain nothing from
         waiting (household sequences at 0.5: graph median IoU 0.249 / 0.504 and 0.331 / 0.513 over
