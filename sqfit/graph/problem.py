@@ -84,9 +84,9 @@ class GraphOptions(Options):
         (:mod:`sqfit.graph.growth`); 0: it starts from its first fit, however poor. Default 0.1:
         the far, huge fits on the evaluation scenes overlap 0.001-0.05, while the first fits of
         objects no superquadric follows (tables, chairs) overlap 0.3-0.6 and gain nothing from
-        waiting (household sequences at 0.5: graph median IoU 0.249 / 0.504 and 0.331 / 0.513 over
-        two 1e-9 perturbations, against 0.387 / 0.589 and 0.252 / 0.539 without waiting and
-        0.385 / 0.605 and 0.277 / 0.589 at 0.1; README "Issue 23, fourth pass").
+        waiting (household sequences, seeds 0 / 1, graph median IoU over two 1e-9 perturbations:
+        0.249 / 0.504 and 0.331 / 0.513 at 0.5, against 0.387 / 0.589 and 0.252 / 0.539 without
+        waiting and 0.347 / 0.600 and 0.267 / 0.543 at 0.1; README "Issue 23, fourth pass").
     init_chain : str
         Default :data:`INIT_CHAIN`.
     mismatch_ray_k : float
