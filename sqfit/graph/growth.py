@@ -46,6 +46,7 @@ class LandmarkFit(NamedTuple):
 
 
 def noise_models(options):
+    """``{"odometry", "prior"}``: the diagonal noise models of the odometry steps and of frame 0's prior."""
     rot, pos = np.radians(options.odometry_sigma_deg), options.odometry_sigma_m
     prot, ppos = np.radians(options.prior_sigma_deg), options.prior_sigma_m
     return {
@@ -74,10 +75,12 @@ def pose_factors(problem, noise, frames):
 
 
 def pose_matrices(values, n):
+    """The poses ``X(0) .. X(n-1)`` of ``values`` as ``(n, 4, 4)``."""
     return np.stack([values.atPose3(X(i)).matrix() for i in range(n)])
 
 
 def skip_object(result, oid, reason):
+    """Record in ``result`` that object ``oid`` has no landmark, and why."""
     result.skipped[oid] = reason
     result.warnings.append(f"object {oid}: skipped, {reason}")
 
@@ -220,8 +223,9 @@ class Growth:
             return
         if oid in self.tries:
             self.result.warnings.append(
-                f"object {oid}: initial fit deferred {self.tries[oid]} time(s) (R-IOU-M below "
-                f"{self.options.init_min_overlap}), started at R-IOU-M {fit.overlap:.2f} with {len(frames)} frames")
+                f"object {oid}: initial fit deferred {self.tries[oid]} time(s) (first R-IOU-M below "
+                f"{self.options.init_min_overlap}, 3G's far, huge minimum; then waiting for "
+                f"{C.POOR_FIT_R_IOU_M}), started at R-IOU-M {fit.overlap:.2f} from {len(frames)} frames")
         if fit.mismatched:
             self.bounded.add(oid)
         add_landmark(graph, values, self.problem, oid, frames, fit.landmark, self.options, self.batch, self.rays,
@@ -234,6 +238,7 @@ class Growth:
             self.current[f] = estimate.atPose3(X(f)).matrix()
 
     def finish(self):
+        """Record the objects never initialised (too few frames) as skipped."""
         for oid in self.problem.frames:
             if oid not in self.added and oid not in self.result.skipped:
                 skip_object(self.result, oid, f"seen in {len(self.pending.get(oid, []))} frames, too few to initialise")
