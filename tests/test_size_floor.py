@@ -60,3 +60,15 @@ def test_scene_key_defaults_to_the_option_and_reaches_the_fit():
     sizes = [min(fit_trial(books.with_overrides({"fit.size_min_m": m}).to_dict(), 18, ["default"])[0]["params"][:3])
              for m in (C.SIZE_MIN, 0.01)]
     assert sizes[0] > 0.095 and sizes[1] < 0.075
+
+
+def test_stage_3s_scores_its_candidates_under_the_same_floor(slab_observations):
+    # 3S compares misfits whose penalty rows must be those its 3G fits ran under: the true slab
+    # pays the 0.1 m floor's penalty at the default bounds, none at a 0.01 m floor
+    from sqfit.fitting.costs import ObservationSet
+    from sqfit.fitting.restarts import misfit, screen_rays
+
+    rays = screen_rays(ObservationSet(slab_observations))
+    xi = SLAB.to_vector()
+    assert misfit(xi, rays, bounds=ray_bounds(0.01)) < 0.2 * misfit(xi, rays)
+    assert misfit(xi, rays, bounds=RAY_BOUNDS) == misfit(xi, rays)

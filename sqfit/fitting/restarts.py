@@ -74,7 +74,7 @@ import numpy as np
 
 from .. import constants as C
 from .._checks import check_shape
-from .raycost import ray_residuals
+from .raycost import RAY_BOUNDS, ray_bounds, ray_residuals
 from ..views.rays import contour_rays
 from .grazing import SMOOTH_PX, minimise, silhouette_stage
 from .stages import FitState, r_iou_m, register, to_superquadric
@@ -177,14 +177,15 @@ def screen_rays(obs):
     return rays
 
 
-def misfit(xi, rays, penalty_weight=C.PENALTY_ANALYTIC):
-    """3G misfit of ``xi``: ``sqrt(sum r**2 / v)`` over the rows of :func:`sqfit.fitting.raycost.ray_residuals`.
+def misfit(xi, rays, penalty_weight=C.PENALTY_ANALYTIC, bounds=RAY_BOUNDS):
+    """3G misfit of ``xi``: ``sqrt(sum r**2 / v)`` over the rows of :func:`sqfit.fitting.raycost.ray_residuals`
+    (penalty rows at ``bounds``, :func:`sqfit.fitting.raycost.ray_bounds`: those 3G's fits ran under).
 
     With the per-view weights of :func:`sqfit.views.rays.contour_rays` this is the RMS over the ``v``
     views of each view's RMS grazing residual (plus the penalty rows, zero inside the bounds).
     Equals ``sqrt(2 cost / v)`` for a Levenberg-Marquardt cost on the same rays.
     """
-    r = ray_residuals(np.asarray(xi, dtype=np.float64), rays, penalty_weight)[0]
+    r = ray_residuals(np.asarray(xi, dtype=np.float64), rays, penalty_weight, bounds=bounds)[0]
     return float(np.sqrt(np.sum(r * r) / _views(rays)))
 
 
@@ -215,7 +216,8 @@ def multistart_stage(state, obs, options):
     """Stage 3S: re-start a poor fit from its symmetric re-parametrisations (module docstring)."""
     rays = screen_rays(obs)
     xi = np.array(state.xi, dtype=np.float64)
-    base = misfit(xi, rays, options.penalty_analytic)
+    bounds = ray_bounds(options.size_min_m)
+    base = misfit(xi, rays, options.penalty_analytic, bounds)
     nfev = 1
     if not base > TRIGGER_MISFIT:  # also catches a NaN misfit: nothing to compare against
         return replace(state, message=f"3S: misfit {base:.4f} <= {TRIGGER_MISFIT}: kept", nfev=nfev)
@@ -233,7 +235,7 @@ def multistart_stage(state, obs, options):
                                                  f"{scores[best]:.4f}: kept")
     new = silhouette_stage(FitState(ends[best]), obs, options, name="3S")
     nfev += new.nfev + 1
-    new_misfit = misfit(new.xi, rays, options.penalty_analytic)
+    new_misfit = misfit(new.xi, rays, options.penalty_analytic, bounds)
     new_m = r_iou_m([to_superquadric(new.xi)], obs, options.polygon)[0]
     if new_misfit < base and new_m >= m[0] - RIOU_M_SLACK:
         return replace(state, xi=new.xi, cost=new.cost, status=new.status, nfev=nfev,
