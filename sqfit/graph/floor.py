@@ -31,6 +31,8 @@ __all__ = ["lowest_point_height", "floor_residual", "FLOOR_SHAPE_MAX"]
 FLOOR_SHAPE_MAX = 1.95
 #: Central-difference step of the support function's derivative in the shape exponents.
 _E_STEP = 1e-6
+#: ``EVAL_LOWER`` as floats (the factor runs on plain floats).
+_LOWER = EVAL_LOWER.tolist()
 
 
 def _support(m, e):
@@ -69,12 +71,17 @@ def lowest_point_height(T_world_sq, shape):
     z : float
     """
     T, shape = np.asarray(T_world_sq, dtype=np.float64), np.asarray(shape, dtype=np.float64)
-    a, e = _clipped(shape)
-    return float(T[2, 3] - _support((a * T[2, :3]).tolist(), e.tolist())[0])
+    a, e = _clipped(shape.tolist())
+    n = T[2, :3].tolist()
+    return float(T[2, 3] - _support([a[k] * n[k] for k in range(3)], e)[0])
 
 
-def _clipped(shape):
-    return np.maximum(shape[:3], EVAL_LOWER[:3]), np.clip(shape[3:N_SHAPE], EVAL_LOWER[3:], FLOOR_SHAPE_MAX)
+def _clipped(s):
+    """Half-axes and exponents of a size/shape list ``s`` (5 floats), clipped as the support function
+    needs (:func:`lowest_point_height`), as two lists of floats."""
+    lo = _LOWER
+    return ([max(s[k], lo[k]) for k in range(3)],
+            [min(max(s[3 + k], lo[3 + k]), FLOOR_SHAPE_MAX) for k in range(2)])
 
 
 def floor_residual(T_world_sq, shape, floor_z):
@@ -100,9 +107,8 @@ def floor_residual(T_world_sq, shape, floor_z):
     """
     n = T_world_sq[2, :3].tolist()
     s = shape.tolist()
-    lo = EVAL_LOWER.tolist()
-    a = [max(s[k], lo[k]) for k in range(3)]
-    e = [min(max(s[3 + k], lo[3 + k]), FLOOR_SHAPE_MAX) for k in range(2)]
+    lo = _LOWER
+    a, e = _clipped(s)
     m = [a[k] * n[k] for k in range(3)]
     h, g = _support(m, e)
     gn = [g[k] * a[k] for k in range(3)]  # dh/dn

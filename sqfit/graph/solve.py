@@ -107,11 +107,11 @@ def fixed_pose_fits(intrinsics, odometry_poses, observations, options=None):
     result = SlamResult("fixed", problem.odometry_poses.copy(), skipped=dict(problem.skipped),
                         warnings=list(problem.warnings))
     for oid, frames in problem.frames.items():
-        landmark, message, _, _ = initial_fit(problem, oid, frames, problem.odometry_poses, options)
-        if landmark is None:
-            skip_object(result, oid, message)
+        fit = initial_fit(problem, oid, frames, problem.odometry_poses, options)
+        if fit.landmark is None:
+            skip_object(result, oid, fit.message)
         else:
-            result.objects[oid] = landmark_to_superquadric(*landmark)
+            result.objects[oid] = landmark_to_superquadric(*fit.landmark)
     result.seconds, result.cpu_seconds = clock.elapsed()
     return result
 
