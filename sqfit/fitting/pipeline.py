@@ -151,7 +151,7 @@ class FitOptions(Options):
         factor: 0.25 / 0.5 / 1 px gave 0.968 / 0.979 / 0.982, 10th percentile 0.786 / 0.822 / 0.768).
     size_min_m : float
         Lower bound (metres, > 0) of the half-axes in the penalty rows of the silhouette stages
-        (3G, 3H's screen and refinement, 3R; :func:`sqfit.fitting.raycost.ray_bounds`). Default the
+        (3G, 3H's screen and refinement, 3R, 3S; :func:`sqfit.fitting.raycost.ray_bounds`). Default the
         paper's ``constants.SIZE_MIN`` (0.1 m), a prior of its scene (no half-axis below 0.1 m): with
         its three level views the silhouettes leave thin shapes ambiguous, and there a lower bound
         lets fits collapse to slabs that graze every outline as well (``scenes/paper.toml``, seed 0,
