@@ -404,7 +404,7 @@ def test_bad_options_and_methods_are_named():
 def test_an_optimiser_error_is_flagged_in_the_result(monkeypatch):
     from sqfit.graph import solve
 
-    def fail(graph, values, options):
+    def fail(graph, values, options, max_lambda=None):
         raise RuntimeError("\nIndeterminate linear system detected while working near variable l1")
 
     monkeypatch.setattr(solve, "_lm", fail)

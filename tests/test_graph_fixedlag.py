@@ -93,7 +93,8 @@ def test_windows_with_a_fixed_past_match_the_full_resolve(past_views):
     # past_views 2, each landmark's older views sampled down to 2)
     seq = synthetic_sequence(1, n_frames=16, n_objects=3)
     res = {free: graph.superquadric_graph(seq.intrinsics, seq.odometry_poses, seq.observations,
-                                          {"batch_window": 4, "batch_free_frames": free, "batch_past_views": past_views})
+                                          {"batch_start": "windows", "batch_window": 4, "batch_free_frames": free,
+                                           "batch_past_views": past_views})
            for free in (0, 6)}
     ate = {free: position_rmse(r.poses, seq.true_poses) for free, r in res.items()}
     iou = {free: np.median(list(object_ious(r.objects, seq.objects).values())) for free, r in res.items()}

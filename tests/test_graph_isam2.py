@@ -1,5 +1,6 @@
 """iSAM2's re-fit at its rebuilds (GraphOptions.isam2_refit): a landmark left in a poor minimum
-mid-sequence is re-initialised on the frames so far."""
+mid-sequence is re-initialised on the frames so far; a re-fit not kept is not repeated in vain; the
+batch starts from iSAM2 (GraphOptions.batch_start)."""
 
 import numpy as np
 import pytest
@@ -10,7 +11,7 @@ import sqfit  # noqa: E402
 from sqfit import graph  # noqa: E402
 from sqfit.graph import landmark, refit, solve  # noqa: E402
 from sqfit.graph import problem as gproblem  # noqa: E402
-from sqfit.graph.testing import synthetic_sequence  # noqa: E402
+from sqfit.graph.testing import object_ious, position_rmse, synthetic_sequence  # noqa: E402
 from sqfit.metrics import iou_3d  # noqa: E402
 
 from gtsam.symbol_shorthand import L, S, X  # noqa: E402
@@ -62,3 +63,97 @@ def test_isam2_refits_at_its_rebuilds(monkeypatch, seq, on):
 def test_isam2_refit_is_checked():
     with pytest.raises(ValueError, match="isam2_refit must be True or False"):
         graph.GraphOptions(isam2_refit=1)
+
+
+def _poor_minimum_values(seq, n):
+    """Frames 0 .. n-1 at the true poses, the landmarks at the truth but object 2 flat with its
+    axes swapped (a high misfit)."""
+    values = gtsam.Values()
+    for i in range(n):
+        values.insert(X(i), gtsam.Pose3(seq.true_poses[i]))
+    for oid, sq in seq.objects.items():
+        if oid == 2:
+            sq = sqfit.Superquadric(np.array(sq.size)[[2, 0, 1]], (1.8, 0.2), np.array(sq.position) + 0.15, sq.rotation)
+        T, s = landmark.superquadric_to_landmark(sq)
+        values.insert(L(oid), gtsam.Pose3(T))
+        values.insert(S(oid), s)
+    return values
+
+
+def test_a_refit_not_kept_is_retried_only_when_misfit_or_frames_grew(monkeypatch, seq):
+    prob = gproblem.check_inputs(seq.intrinsics, seq.true_poses, seq.observations)
+    options, fits = graph.GraphOptions(), []
+    real = refit.landmark_fit
+
+    def worse(obs, opts, pose_noise_refit, where):  # a fit further off than the landmark: not kept
+        fits.append(where)
+        fit = real(obs, opts, pose_noise_refit, where)
+        T, shape = fit.landmark
+        T = T.copy()
+        T[:3, 3] += 0.5
+        return fit._replace(landmark=(T, shape))
+
+    monkeypatch.setattr(refit, "landmark_fit", worse)
+    n, rejected = 8, {}
+    result = graph.SlamResult("graph-isam2", seq.true_poses)
+    values = _poor_minimum_values(seq, n)
+    misfit = refit.object_misfits(prob, values, [2], options, n=n)[2]
+    assert misfit > options.refit_misfit
+    assert not refit.refit_landmarks(prob, values, list(seq.objects), options, result, n=n, rejected=rejected)
+    assert len(fits) == 1 and set(rejected) == {2} and rejected[2] == (pytest.approx(misfit), len(
+        refit.frames_before(prob, 2, n)))
+    # the same misfit, the same frames: not fitted again
+    refit.refit_landmarks(prob, values, list(seq.objects), options, result, n=n, rejected=rejected)
+    assert len(fits) == 1
+    # without the memory it is
+    refit.refit_landmarks(prob, values, list(seq.objects), options, result, n=n)
+    assert len(fits) == 2
+    # a misfit grown by RETRY_MISFIT since: fitted again
+    rejected[2] = (misfit / refit.RETRY_MISFIT * 0.99, rejected[2][1])
+    refit.refit_landmarks(prob, values, list(seq.objects), options, result, n=n, rejected=rejected)
+    assert len(fits) == 3 and rejected[2][0] == pytest.approx(misfit)
+    # as many frames again since: fitted again
+    frames = len(refit.frames_before(prob, 2, n))
+    rejected[2] = (rejected[2][0], int(np.floor(frames / refit.RETRY_FRAMES)))
+    refit.refit_landmarks(prob, values, list(seq.objects), options, result, n=n, rejected=rejected)
+    assert len(fits) == 4
+    # a kept re-fit clears the memory
+    monkeypatch.setattr(refit, "landmark_fit", real)
+    rejected[2] = (misfit / 2, frames / 2)
+    assert refit.refit_landmarks(prob, values, list(seq.objects), options, result, n=n, rejected=rejected)
+    assert 2 not in rejected
+
+
+@pytest.mark.parametrize("start", ["isam2", "windows"])
+def test_the_batch_starts_from_isam2_or_from_windows(monkeypatch, seq, start):
+    calls = []
+    real = solve._incremental
+
+    def incremental(*args, **kw):
+        calls.append(1)
+        return real(*args, **kw)
+
+    monkeypatch.setattr(solve, "_incremental", incremental)
+    res = graph.run(seq.intrinsics, seq.odometry_poses, seq.observations, ["graph", "odometry"],
+                    {"batch_start": start})
+    assert res["graph"].ok and len(calls) == (start == "isam2")
+    assert res["graph"].frame_seconds is None  # iSAM2's per-frame times are the graph-isam2 method's
+    ate = {m: position_rmse(r.poses, seq.true_poses) for m, r in res.items()}
+    assert ate["graph"] < 0.5 * ate["odometry"], ate
+    assert np.median(list(object_ious(res["graph"].objects, seq.objects).values())) > 0.8
+
+
+def test_an_isam2_error_in_the_batch_names_the_frame(monkeypatch, seq):
+    def fail(self, *args):
+        raise RuntimeError("Indeterminate linear system detected while working near variable x3")
+
+    monkeypatch.setattr(gtsam.ISAM2, "update", fail)
+    for method in ("graph", "graph-isam2"):
+        res = graph.run(seq.intrinsics, seq.odometry_poses, seq.observations, [method])[method]
+        assert res.status == "failed" and res.message.startswith("iSAM2 update at frame 0: RuntimeError"), res.message
+        np.testing.assert_array_equal(res.poses, seq.odometry_poses)
+
+
+def test_batch_start_is_checked():
+    with pytest.raises(ValueError, match="batch_start must be one of isam2, windows, got 'lm'"):
+        graph.GraphOptions(batch_start="lm")

@@ -175,6 +175,8 @@ class Growth:
                 self.by_frame.setdefault(f, []).append(oid)
         self.pending, self.added, self.failed, self.current = {}, [], set(), {}
         self.bounded = set()  # landmarks whose silhouette factors are bounded (landmark_fit)
+        # landmarks whose last re-fit was not kept: (misfit, frames) then (sqfit.graph.refit)
+        self.rejected = {}
         # landmarks whose initial fit was put off (module docstring): how often, and the best fit so far
         self.tries, self.deferred = {}, {}
         self.batch, self.rays = SilhouetteFactors(), {}

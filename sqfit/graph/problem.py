@@ -31,7 +31,7 @@ from .._checks import Options, check_fields, check_shape
 from ..geometry.camera import Camera, Intrinsics
 from ..views.observation import Observation
 
-__all__ = ["INIT_CHAIN", "GraphOptions", "SlamResult", "Problem", "check_inputs", "observations_from_instances", "observation_at",
+__all__ = ["INIT_CHAIN", "BATCH_STARTS", "GraphOptions", "SlamResult", "Problem", "check_inputs", "observations_from_instances", "observation_at",
            "parallax_deg",
            "ready_to_initialise"]
 
@@ -45,6 +45,9 @@ __all__ = ["INIT_CHAIN", "GraphOptions", "SlamResult", "Problem", "check_inputs"
 #: silhouette factors are bounded (``GraphOptions.mismatch_ray_k``). 3T acts only above its 3G
 #: cost gate, which superquadric masks stay below.
 INIT_CHAIN = "1-2M-3H-3T"
+
+#: How the batch reaches the whole graph (``GraphOptions.batch_start``).
+BATCH_STARTS = ("isam2", "windows")
 
 #: Fewest frames an object must be seen in to be fitted (a single silhouette fixes no depth).
 MIN_FRAMES = 2
@@ -111,8 +114,16 @@ class GraphOptions(Options):
         metres, metres or unitless): they fix what a symmetric shape leaves unobserved.
     box_sigma_px : float
         Standard deviation of a box side, pixels (quadric baseline).
+    batch_start : str
+        How the batch reaches the whole graph before its re-fit and last solve. ``"isam2"`` (the
+        default): iSAM2 frame by frame, as the ``graph-isam2`` method (with its rebuilds every
+        ``isam2_rescale_every`` frames), the batch's own initial fits (``batch_pose_noise_refit``).
+        ``"windows"``: Levenberg-Marquardt over growing windows (``batch_window``,
+        ``batch_free_frames``, ``batch_past_views``, ``window_relative_tolerance``). Measured on the
+        evaluation scenes (README "Issue 23, fifth pass"): the windows' result hinged on rounding
+        in their first solves, iSAM2's single Gauss-Newton steps from each new frame do not.
     batch_window : int
-        The batch solve adds this many frames at a time and solves the graph so far by
+        With ``batch_start = "windows"``, the batch solve adds this many frames at a time and solves the graph so far by
         Levenberg-Marquardt from the previous solution (0: all frames at once from the odometry).
         Measured: from dead-reckoned odometry, late frames' silhouettes miss their objects by more
         than the objects' size and one solve of the whole sequence can end in a wrong minimum.
@@ -217,6 +228,7 @@ class GraphOptions(Options):
     landmark_prior_sigma_m: float = 10.0
     shape_prior_sigma: float = 10.0
     box_sigma_px: float = 2.0
+    batch_start: str = "isam2"
     batch_window: int = 10
     batch_free_frames: int = 20
     batch_past_views: int = 20
@@ -249,6 +261,8 @@ class GraphOptions(Options):
                                "shape_prior_sigma", "box_sigma_px", "relative_tolerance",
                                "final_relative_tolerance", "final_max_lambda", "floor_sigma_m"),
                      nonnegative=("bounds_weight", "init_min_overlap", "refit_misfit", "outline_offset_sigma_px", "mismatch_ray_k"))
+        if self.batch_start not in BATCH_STARTS:
+            raise ValueError(f"batch_start must be one of {', '.join(BATCH_STARTS)}, got {self.batch_start!r}")
         if self.floor_z is not None and not np.isfinite(self.floor_z):
             raise ValueError(f"floor_z must be a finite height or None, got {self.floor_z}")
         for name in ("batch_pose_noise_refit", "isam2_refit"):

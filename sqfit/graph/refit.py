@@ -16,7 +16,7 @@ from .growth import landmark_fit, pose_matrices, view_factor
 from .landmark import landmark_to_superquadric
 from .problem import observation_at
 
-__all__ = ["refit_landmarks", "object_misfits", "landmark_overlap", "observation_set", "frames_before"]
+__all__ = ["RETRY_MISFIT", "RETRY_FRAMES", "refit_landmarks", "object_misfits", "landmark_overlap", "observation_set", "frames_before"]
 
 
 def object_misfits(problem, values, oids, options, rays_cache=None, bounded=frozenset(), n=None):
@@ -53,8 +53,15 @@ def landmark_overlap(values, oid, obs):
     return float(r_iou_m([sq], obs)[0])
 
 
+#: A landmark whose re-fit was not kept is tried again only once its misfit has grown by this
+#: factor or its frames by :data:`RETRY_FRAMES` since (:func:`refit_landmarks`).
+RETRY_MISFIT = 1.2
+#: See :data:`RETRY_MISFIT`.
+RETRY_FRAMES = 2.0
+
+
 def refit_landmarks(problem, values, oids, options, result, rays_cache=None, overlap_only=False, bounded=frozenset(), n=None,
-           pose_noise_refit=None):
+                    pose_noise_refit=None, rejected=None):
     """Re-initialise the landmarks left in a poor minimum by :func:`sqfit.fit` on all their frames at
     the solved poses: those whose silhouettes disagree (misfit above ``refit_misfit``; a refit is
     kept if its misfit is lower) and those whose silhouettes barely overlap their masks (R-IOU-M
@@ -64,7 +71,12 @@ def refit_landmarks(problem, values, oids, options, result, rays_cache=None, ove
     a landmark changed. ``rays_cache``: :func:`view_factor`; ``bounded``: the landmarks whose
     silhouette factors are bounded (their misfits measured so, :func:`object_misfits`). ``n``: only
     frames ``0 .. n-1`` are in ``values`` (iSAM2, mid-sequence; None: all). ``pose_noise_refit``:
-    :func:`landmark_fit`'s (None: ``batch_pose_noise_refit``)."""
+    :func:`landmark_fit`'s (None: ``batch_pose_noise_refit``). ``rejected``: a dict kept between
+    calls, ``{oid: (misfit, frames)}`` of the landmarks whose re-fit for a high misfit was not kept;
+    such a landmark is not re-fitted for its misfit again until it has grown by
+    :data:`RETRY_MISFIT` or its frames by :data:`RETRY_FRAMES` (a converged landmark a little above
+    ``refit_misfit`` was otherwise re-fitted, in vain, at every call: 13 of 23 fits on an
+    evaluation sequence)."""
     if options.refit_misfit <= 0:
         return False
     poses = pose_matrices(values, problem.n_frames if n is None else n)
@@ -81,8 +93,11 @@ def refit_landmarks(problem, values, oids, options, result, rays_cache=None, ove
             continue
         if oid not in misfits:
             misfits.update(object_misfits(problem, values, [oid], options, rays_cache, bounded, n))
-        before = misfits[oid]
+        before, seen = misfits[oid], len(frames_before(problem, oid, n))
         if before <= options.refit_misfit and not disjoint:
+            continue
+        last = None if rejected is None or disjoint else rejected.get(oid)
+        if last is not None and before < RETRY_MISFIT * last[0] and seen < RETRY_FRAMES * last[1]:
             continue
         landmark = landmark_fit(obs, options, pose_noise_refit, f"frames {list(frames)}").landmark
         if landmark is None:
@@ -92,7 +107,13 @@ def refit_landmarks(problem, values, oids, options, result, rays_cache=None, ove
         trial.update(S(oid), np.asarray(landmark[1], dtype=np.float64))
         after = object_misfits(problem, trial, [oid], options, rays_cache, bounded, n)[oid]
         overlap_after = landmark_overlap(trial, oid, obs)
-        if (overlap_after > overlap) if disjoint else (after < before):
+        kept = (overlap_after > overlap) if disjoint else (after < before)
+        if rejected is not None and not disjoint:
+            if kept:
+                rejected.pop(oid, None)
+            else:
+                rejected[oid] = (before, seen)
+        if kept:
             values.update(L(oid), gtsam.Pose3(landmark[0]))
             values.update(S(oid), np.asarray(landmark[1], dtype=np.float64))
             result.warnings.append(f"object {oid}: re-initialised from {len(frames)} of its {len(problem.frames[oid])} frames "

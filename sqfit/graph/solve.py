@@ -145,39 +145,32 @@ def superquadric_isam2(intrinsics, odometry_poses, observations, options=None):
 
 
 def _batch(problem, options):
-    """Levenberg-Marquardt over growing windows of ``batch_window`` frames, each solve started from
-    the previous one's solution, to ``window_relative_tolerance``; the windows before the last solve
-    with the past held fixed (``batch_free_frames``, :func:`_window_solve`), the last one the whole
-    graph. Then the re-fit of landmarks in poor minima (:func:`refit_landmarks`) and one solve of the whole
-    graph to ``final_relative_tolerance`` (GraphOptions)."""
+    """The whole graph from iSAM2 frame by frame (``batch_start = "isam2"``, :func:`_incremental`)
+    or from Levenberg-Marquardt over growing windows (``"windows"``, :func:`_windows`); then the
+    re-fit of landmarks in poor minima (:func:`refit_landmarks`) and one solve of the whole graph to
+    ``final_relative_tolerance`` (GraphOptions)."""
     clock, n = _Clock(), problem.n_frames
     result = SlamResult("graph", problem.odometry_poses.copy(), skipped=dict(problem.skipped),
                         warnings=list(problem.warnings))
     growth = Growth(problem, options, result, options.batch_pose_noise_refit)
-    graph, values, by_key = gtsam.NonlinearFactorGraph(), gtsam.Values(), {}
-    window = options.batch_window or n
     try:
-        for start in range(0, n, window):
-            end = min(start + window, n)
-            new_graph, new_values = growth.add(range(start, end))
-            for k in range(new_graph.size()):
-                for key in new_graph.at(k).keys():
-                    by_key.setdefault(key, []).append(graph.size())
-                graph.add(new_graph.at(k))
-            values.insert(new_values)
-            if end >= n:
-                values, iterations = _lm(graph, values, replace(options, relative_tolerance=options.window_relative_tolerance))
-            else:
-                iterations = _window_solve(graph, by_key, values, growth, end, options)
-            result.iterations += iterations
-            growth.update(values, end)
-        refit_landmarks(problem, values, growth.added, options, result, growth.rays, bounded=growth.bounded)
+        if options.batch_start == "isam2":
+            isam, values = _incremental(growth, options, result)
+            graph = isam.getFactorsUnsafe()
+            # iSAM2's last rebuild at frame n re-fitted at these values already
+            refit = not (options.isam2_refit and options.isam2_rescale_every and n % options.isam2_rescale_every == 0)
+        else:
+            graph, values = _windows(growth, options, result)
+            refit = True
+        if refit:
+            refit_landmarks(problem, values, growth.added, options, result, growth.rays, bounded=growth.bounded,
+                            rejected=growth.rejected)
         final = replace(options, relative_tolerance=options.final_relative_tolerance)
         for check in (False, True):
             # the last solve moves far along the scale valley: a landmark it drops into 3G's far,
             # huge minimum is re-fitted (overlap test only) and the graph solved once more
             if check and not refit_landmarks(problem, values, growth.added, options, result, growth.rays, overlap_only=True,
-                                    bounded=growth.bounded):
+                                             bounded=growth.bounded):
                 break
             if options.rescale:
                 values = _rescale(graph, values, n, growth.added, growth.batch)
@@ -185,7 +178,7 @@ def _batch(problem, options):
             values, iterations = _lm(graph, values, final, options.final_max_lambda)
             result.iterations += iterations
     except _SOLVER_ERRORS as exc:
-        result.fail("Levenberg-Marquardt", exc)
+        result.fail(getattr(exc, "where", "Levenberg-Marquardt"), exc)
     else:
         growth.finish()
         result.error_final = graph.error(values)
@@ -193,6 +186,31 @@ def _batch(problem, options):
         result.outline_offsets = _offsets(values, growth.added, options)
     result.seconds, result.cpu_seconds = clock.elapsed()
     return result
+
+
+def _windows(growth, options, result):
+    """Levenberg-Marquardt over growing windows of ``batch_window`` frames, each solve started from
+    the previous one's solution, to ``window_relative_tolerance``; the windows before the last solve
+    with the past held fixed (``batch_free_frames``, :func:`_window_solve`), the last one the whole
+    graph. ``(graph, values)``."""
+    n = growth.problem.n_frames
+    graph, values, by_key = gtsam.NonlinearFactorGraph(), gtsam.Values(), {}
+    window = options.batch_window or n
+    for start in range(0, n, window):
+        end = min(start + window, n)
+        new_graph, new_values = growth.add(range(start, end))
+        for k in range(new_graph.size()):
+            for key in new_graph.at(k).keys():
+                by_key.setdefault(key, []).append(graph.size())
+            graph.add(new_graph.at(k))
+        values.insert(new_values)
+        if end >= n:
+            values, iterations = _lm(graph, values, replace(options, relative_tolerance=options.window_relative_tolerance))
+        else:
+            iterations = _window_solve(graph, by_key, values, growth, end, options)
+        result.iterations += iterations
+        growth.update(values, end)
+    return graph, values
 
 
 def _rescale(graph, values, n, oids, batch):
@@ -233,27 +251,13 @@ def _isam2(problem, options):
     clock, n = _Clock(), problem.n_frames
     result = SlamResult("graph-isam2", problem.odometry_poses.copy(), skipped=dict(problem.skipped),
                         warnings=list(problem.warnings), frame_seconds=np.zeros(n), frame_cpu_seconds=np.zeros(n))
-    params = gtsam.ISAM2Params()
-    if options.isam2_dogleg:
-        params.setOptimizationParams(gtsam.ISAM2DoglegParams())
-    params.setRelinearizeThreshold(options.isam2_relinearize_threshold)
-    params.relinearizeSkip = 1
-    isam = gtsam.ISAM2(params)
     growth = Growth(problem, options, result)
-    every = options.isam2_rescale_every
-    for i in range(n):
-        step = _Clock()
-        try:
-            isam.update(*growth.add([i]))
-            estimate = isam.calculateEstimate()
-            if every and (i + 1) % every == 0 and growth.added:
-                isam, estimate = _isam2_rescaled(isam, estimate, params, i + 1, growth, options, result)
-        except _SOLVER_ERRORS as exc:
-            result.fail(f"iSAM2 update at frame {i}", exc)
-            result.seconds, result.cpu_seconds = clock.elapsed()
-            return result
-        growth.update(estimate, i + 1)
-        result.frame_seconds[i], result.frame_cpu_seconds[i] = step.elapsed()
+    try:
+        isam, estimate = _incremental(growth, options, result)
+    except _SOLVER_ERRORS as exc:
+        result.fail(getattr(exc, "where", "iSAM2"), exc)
+        result.seconds, result.cpu_seconds = clock.elapsed()
+        return result
     growth.finish()
     result.iterations = n
     result.error_final = isam.getFactorsUnsafe().error(estimate)
@@ -261,6 +265,34 @@ def _isam2(problem, options):
     result.outline_offsets = _offsets(estimate, sorted(growth.added), options)
     result.seconds, result.cpu_seconds = clock.elapsed()
     return result
+
+
+def _incremental(growth, options, result):
+    """iSAM2 over the sequence, one update per frame, rebuilt every ``isam2_rescale_every`` frames
+    (:func:`_isam2_rescaled`); ``(isam, estimate)``. Each frame's wall and CPU time goes to
+    ``result.frame_seconds`` and ``result.frame_cpu_seconds`` when those are arrays. A solver error
+    is raised with the attribute ``where`` naming the frame."""
+    params = gtsam.ISAM2Params()
+    if options.isam2_dogleg:
+        params.setOptimizationParams(gtsam.ISAM2DoglegParams())
+    params.setRelinearizeThreshold(options.isam2_relinearize_threshold)
+    params.relinearizeSkip = 1
+    isam = gtsam.ISAM2(params)
+    every = options.isam2_rescale_every
+    for i in range(growth.problem.n_frames):
+        step = _Clock()
+        try:
+            isam.update(*growth.add([i]))
+            estimate = isam.calculateEstimate()
+            if every and (i + 1) % every == 0 and growth.added:
+                isam, estimate = _isam2_rescaled(isam, estimate, params, i + 1, growth, options, result)
+        except _SOLVER_ERRORS as exc:
+            exc.where = f"iSAM2 update at frame {i}"
+            raise
+        growth.update(estimate, i + 1)
+        if result.frame_seconds is not None:
+            result.frame_seconds[i], result.frame_cpu_seconds[i] = step.elapsed()
+    return isam, estimate
 
 
 def _isam2_rescaled(isam, estimate, params, n, growth, options, result):
@@ -275,7 +307,8 @@ def _isam2_rescaled(isam, estimate, params, n, growth, options, result):
     graph = isam.getFactorsUnsafe()
     moved = _rescale(graph, estimate, n, growth.added, growth.batch)
     refitted = options.isam2_refit and refit_landmarks(growth.problem, moved, growth.added, options, result, growth.rays,
-                                              bounded=growth.bounded, n=n, pose_noise_refit=growth.pose_noise_refit)
+                                              bounded=growth.bounded, n=n, pose_noise_refit=growth.pose_noise_refit,
+                                              rejected=growth.rejected)
     if not refitted and abs(moved.atPose3(X(n - 1)).translation() - estimate.atPose3(X(n - 1)).translation()).max() < 1e-6:
         return isam, estimate
     fresh = gtsam.ISAM2(params)

@@ -80,7 +80,7 @@ example: sqsim slam scenes/sequence.toml -o /tmp/slam --sequences 5 --workers 2"
     parser.add_argument("--methods", default=None,
                         help="comma-separated subset of odometry,fixed,quadric,graph,graph-isam2 (default: all)")
     parser.add_argument("--options", default=None,
-                        help="sqfit.graph.GraphOptions fields as JSON, e.g. '{\"batch_window\": 15}'; they override "
+                        help="sqfit.graph.GraphOptions fields as JSON, e.g. '{\"batch_start\": \"windows\"}'; they override "
                         "what --scene-odometry-noise and --floor give")
     parser.add_argument("--scene-odometry-noise", action="store_true",
                         help="give the graph the scene's odometry noise as its odometry sigmas "
