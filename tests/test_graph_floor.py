@@ -84,9 +84,54 @@ def test_a_known_floor_gives_the_graph_the_scale_the_odometry_gets_wrong():
     assert ious["floor"] > ious["odometry's scale"] + 0.03, ious
 
 
+def test_floor_factors_are_replaced_and_nothing_else():
+    T, s = landmark.superquadric_to_landmark(TILTED)
+    values, g = gtsam.Values(), gtsam.NonlinearFactorGraph()
+    for oid in (1, 2):
+        values.insert(L(oid), gtsam.Pose3(T))
+        values.insert(S(oid), s)
+        g.add(gtsam.PriorFactorPose3(L(oid), gtsam.Pose3(T), gtsam.noiseModel.Isotropic.Sigma(6, 1.0)))
+        g.add(factors.floor_factor(gtsam.noiseModel.Isotropic.Sigma(1, 0.01), L(oid), S(oid), 0.25))
+        g.add(factors.bounds_factor(S(oid), 1.0))
+    tight = factors.with_floor_factors(g, [1], gtsam.noiseModel.Isotropic.Sigma(1, 0.002), 0.25)
+    assert g.size() == tight.size() == 6
+    floors = [tight.at(k) for k in range(tight.size()) if tuple(tight.at(k).keys()) == (L(1), S(1))]
+    assert len(floors) == 1
+    r = floor.floor_residual(T, s, 0.25)[0][0]
+    assert floors[0].error(values) == pytest.approx(0.5 * (r / 0.002) ** 2)
+    # landmark 2's floor factor and every other factor unchanged
+    assert tight.error(values) - floors[0].error(values) == pytest.approx(g.error(values) - 0.5 * (r / 0.01) ** 2)
+
+
+def test_a_tighter_floor_in_the_last_solves_only(monkeypatch):
+    from sqfit.graph import solve
+
+    seq = synthetic_sequence(0, n_frames=12, n_objects=2)
+    seen = []
+    real = solve._lm
+
+    def lm(g, values, options, max_lambda=None):
+        seen.append(g)
+        return real(g, values, options, max_lambda)
+
+    monkeypatch.setattr(solve, "_lm", lm)
+    base = {"odometry_sigma_m": 0.03, "floor_z": 0.0}
+    runs = {sigma: graph.run(seq.intrinsics, seq.odometry_poses, seq.observations, ["graph"],
+                             {**base, "final_floor_sigma_m": sigma})["graph"] for sigma in (None, 0.002)}
+    assert all(r.ok for r in runs.values())
+    assert np.abs(runs[None].poses - runs[0.002].poses).max() > 1e-6
+    # the last solves replace the floor factors (as many factors as before)
+    assert len(seen) >= 2 and seen[-1].size() == seen[0].size()
+    lowest = {sigma: [abs(floor.lowest_point_height(*landmark.superquadric_to_landmark(sq))) for sq in r.objects.values()]
+              for sigma, r in runs.items()}
+    assert max(lowest[0.002]) < 0.005, lowest
+
+
 @pytest.mark.parametrize("options, match", [
     ({"floor_z": float("nan")}, "floor_z must be a finite height or None"),
     ({"floor_sigma_m": 0.0}, "floor_sigma_m must be a finite number > 0"),
+    ({"final_floor_sigma_m": 0.0}, "final_floor_sigma_m must be a positive number or None"),
+    ({"final_floor_sigma_m": float("inf")}, "final_floor_sigma_m must be a positive number or None"),
 ])
 def test_floor_options_are_checked(options, match):
     with pytest.raises(ValueError, match=match):

@@ -20,12 +20,13 @@ from dataclasses import fields
 
 import gtsam
 import numpy as np
+from gtsam.symbol_shorthand import L, S
 
 from .floor import floor_residual
 from .landmark import StackedRays, batch_silhouette_residuals, bounded_residuals, bounds_residuals, stack_rays
 from .quadric import box_residuals
 
-__all__ = ["SilhouetteFactors", "silhouette_factor", "bounds_factor", "floor_factor", "box_factor"]
+__all__ = ["SilhouetteFactors", "silhouette_factor", "bounds_factor", "floor_factor", "with_floor_factors", "box_factor"]
 
 
 class SilhouetteFactors:
@@ -265,6 +266,21 @@ def floor_factor(noise, pose_key, shape_key, floor_z):
         return r
 
     return gtsam.CustomFactor(noise, [pose_key, shape_key], error)
+
+
+def with_floor_factors(graph, oids, noise, floor_z):
+    """A copy of ``graph`` whose floor factors on the landmarks ``oids`` (keys ``L(oid), S(oid)``:
+    :func:`floor_factor`, the superquadric graph's only factor on exactly a landmark's pose and
+    size/shape) are replaced by new ones with ``noise``; the other factors are shared."""
+    floors = {(L(oid), S(oid)) for oid in oids}
+    out = gtsam.NonlinearFactorGraph()
+    for k in range(graph.size()):
+        factor = graph.at(k)
+        if tuple(factor.keys()) not in floors:
+            out.add(factor)
+    for oid in oids:
+        out.add(floor_factor(noise, L(oid), S(oid), floor_z))
+    return out
 
 
 def box_factor(noise, camera_key, pose_key, radii_key, K, box):

@@ -16,7 +16,7 @@ from .growth import landmark_fit, pose_matrices, view_factor
 from .landmark import landmark_to_superquadric
 from .problem import observation_at
 
-__all__ = ["RETRY_MISFIT", "RETRY_FRAMES", "refit_landmarks", "object_misfits", "landmark_overlap", "observation_set", "frames_before"]
+__all__ = ["RETRY_MISFIT", "RETRY_FRAMES", "OVERLAP_FRAMES", "refit_landmarks", "object_misfits", "landmark_overlap", "observation_set", "frames_before"]
 
 
 def object_misfits(problem, values, oids, options, rays_cache=None, bounded=frozenset(), n=None):
@@ -58,6 +58,10 @@ def landmark_overlap(values, oid, obs):
 RETRY_MISFIT = 1.2
 #: See :data:`RETRY_MISFIT`.
 RETRY_FRAMES = 2.0
+#: The overlap test of :func:`refit_landmarks` (R-IOU-M below ``POOR_FIT_R_IOU_M``: 3G's far, huge
+#: minimum) uses at most this many of the landmark's frames, evenly spread; the fit up to
+#: ``GraphOptions.refit_max_frames``. The test runs on every landmark at every call.
+OVERLAP_FRAMES = 4
 
 
 def refit_landmarks(problem, values, oids, options, result, rays_cache=None, overlap_only=False, bounded=frozenset(), n=None,
@@ -66,8 +70,9 @@ def refit_landmarks(problem, values, oids, options, result, rays_cache=None, ove
     the solved poses: those whose silhouettes disagree (misfit above ``refit_misfit``; a refit is
     kept if its misfit is lower) and those whose silhouettes barely overlap their masks (R-IOU-M
     below ``sqfit.constants.POOR_FIT_R_IOU_M``, 3G's "far, huge" minimum, whose misfit is low; a
-    refit is kept if it overlaps more). The overlap and the fit use at most ``refit_max_frames`` of
-    the landmark's frames (:func:`sqfit.graph.fixedlag.evenly_spread`). ``overlap_only``: only the second kind. Returns whether
+    refit is kept if it overlaps more). The overlap uses at most :data:`OVERLAP_FRAMES` of the
+    landmark's frames, the fit at most ``refit_max_frames`` (evenly spread,
+    :func:`sqfit.graph.fixedlag.evenly_spread`). ``overlap_only``: only the second kind. Returns whether
     a landmark changed. ``rays_cache``: :func:`view_factor`; ``bounded``: the landmarks whose
     silhouette factors are bounded (their misfits measured so, :func:`object_misfits`). ``n``: only
     frames ``0 .. n-1`` are in ``values`` (iSAM2, mid-sequence; None: all). ``pose_noise_refit``:
@@ -85,35 +90,39 @@ def refit_landmarks(problem, values, oids, options, result, rays_cache=None, ove
     misfits = {} if overlap_only else object_misfits(problem, values, oids, options, rays_cache, bounded, n)
     changed = False
     for oid in oids:
-        frames = evenly_spread(frames_before(problem, oid, n), options.refit_max_frames)
-        obs = observation_set(problem, oid, poses, frames)
-        overlap = landmark_overlap(values, oid, obs)
+        seen = frames_before(problem, oid, n)
+        tested = observation_set(problem, oid, poses, evenly_spread(seen, OVERLAP_FRAMES))
+        overlap = landmark_overlap(values, oid, tested)
         disjoint = overlap < C.POOR_FIT_R_IOU_M
         if overlap_only and not disjoint:
             continue
         if oid not in misfits:
             misfits.update(object_misfits(problem, values, [oid], options, rays_cache, bounded, n))
-        before, seen = misfits[oid], len(frames_before(problem, oid, n))
+        before = misfits[oid]
         if before <= options.refit_misfit and not disjoint:
             continue
         last = None if rejected is None or disjoint else rejected.get(oid)
-        if last is not None and before < RETRY_MISFIT * last[0] and seen < RETRY_FRAMES * last[1]:
+        if last is not None and before < RETRY_MISFIT * last[0] and len(seen) < RETRY_FRAMES * last[1]:
             continue
-        landmark = landmark_fit(obs, options, pose_noise_refit, f"frames {list(frames)}").landmark
+        frames = evenly_spread(seen, options.refit_max_frames)
+        landmark = landmark_fit(observation_set(problem, oid, poses, frames), options, pose_noise_refit,
+                                f"frames {list(frames)}").landmark
         if landmark is None:
             continue
         trial = gtsam.Values(values)
         trial.update(L(oid), gtsam.Pose3(landmark[0]))
         trial.update(S(oid), np.asarray(landmark[1], dtype=np.float64))
         after = object_misfits(problem, trial, [oid], options, rays_cache, bounded, n)[oid]
-        overlap_after = landmark_overlap(trial, oid, obs)
+        overlap_after = landmark_overlap(trial, oid, tested) if disjoint else None
         kept = (overlap_after > overlap) if disjoint else (after < before)
         if rejected is not None and not disjoint:
             if kept:
                 rejected.pop(oid, None)
             else:
-                rejected[oid] = (before, seen)
+                rejected[oid] = (before, len(seen))
         if kept:
+            if overlap_after is None:
+                overlap_after = landmark_overlap(trial, oid, tested)
             values.update(L(oid), gtsam.Pose3(landmark[0]))
             values.update(S(oid), np.asarray(landmark[1], dtype=np.float64))
             result.warnings.append(f"object {oid}: re-initialised from {len(frames)} of its {len(problem.frames[oid])} frames "

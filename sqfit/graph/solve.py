@@ -39,7 +39,7 @@ import numpy as np
 from gtsam.symbol_shorthand import L, O, Q, S, X
 
 from ..fitting.grazing import OFFSET_UNIT_PX
-from .factors import box_factor
+from .factors import box_factor, with_floor_factors
 from .fixedlag import condition_on_past
 from .growth import (Growth, initial_fit, landmark_keys, noise_models, pose_factors, pose_matrices, robust_noise,
                      skip_object)
@@ -166,6 +166,9 @@ def _batch(problem, options):
             refit_landmarks(problem, values, growth.added, options, result, growth.rays, bounded=growth.bounded,
                             rejected=growth.rejected)
         final = replace(options, relative_tolerance=options.final_relative_tolerance)
+        if options.final_floor_sigma_m is not None and growth.floored:
+            graph = with_floor_factors(graph, growth.floored, robust_noise(1, options.final_floor_sigma_m, options.huber_k),
+                                       options.floor_z)
         for check in (False, True):
             # the last solve moves far along the scale valley: a landmark it drops into 3G's far,
             # huge minimum is re-fitted (overlap test only) and the graph solved once more
