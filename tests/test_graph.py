@@ -440,6 +440,12 @@ def test_a_landmark_left_in_a_poor_minimum_is_refitted(small):
     assert refit.object_misfits(prob, values, [2], options, cache)[2] == pytest.approx(misfit[2], rel=1e-9)
     assert sorted(cache) == [(f, 2) for f in prob.frames[2]]
     assert refit.object_misfits(prob, values, [2], options, cache)[2] == pytest.approx(misfit[2], rel=1e-9)
+    # at most `most` views, evenly spread: those views' misfit
+    frames = prob.frames[2]
+    assert refit.object_misfits(prob, values, [2], options, most=len(frames))[2] == pytest.approx(misfit[2], rel=1e-9)
+    two = gproblem.check_inputs(seq.intrinsics, seq.true_poses, {(f, 2): seq.observations[f, 2] for f in (frames[0], frames[-1])})
+    assert refit.object_misfits(prob, values, [2], options, most=2)[2] == pytest.approx(
+        refit.object_misfits(two, values, [2], options)[2], rel=1e-9)
     assert misfit[2] > options.refit_misfit > max(misfit[1], misfit[3]), misfit
     result = graph.SlamResult("graph", seq.true_poses)
     # the check after the batch's last solve looks at the overlap only: this minimum overlaps its masks

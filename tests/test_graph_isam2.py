@@ -97,7 +97,7 @@ def test_a_refit_not_kept_is_retried_only_when_misfit_or_frames_grew(monkeypatch
     n, rejected = 8, {}
     result = graph.SlamResult("graph-isam2", seq.true_poses)
     values = _poor_minimum_values(seq, n)
-    misfit = refit.object_misfits(prob, values, [2], options, n=n)[2]
+    misfit = refit.object_misfits(prob, values, [2], options, n=n, most=options.refit_max_frames)[2]
     assert misfit > options.refit_misfit
     assert not refit.refit_landmarks(prob, values, list(seq.objects), options, result, n=n, rejected=rejected)
     assert len(fits) == 1 and set(rejected) == {2} and rejected[2] == (pytest.approx(misfit), len(

@@ -19,15 +19,16 @@ from .problem import observation_at
 __all__ = ["RETRY_MISFIT", "RETRY_FRAMES", "OVERLAP_FRAMES", "refit_landmarks", "object_misfits", "landmark_overlap", "observation_set", "frames_before"]
 
 
-def object_misfits(problem, values, oids, options, rays_cache=None, bounded=frozenset(), n=None):
+def object_misfits(problem, values, oids, options, rays_cache=None, bounded=frozenset(), n=None, most=0):
     """RMS whitened ray residual of each object's silhouette factors at ``values`` (1: a typical ray
     one ``silhouette_sigma`` off), ``{oid: float}``; the factors of all ``oids`` evaluated together
     (those of the landmarks in ``bounded`` bounded, as in the graph), in frames ``0 .. n-1`` (all
-    with None)."""
+    with None), at most ``most`` of them per object, evenly spread
+    (:func:`sqfit.graph.fixedlag.evenly_spread`; 0: all)."""
     batch, factors = SilhouetteFactors(), {}
     for oid in oids:
         factors[oid] = [view_factor(problem, f, oid, options, batch, rays_cache, oid in bounded)
-                        for f in frames_before(problem, oid, n)]
+                        for f in evenly_spread(frames_before(problem, oid, n), most)]
     return {oid: float(np.sqrt(2.0 * sum(factor.error(values) for factor in fs) / (len(fs) * options.n_contour)))
             for oid, fs in factors.items()}
 
@@ -71,8 +72,8 @@ def refit_landmarks(problem, values, oids, options, result, rays_cache=None, ove
     kept if its misfit is lower) and those whose silhouettes barely overlap their masks (R-IOU-M
     below ``sqfit.constants.POOR_FIT_R_IOU_M``, 3G's "far, huge" minimum, whose misfit is low; a
     refit is kept if it overlaps more). The overlap uses at most :data:`OVERLAP_FRAMES` of the
-    landmark's frames, the fit at most ``refit_max_frames`` (evenly spread,
-    :func:`sqfit.graph.fixedlag.evenly_spread`). ``overlap_only``: only the second kind. Returns whether
+    landmark's frames, the misfit and the fit at most ``refit_max_frames`` (evenly spread,
+    :func:`sqfit.graph.fixedlag.evenly_spread`), so a call's cost does not grow with the sequence. ``overlap_only``: only the second kind. Returns whether
     a landmark changed. ``rays_cache``: :func:`view_factor`; ``bounded``: the landmarks whose
     silhouette factors are bounded (their misfits measured so, :func:`object_misfits`). ``n``: only
     frames ``0 .. n-1`` are in ``values`` (iSAM2, mid-sequence; None: all). ``pose_noise_refit``:
@@ -87,7 +88,8 @@ def refit_landmarks(problem, values, oids, options, result, rays_cache=None, ove
     poses = pose_matrices(values, problem.n_frames if n is None else n)
     if pose_noise_refit is None:
         pose_noise_refit = options.batch_pose_noise_refit
-    misfits = {} if overlap_only else object_misfits(problem, values, oids, options, rays_cache, bounded, n)
+    most = options.refit_max_frames
+    misfits = {} if overlap_only else object_misfits(problem, values, oids, options, rays_cache, bounded, n, most)
     changed = False
     for oid in oids:
         seen = frames_before(problem, oid, n)
@@ -97,7 +99,7 @@ def refit_landmarks(problem, values, oids, options, result, rays_cache=None, ove
         if overlap_only and not disjoint:
             continue
         if oid not in misfits:
-            misfits.update(object_misfits(problem, values, [oid], options, rays_cache, bounded, n))
+            misfits.update(object_misfits(problem, values, [oid], options, rays_cache, bounded, n, most))
         before = misfits[oid]
         if before <= options.refit_misfit and not disjoint:
             continue
@@ -112,7 +114,7 @@ def refit_landmarks(problem, values, oids, options, result, rays_cache=None, ove
         trial = gtsam.Values(values)
         trial.update(L(oid), gtsam.Pose3(landmark[0]))
         trial.update(S(oid), np.asarray(landmark[1], dtype=np.float64))
-        after = object_misfits(problem, trial, [oid], options, rays_cache, bounded, n)[oid]
+        after = object_misfits(problem, trial, [oid], options, rays_cache, bounded, n, most)[oid]
         overlap_after = landmark_overlap(trial, oid, tested) if disjoint else None
         kept = (overlap_after > overlap) if disjoint else (after < before)
         if rejected is not None and not disjoint:
