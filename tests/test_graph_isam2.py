@@ -157,3 +157,32 @@ def test_an_isam2_error_in_the_batch_names_the_frame(monkeypatch, seq):
 def test_batch_start_is_checked():
     with pytest.raises(ValueError, match="batch_start must be one of isam2, windows, got 'lm'"):
         graph.GraphOptions(batch_start="lm")
+
+
+@pytest.mark.parametrize("n, options, expected", [
+    (50, {}, [10, 20, 30, 40, 50]),  # the evaluation scenes' lengths: every 10 frames
+    (160, {}, [10, 20, 30, 40, 50, 63, 79, 99, 124, 155]),  # then 25 % of the frames so far later
+    (45, {"isam2_rescale_growth": 0}, [10, 20, 30, 40]),
+    (300, {"isam2_rescale_every": 0}, []),
+])
+def test_isam2_rebuilds_come_later_as_the_sequence_grows(n, options, expected):
+    assert sorted(solve.rebuild_frames(n, graph.GraphOptions(**options))) == expected
+
+
+def test_isam2_rebuilds_follow_the_schedule(monkeypatch, seq):
+    calls = []
+    real = solve.refit_landmarks
+
+    def refit(*args, **kw):
+        calls.append(kw.get("n"))
+        return real(*args, **kw)
+
+    monkeypatch.setattr(solve, "refit_landmarks", refit)
+    graph.run(seq.intrinsics, seq.odometry_poses, seq.observations, ["graph-isam2"],
+              {"isam2_rescale_every": 3, "isam2_rescale_growth": 1.0})
+    assert calls == [6, 12]  # of 16 frames; at 3 no landmark is in the graph yet, nothing to rebuild
+
+
+def test_isam2_rescale_growth_is_checked():
+    with pytest.raises(ValueError, match="isam2_rescale_growth"):
+        graph.GraphOptions(isam2_rescale_growth=-0.1)

@@ -182,6 +182,11 @@ class GraphOptions(Options):
         Every this many frames, iSAM2 is rebuilt on the same factors at its estimate moved to the
         best scale (:mod:`sqfit.graph.scale`): its partial relinearisation never moves the whole map
         together, so the scale set by the first landmarks' first frames sticks (0: never).
+    isam2_rescale_growth : float
+        Once ``isam2_rescale_every`` frames are less than this fraction of the frames so far, the
+        rebuilds come that fraction later instead (:func:`sqfit.graph.solve.rebuild_frames`: at
+        0.25 after 10, 20, 30, 40, 50, 63, 79, 99 frames), so their total cost grows with the
+        length, not with its square; 0: every ``isam2_rescale_every`` frames.
     isam2_refit : bool
         At each of those rebuilds, the landmarks left in a poor minimum are re-fitted first, as after
         the batch solve (``refit_misfit``; on the frames so far): without it iSAM2 never re-fits a
@@ -246,6 +251,7 @@ class GraphOptions(Options):
     refit_max_frames: int = 12
     isam2_relinearize_threshold: float = 0.01
     isam2_rescale_every: int = 10
+    isam2_rescale_growth: float = 0.25
     isam2_refit: bool = True
     isam2_dogleg: bool = False
     outline_offset_sigma_px: float = 0.0
@@ -270,7 +276,7 @@ class GraphOptions(Options):
                                "isam2_relinearize_threshold", "window_relative_tolerance", "landmark_prior_sigma_m",
                                "shape_prior_sigma", "box_sigma_px", "relative_tolerance",
                                "final_relative_tolerance", "final_max_lambda", "floor_sigma_m"),
-                     nonnegative=("bounds_weight", "init_min_overlap", "refit_misfit", "outline_offset_sigma_px", "mismatch_ray_k"))
+                     nonnegative=("isam2_rescale_growth", "bounds_weight", "init_min_overlap", "refit_misfit", "outline_offset_sigma_px", "mismatch_ray_k"))
         if self.batch_start not in BATCH_STARTS:
             raise ValueError(f"batch_start must be one of {', '.join(BATCH_STARTS)}, got {self.batch_start!r}")
         if self.final_floor_sigma_m is not None and not (np.isfinite(self.final_floor_sigma_m)

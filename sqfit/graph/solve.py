@@ -49,7 +49,7 @@ from .quadric import initialise_quadric, observation_box, quadric_to_superquadri
 from .refit import refit_landmarks
 from .scale import best_scale, rescaled, scale_dependent_factors
 
-__all__ = ["METHODS", "run", "odometry", "fixed_pose_fits", "superquadric_graph", "superquadric_isam2",
+__all__ = ["METHODS", "run", "rebuild_frames", "odometry", "fixed_pose_fits", "superquadric_graph", "superquadric_isam2",
            "quadric_graph"]
 
 
@@ -158,7 +158,7 @@ def _batch(problem, options):
             isam, values = _incremental(growth, options, result)
             graph = isam.getFactorsUnsafe()
             # iSAM2's last rebuild at frame n re-fitted at these values already
-            refit = not (options.isam2_refit and options.isam2_rescale_every and n % options.isam2_rescale_every == 0)
+            refit = not (options.isam2_refit and n in rebuild_frames(n, options))
         else:
             graph, values = _windows(growth, options, result)
             refit = True
@@ -281,13 +281,13 @@ def _incremental(growth, options, result):
     params.setRelinearizeThreshold(options.isam2_relinearize_threshold)
     params.relinearizeSkip = 1
     isam = gtsam.ISAM2(params)
-    every = options.isam2_rescale_every
+    rebuilds = rebuild_frames(growth.problem.n_frames, options)
     for i in range(growth.problem.n_frames):
         step = _Clock()
         try:
             isam.update(*growth.add([i]))
             estimate = isam.calculateEstimate()
-            if every and (i + 1) % every == 0 and growth.added:
+            if i + 1 in rebuilds and growth.added:
                 isam, estimate = _isam2_rescaled(isam, estimate, params, i + 1, growth, options, result)
         except _SOLVER_ERRORS as exc:
             exc.where = f"iSAM2 update at frame {i}"
@@ -296,6 +296,19 @@ def _incremental(growth, options, result):
         if result.frame_seconds is not None:
             result.frame_seconds[i], result.frame_cpu_seconds[i] = step.elapsed()
     return isam, estimate
+
+
+def rebuild_frames(n, options):
+    """The frame counts (<= ``n``) after which iSAM2 is rebuilt (:func:`_isam2_rescaled`): the first
+    at ``isam2_rescale_every``, each next one ``isam2_rescale_every`` frames later or, once that is
+    less, ``isam2_rescale_growth`` times the frames so far later (a rebuild costs as much as the
+    graph, so at a fixed interval their total grew with the square of the length: 80 frames cost
+    2.4 times 40). Empty when ``isam2_rescale_every`` is 0."""
+    every, frames, out = options.isam2_rescale_every, options.isam2_rescale_every, set()
+    while every and frames <= n:
+        out.add(frames)
+        frames = max(frames + every, int(np.ceil(frames * (1.0 + options.isam2_rescale_growth))))
+    return out
 
 
 def _isam2_rescaled(isam, estimate, params, n, growth, options, result):
