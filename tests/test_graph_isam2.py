@@ -186,3 +186,41 @@ def test_isam2_rebuilds_follow_the_schedule(monkeypatch, seq):
 def test_isam2_rescale_growth_is_checked():
     with pytest.raises(ValueError, match="isam2_rescale_growth"):
         graph.GraphOptions(isam2_rescale_growth=-0.1)
+
+
+def test_odometry_chi2_is_about_its_degrees_of_freedom_at_the_truth():
+    # synthetic odometry drifts by the default noise model: chi-square ~6 per step at the true poses
+    seq = synthetic_sequence(3, n_frames=40, n_objects=1)
+    prob = gproblem.check_inputs(seq.intrinsics, seq.odometry_poses, seq.observations)
+    from sqfit.graph.growth import noise_models, pose_factors
+
+    g = pose_factors(prob, noise_models(graph.GraphOptions()), range(40))
+    truth = gtsam.Values()
+    for i, T in enumerate(seq.true_poses):
+        truth.insert(X(i), gtsam.Pose3(T))
+    assert 3.0 < solve.odometry_chi2(g, truth) < 10.0
+    odo = gtsam.Values()
+    for i, T in enumerate(seq.odometry_poses):
+        odo.insert(X(i), gtsam.Pose3(T))
+    assert solve.odometry_chi2(g, odo) < 1e-12  # the odometry agrees with itself
+    assert solve.odometry_chi2(gtsam.NonlinearFactorGraph(), odo) == 0.0
+
+
+@pytest.mark.parametrize("chi2, fallback", [(1e3, True), (1.0, False)])
+def test_a_batch_from_isam2_far_from_the_odometry_is_solved_again_from_windows(monkeypatch, seq, chi2, fallback):
+    starts = []
+    real = solve._batch_from
+
+    def batch_from(problem, options, start):
+        starts.append(start)
+        result, measured = real(problem, options, start)
+        return result, (chi2 if start == "isam2" else measured)
+
+    monkeypatch.setattr(solve, "_batch_from", batch_from)
+    res = graph.run(seq.intrinsics, seq.odometry_poses, seq.observations, ["graph"], {"floor_z": 0.0})["graph"]
+    assert res.ok and starts == (["isam2", "windows"] if fallback else ["isam2"])
+    notes = [w for w in res.warnings if "inconsistent with the odometry" in w]
+    assert len(notes) == fallback
+    starts.clear()  # without a floor no test
+    graph.run(seq.intrinsics, seq.odometry_poses, seq.observations, ["graph"])
+    assert starts == ["isam2"]

@@ -16,13 +16,17 @@ Methods (every one returns a :class:`sqfit.graph.problem.SlamResult`):
 - ``odometry``: the odometry poses, no objects;
 - ``fixed``: per-object :func:`sqfit.fit` on all frames that see the object, at the odometry
   poses (no joint optimisation);
-- ``graph``: the graph above, batch Levenberg-Marquardt over growing windows of ``batch_window``
-  frames, each solve from the previous solution and the new frames chained by the odometry; then
-  the re-fit of landmarks in poor minima, the move to the best scale (:mod:`sqfit.graph.scale`) and
-  a last solve to ``final_relative_tolerance``;
+- ``graph``: the graph above, grown frame by frame by iSAM2 as ``graph-isam2`` below
+  (``batch_start = "isam2"``; ``"windows"``: batch Levenberg-Marquardt over growing windows of
+  ``batch_window`` frames, each solve from the previous solution and the new frames chained by the
+  odometry); then the re-fit of landmarks in poor minima, the move to the best scale
+  (:mod:`sqfit.graph.scale`) and a last solve to ``final_relative_tolerance``, its floor factors at
+  ``final_floor_sigma_m``; with a floor, a solution from iSAM2 far from the odometry
+  (``batch_odometry_chi2``) is solved again from windows;
 - ``graph-isam2``: the same graph grown frame by frame with iSAM2 (one update per frame; a landmark
   joins once its first frames are enough for its initial fit (``init_frames``, ``init_parallax_deg``),
-  or at the last frame if they never are); every ``isam2_rescale_every`` frames the landmarks in
+  or at the last frame if they never are); every ``isam2_rescale_every`` frames (later ones further
+  apart, :func:`rebuild_frames`) the landmarks in
   poor minima are re-fitted on the frames so far and iSAM2 is rebuilt at the best scale;
 - ``quadric``: QuadricSLAM (:mod:`sqfit.graph.quadric`): ellipsoid landmarks ``L(j)``, radii
   ``Q(j)``, one box factor per (frame, object) whose mask does not touch the image border, batch
@@ -49,7 +53,7 @@ from .quadric import initialise_quadric, observation_box, quadric_to_superquadri
 from .refit import refit_landmarks
 from .scale import best_scale, rescaled, scale_dependent_factors
 
-__all__ = ["METHODS", "run", "rebuild_frames", "odometry", "fixed_pose_fits", "superquadric_graph", "superquadric_isam2",
+__all__ = ["METHODS", "run", "rebuild_frames", "odometry_chi2", "odometry", "fixed_pose_fits", "superquadric_graph", "superquadric_isam2",
            "quadric_graph"]
 
 
@@ -148,13 +152,39 @@ def _batch(problem, options):
     """The whole graph from iSAM2 frame by frame (``batch_start = "isam2"``, :func:`_incremental`)
     or from Levenberg-Marquardt over growing windows (``"windows"``, :func:`_windows`); then the
     re-fit of landmarks in poor minima (:func:`refit_landmarks`) and one solve of the whole graph to
-    ``final_relative_tolerance`` (GraphOptions)."""
+    ``final_relative_tolerance`` (GraphOptions). With a floor (``floor_z``), a solution from iSAM2
+    whose odometry factors' mean chi-square (:func:`odometry_chi2`) exceeds ``batch_odometry_chi2``
+    is solved again from windows, and the one with the lower error kept (a warning says so)."""
+    clock = _Clock()
+    result, chi2 = _batch_from(problem, options, options.batch_start)
+    if result.ok and options.batch_start == "isam2" and options.floor_z is not None and chi2 > options.batch_odometry_chi2:
+        # iSAM2's undamped steps ran off (household sequences with a floor): the windows instead
+        fallback, chi2_windows = _batch_from(problem, options, "windows")
+        note = (f"batch from iSAM2 inconsistent with the odometry (mean chi-square {chi2:.1f} per step, above "
+                f"{options.batch_odometry_chi2}); solved again from windows (chi-square {chi2_windows:.1f})")
+        if fallback.ok and fallback.error_final < result.error_final:
+            result = fallback
+        result.warnings.append(note + f", kept the {'windows' if result is fallback else 'iSAM2'} solution")
+    result.seconds, result.cpu_seconds = clock.elapsed()
+    return result
+
+
+def odometry_chi2(graph, values):
+    """Mean chi-square (twice the error) of ``graph``'s odometry factors (``BetweenFactorPose3``) at
+    ``values``: about 6 per step when the estimate agrees with the odometry within its noise model."""
+    errors = [graph.at(k).error(values) for k in range(graph.size()) if isinstance(graph.at(k), gtsam.BetweenFactorPose3)]
+    return 2.0 * float(np.mean(errors)) if errors else 0.0
+
+
+def _batch_from(problem, options, start):
+    """:func:`_batch` from ``start`` (``GraphOptions.batch_start``); ``(result, odometry_chi2)``."""
     clock, n = _Clock(), problem.n_frames
     result = SlamResult("graph", problem.odometry_poses.copy(), skipped=dict(problem.skipped),
                         warnings=list(problem.warnings))
     growth = Growth(problem, options, result, options.batch_pose_noise_refit)
+    chi2 = 0.0
     try:
-        if options.batch_start == "isam2":
+        if start == "isam2":
             isam, values = _incremental(growth, options, result)
             graph = isam.getFactorsUnsafe()
             # iSAM2's last rebuild at frame n re-fitted at these values already
@@ -185,10 +215,11 @@ def _batch(problem, options):
     else:
         growth.finish()
         result.error_final = graph.error(values)
+        chi2 = odometry_chi2(graph, values)
         result.poses, result.objects = pose_matrices(values, n), _objects(values, growth.added)
         result.outline_offsets = _offsets(values, growth.added, options)
     result.seconds, result.cpu_seconds = clock.elapsed()
-    return result
+    return result, chi2
 
 
 def _windows(growth, options, result):
