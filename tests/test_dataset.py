@@ -238,15 +238,25 @@ def test_ctrl_c_with_workers_stops_cleanly(scene_file, tmp_path):
     cmd = [sys.executable, "-m", "sqsim.cli", "generate", str(scene_file), "-o", str(out), "--workers", "2",
            "--no-progress"]
     proc = subprocess.Popen(cmd, stderr=subprocess.PIPE, text=True, start_new_session=True)
-    deadline = time.time() + 120
-    while time.time() < deadline and proc.poll() is None and not list((out / "trials").glob("0*")):
-        time.sleep(0.05)
-    assert proc.poll() is None, "the run ended before it was interrupted"
-    assert list((out / "trials").glob("0*")), "no trial written in 120 s"
-    os.killpg(proc.pid, signal.SIGINT)
-    sent = time.time()
-    _, err = proc.communicate(timeout=60)
-    assert time.time() - sent < 20, f"took {time.time() - sent:.1f} s to stop"
+    try:
+        deadline = time.time() + 120
+        while time.time() < deadline and proc.poll() is None and not list((out / "trials").glob("0*")):
+            time.sleep(0.05)
+        assert proc.poll() is None, "the run ended before it was interrupted"
+        assert list((out / "trials").glob("0*")), "no trial written in 120 s"
+        os.killpg(proc.pid, signal.SIGINT)
+        sent = time.time()
+        _, err = proc.communicate(timeout=60)
+        stopped = time.time() - sent
+    finally:
+        # whatever failed above, leave no worker of the group running (a failed run once left two
+        # workers rendering a million trials for the rest of the session)
+        try:
+            os.killpg(proc.pid, signal.SIGKILL)
+        except ProcessLookupError:
+            pass
+        proc.wait()
+    assert stopped < 20, f"took {stopped:.1f} s to stop"
     assert proc.returncode == 130 and "interrupted" in err
     names = [p.name for p in (out / "trials").iterdir()]
     assert 1 <= len(names) < 1000 and not [n for n in names if n.startswith(".")]
