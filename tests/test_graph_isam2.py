@@ -44,8 +44,9 @@ def test_refit_mid_sequence_uses_only_the_frames_so_far(seq):
     assert iou_3d(refitted, seq.objects[2]) > 0.8
 
 
-@pytest.mark.parametrize("on", [True, False])
-def test_isam2_refits_at_its_rebuilds(monkeypatch, seq, on):
+def _isam2_refits(monkeypatch, seq, options):
+    """``(result, frames)``: graph-isam2 on ``seq`` with ``options``, and the frame counts ``n`` of
+    its re-fits, in order."""
     calls = []
     real = solve.refit_landmarks
 
@@ -54,8 +55,12 @@ def test_isam2_refits_at_its_rebuilds(monkeypatch, seq, on):
         return real(*args, **kw)
 
     monkeypatch.setattr(solve, "refit_landmarks", refit)
-    result = graph.run(seq.intrinsics, seq.odometry_poses, seq.observations, ["graph-isam2"],
-                       {"isam2_refit": on, "isam2_rescale_every": 5})["graph-isam2"]
+    return graph.run(seq.intrinsics, seq.odometry_poses, seq.observations, ["graph-isam2"], options)["graph-isam2"], calls
+
+
+@pytest.mark.parametrize("on", [True, False])
+def test_isam2_refits_at_its_rebuilds(monkeypatch, seq, on):
+    result, calls = _isam2_refits(monkeypatch, seq, {"isam2_refit": on, "isam2_rescale_every": 5})
     assert result.status == "ok"
     assert calls == ([5, 10, 15] if on else [])
 
@@ -170,16 +175,7 @@ def test_isam2_rebuilds_come_later_as_the_sequence_grows(n, options, expected):
 
 
 def test_isam2_rebuilds_follow_the_schedule(monkeypatch, seq):
-    calls = []
-    real = solve.refit_landmarks
-
-    def refit(*args, **kw):
-        calls.append(kw.get("n"))
-        return real(*args, **kw)
-
-    monkeypatch.setattr(solve, "refit_landmarks", refit)
-    graph.run(seq.intrinsics, seq.odometry_poses, seq.observations, ["graph-isam2"],
-              {"isam2_rescale_every": 3, "isam2_rescale_growth": 1.0})
+    _, calls = _isam2_refits(monkeypatch, seq, {"isam2_rescale_every": 3, "isam2_rescale_growth": 1.0})
     assert calls == [6, 12]  # of 16 frames; at 3 no landmark is in the graph yet, nothing to rebuild
 
 

@@ -177,7 +177,6 @@ class Growth:
         self.bounded = set()  # landmarks whose silhouette factors are bounded (landmark_fit)
         # landmarks whose last re-fit was not kept: (misfit, frames) then (sqfit.graph.refit)
         self.rejected = {}
-        self.floored = []  # landmarks with a floor factor (add_landmark)
         # landmarks whose initial fit was put off (module docstring): how often, and the best fit so far
         self.tries, self.deferred = {}, {}
         self.batch, self.rays = SilhouetteFactors(), {}
@@ -234,8 +233,11 @@ class Growth:
         add_landmark(graph, values, self.problem, oid, frames, fit.landmark, self.options, self.batch, self.rays,
                      fit.mismatched)
         self.added.append(oid)
-        if self.options.floor_z is not None and not fit.mismatched:
-            self.floored.append(oid)
+
+    def floored(self):
+        """The landmarks with a floor factor (:func:`add_landmark`: all but the bounded ones, when
+        the graph has a floor)."""
+        return [] if self.options.floor_z is None else [oid for oid in self.added if oid not in self.bounded]
 
     def update(self, estimate, n):
         """Take the estimate of frames ``0 .. n-1``."""

@@ -172,7 +172,8 @@ def _batch(problem, options):
 def odometry_chi2(graph, values):
     """Mean chi-square (twice the error) of ``graph``'s odometry factors (``BetweenFactorPose3``) at
     ``values``: about 6 per step when the estimate agrees with the odometry within its noise model."""
-    errors = [graph.at(k).error(values) for k in range(graph.size()) if isinstance(graph.at(k), gtsam.BetweenFactorPose3)]
+    factors = (graph.at(k) for k in range(graph.size()))
+    errors = [f.error(values) for f in factors if isinstance(f, gtsam.BetweenFactorPose3)]
     return 2.0 * float(np.mean(errors)) if errors else 0.0
 
 
@@ -196,8 +197,9 @@ def _batch_from(problem, options, start):
             refit_landmarks(problem, values, growth.added, options, result, growth.rays, bounded=growth.bounded,
                             rejected=growth.rejected)
         final = replace(options, relative_tolerance=options.final_relative_tolerance)
-        if options.final_floor_sigma_m is not None and growth.floored:
-            graph = with_floor_factors(graph, growth.floored, robust_noise(1, options.final_floor_sigma_m, options.huber_k),
+        floored = growth.floored()
+        if options.final_floor_sigma_m is not None and floored:
+            graph = with_floor_factors(graph, floored, robust_noise(1, options.final_floor_sigma_m, options.huber_k),
                                        options.floor_z)
         for check in (False, True):
             # the last solve moves far along the scale valley: a landmark it drops into 3G's far,
