@@ -106,7 +106,7 @@ def refit_landmarks(problem, values, oids, options, result, rays_cache=None, ove
         last = None if rejected is None or disjoint else rejected.get(oid)
         if last is not None and before < RETRY_MISFIT * last[0] and len(seen) < RETRY_FRAMES * last[1]:
             continue
-        frames = evenly_spread(seen, options.refit_max_frames)
+        frames = evenly_spread(seen, most)
         landmark = landmark_fit(observation_set(problem, oid, poses, frames), options, pose_noise_refit,
                                 f"frames {list(frames)}").landmark
         if landmark is None:
