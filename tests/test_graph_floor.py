@@ -127,7 +127,60 @@ def test_a_tighter_floor_in_the_last_solves_only(monkeypatch):
     assert max(lowest[0.002]) < 0.005, lowest
 
 
+def _floor_sigmas(g, oids):
+    """``{oid: sigma}`` of the floor factors of landmarks ``oids`` in ``g`` (robust noise models)."""
+    out = {}
+    for k in range(g.size()):
+        f = g.at(k)
+        for oid in oids:
+            if tuple(f.keys()) == (L(oid), S(oid)):
+                out[oid] = float(f.noiseModel().noise().sigmas()[0])
+    return out
+
+
+def test_only_landmarks_that_fit_their_masks_get_the_tighter_floor(monkeypatch):
+    from sqfit.graph import solve
+
+    seq = synthetic_sequence(0, n_frames=12, n_objects=3)
+    seen = []
+    real_lm, real_misfits = solve._lm, solve.object_misfits
+
+    def lm(g, values, options, max_lambda=None):
+        seen.append(g)
+        return real_lm(g, values, options, max_lambda)
+
+    asked = []
+
+    def misfits(problem, values, oids, options, *args, **kwargs):
+        out = real_misfits(problem, values, oids, options, *args, **kwargs)
+        asked.append(dict(out))
+        # the first landmark as if no superquadric followed its masks
+        return {oid: (5.0 if oid == min(out) else m) for oid, m in out.items()}
+
+    monkeypatch.setattr(solve, "_lm", lm)
+    monkeypatch.setattr(solve, "object_misfits", misfits)
+    options = {"odometry_sigma_m": 0.03, "floor_z": 0.0, "final_floor_sigma_m": 0.002}
+    r = graph.run(seq.intrinsics, seq.odometry_poses, seq.observations, ["graph"], options)["graph"]
+    assert r.ok and len(r.objects) == 3 and asked
+    assert max(asked[-1].values()) < 1.0, asked  # the synthetic landmarks fit their masks
+    sigmas = _floor_sigmas(seen[-1], sorted(r.objects))
+    first = min(r.objects)
+    assert sigmas[first] == pytest.approx(0.01)  # floor_sigma_m kept
+    assert all(sigmas[oid] == pytest.approx(0.002) for oid in r.objects if oid != first), sigmas
+
+
+def test_no_tighter_floor_when_no_landmark_fits_well_enough():
+    seq = synthetic_sequence(0, n_frames=12, n_objects=2)
+    base = {"odometry_sigma_m": 0.03, "floor_z": 0.0}
+    none = graph.run(seq.intrinsics, seq.odometry_poses, seq.observations, ["graph"],
+                     {**base, "final_floor_sigma_m": None})["graph"]
+    zero = graph.run(seq.intrinsics, seq.odometry_poses, seq.observations, ["graph"],
+                     {**base, "final_floor_sigma_m": 0.002, "final_floor_misfit": 0.0})["graph"]
+    np.testing.assert_array_equal(none.poses, zero.poses)
+
+
 @pytest.mark.parametrize("options, match", [
+    ({"final_floor_misfit": -1.0}, "final_floor_misfit"),
     ({"floor_z": float("nan")}, "floor_z must be a finite height or None"),
     ({"floor_sigma_m": 0.0}, "floor_sigma_m must be a finite number > 0"),
     ({"final_floor_sigma_m": 0.0}, "final_floor_sigma_m must be a positive number or None"),

@@ -21,7 +21,8 @@ Methods (every one returns a :class:`sqfit.graph.problem.SlamResult`):
   ``batch_window`` frames, each solve from the previous solution and the new frames chained by the
   odometry); then the re-fit of landmarks in poor minima, the move to the best scale
   (:mod:`sqfit.graph.scale`) and a last solve to ``final_relative_tolerance``, its floor factors at
-  ``final_floor_sigma_m``; with a floor, a solution from iSAM2 far from the odometry
+  ``final_floor_sigma_m`` for the landmarks that fit their masks (``final_floor_misfit``); with a
+  floor, a solution from iSAM2 far from the odometry
   (``batch_odometry_chi2``) is solved again from windows;
 - ``graph-isam2``: the same graph grown frame by frame with iSAM2 (one update per frame; a landmark
   joins once its first frames are enough for its initial fit (``init_frames``, ``init_parallax_deg``),
@@ -50,7 +51,7 @@ from .growth import (Growth, initial_fit, landmark_keys, noise_models, pose_fact
 from .landmark import landmark_to_superquadric
 from .problem import GraphOptions, SlamResult, check_inputs
 from .quadric import initialise_quadric, observation_box, quadric_to_superquadric
-from .refit import refit_landmarks
+from .refit import object_misfits, refit_landmarks
 from .scale import best_scale, rescaled, scale_dependent_factors
 
 __all__ = ["METHODS", "run", "rebuild_frames", "odometry_chi2", "odometry", "fixed_pose_fits", "superquadric_graph",
@@ -198,6 +199,10 @@ def _batch_from(problem, options, start):
                             rejected=growth.rejected)
         final = replace(options, relative_tolerance=options.final_relative_tolerance)
         floored = growth.floored()
+        if options.final_floor_sigma_m is not None and floored:
+            misfits = object_misfits(problem, values, floored, options, growth.rays, growth.bounded,
+                                     most=options.refit_max_frames)
+            floored = [oid for oid in floored if misfits[oid] <= options.final_floor_misfit]
         if options.final_floor_sigma_m is not None and floored:
             graph = with_floor_factors(graph, floored, robust_noise(1, options.final_floor_sigma_m, options.huber_k),
                                        options.floor_z)
