@@ -237,7 +237,16 @@ def test_ctrl_c_with_workers_stops_cleanly(scene_file, tmp_path):
     out = tmp_path / "d"
     cmd = [sys.executable, "-m", "sqsim.cli", "generate", str(scene_file), "-o", str(out), "--workers", "2",
            "--no-progress"]
-    proc = subprocess.Popen(cmd, stderr=subprocess.PIPE, text=True, start_new_session=True)
+    # The run must start with SIGINT at its default, as from a terminal. A shell starts background
+    # jobs (`.ci/run > log &`) with SIGINT ignored, and a process started so keeps ignoring it:
+    # Python then installs no KeyboardInterrupt and the run rightly goes on, which made this test
+    # hang whenever the suite itself ran in the background. A handled signal is reset to its default
+    # by exec, so the child starts with Python's own handler whatever this process inherited.
+    inherited = signal.signal(signal.SIGINT, signal.default_int_handler)
+    try:
+        proc = subprocess.Popen(cmd, stderr=subprocess.PIPE, text=True, start_new_session=True)
+    finally:
+        signal.signal(signal.SIGINT, inherited)
     try:
         deadline = time.time() + 120
         while time.time() < deadline and proc.poll() is None and not list((out / "trials").glob("0*")):
