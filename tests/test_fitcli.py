@@ -133,3 +133,27 @@ def test_observe_views_names_views_and_keeps_samples():
         observe_views(trial.cameras, images[:2], 3)
     with pytest.raises(ValueError, match="one name per camera"):
         observe_views(trial.cameras, images, 3, names=["a"])
+
+
+@pytest.mark.parametrize("where", ["import", "run"])
+def test_ctrl_c_is_one_line_and_status_130_also_while_importing(where, monkeypatch, capsys):
+    # Ctrl-C while a command's modules are still being imported (the first second of a run) gave a
+    # KeyboardInterrupt traceback; now, as during the run, one line and status 130.
+    import importlib
+    import types
+
+    cli = importlib.import_module("sqfit.cli.dispatch")  # the module (sqfit.cli re-exports the function)
+
+    def run(args):
+        raise KeyboardInterrupt
+
+    module = types.SimpleNamespace(add_arguments=lambda parser: None, run=run)
+
+    def import_module(name):
+        if where == "import":
+            raise KeyboardInterrupt
+        return module
+
+    monkeypatch.setattr(cli.importlib, "import_module", import_module)
+    assert cli.dispatch(["go"], {"go": ("somewhere.go", "a command")}, "tool", "a tool") == 130
+    assert capsys.readouterr().err.strip() == "tool go: interrupted"

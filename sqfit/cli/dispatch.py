@@ -41,6 +41,15 @@ def dispatch(argv, commands, prog, description):
         Process exit status.
     """
     argv = sys.argv[1:] if argv is None else list(argv)
+    name = f"{prog} {argv[0]}" if argv[:1] and argv[0] in commands else prog
+    try:
+        return _dispatch(argv, commands, prog, description)
+    except KeyboardInterrupt:  # also while a command's modules are still being imported
+        print(f"{name}: interrupted", file=sys.stderr)
+        return 130
+
+
+def _dispatch(argv, commands, prog, description):
     parser = argparse.ArgumentParser(prog=prog, description=description)
     sub = parser.add_subparsers(dest="command", metavar="COMMAND", required=True)
     for name, (module, help_text) in commands.items():
@@ -52,9 +61,6 @@ def dispatch(argv, commands, prog, description):
     args = parser.parse_args(argv)
     try:
         return int(importlib.import_module(args._module).run(args) or 0)
-    except KeyboardInterrupt:
-        print(f"{prog} {args.command}: interrupted", file=sys.stderr)
-        return 130
     except (ValueError, OSError, ImportError) as exc:  # ImportError: a missing optional dependency
         print(f"{prog} {args.command}: error: {exc}", file=sys.stderr)
         return 2
