@@ -87,25 +87,36 @@ def test_log_gauge_jacobian_agrees_at_generic_points(kernels, shape):
     assert _close(lg_k, lg_n, 1e-12) and _close(d_k, d_n, 1e-12)
 
 
+def _fine_minima(xi, origins, directions, far=20.0, points=4001):
+    """``log g`` minimum of each ray over a fine grid of depths in ``(0, far]``."""
+    grid = np.linspace(1e-3, far, points)
+    pts = origins[:, None] + grid[None, :, None] * directions[:, None]
+    return raycost.batch_log_gauge_jacobian(np.repeat(xi[None], len(grid), 0), pts.transpose(1, 0, 2))[0].T.min(axis=1)
+
+
 @pytest.mark.parametrize("shape", SHAPES)
-@pytest.mark.parametrize("warm", [False, True])
-def test_ray_minima_agree(kernels, shape, warm):
+@pytest.mark.parametrize("warm,start", [(False, "grid"), (True, "grid"), (False, "nearest")])
+def test_ray_minima_agree(kernels, shape, warm, start):
     rng = np.random.default_rng(3)
     xi = _xi(shape, rng)
     origins = rng.normal(size=(100, 3)) * 0.5 + [0.0, 0.0, -8.0]
     directions = xi[5:8] + rng.normal(size=(100, 3)) * 0.8 - origins
     directions /= directions[:, 2:3]
     d0 = raycost.ray_minima(xi, origins, directions)[0] * 1.01 if warm else None
-    (d_k, m_k), (d_n, m_n) = kernels(lambda: raycost.ray_minima(xi, origins, directions, d0))
+    (d_k, m_k), (d_n, m_n) = kernels(lambda: raycost.ray_minima(xi, origins, directions, d0, start))
     assert _close(d_k, d_n, 1e-12) and _close(m_k, m_n, 1e-12)
     if warm:  # warm rays stop after a few Newton steps (raycost._MAX_NEWTON_WARM): not always converged
         return
     # and the answer is the minimum: no point of a fine grid along each ray is lower
-    grid = np.linspace(1e-3, 20.0, 4001)
-    pts = origins[:, None] + grid[None, :, None] * directions[:, None]
-    lg = raycost.batch_log_gauge_jacobian(np.repeat(xi[None], len(grid), 0),
-                                          pts.transpose(1, 0, 2))[0].T
-    assert np.all(m_k <= lg.min(axis=1) + 1e-9)
+    assert np.all(m_k <= _fine_minima(xi, origins, directions) + 1e-9)
+    if start == "nearest":  # the one minimum along each line, whichever start
+        d_g, m_g = raycost.ray_minima(xi, origins, directions)
+        assert _close(m_k, m_g, 1e-9) and _close(d_k, d_g, 1e-6)
+
+
+def test_ray_minima_reject_an_unknown_start():
+    with pytest.raises(ValueError, match="start must be one of"):
+        raycost.ray_minima(_xi(SHAPES[0], np.random.default_rng(0)), np.zeros((1, 3)), np.ones((1, 3)), None, "middle")
 
 
 def test_ray_residuals_agree_on_a_paper_trial(kernels):

@@ -127,7 +127,15 @@ def _solve_ray(q0x, q0y, q0z, ux, uy, uz, r0x, r0y, r0z, lx, ly, lz, ratio, e1, 
         if s_lo <= 0 and s_hi >= 0:
             lo, hi, cold = plo, phi, False
     d = 0.5 * (lo + hi)
-    if cold:
+    if cold and len(grid) == 0:
+        # no grid: start at the line's point nearest the centre in unit coordinates (the
+        # minimiser for a sphere there); g is unimodal along a line, so Newton and bisection
+        # from any point of the bracket reach the one minimum
+        uu = ux * ux + uy * uy + uz * uz
+        dn = -(q0x * ux + q0y * uy + q0z * uz) / uu
+        if dn == dn:
+            d = lo if dn < lo else (hi if dn > hi else dn)
+    elif cold:
         G = len(grid)
         width = hi - lo
         best, best_v = 0, _line_value(q0x, q0y, q0z, ux, uy, uz, lo + width * grid[0], e1, e2)

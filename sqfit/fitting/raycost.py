@@ -131,7 +131,7 @@ def _line_log_gauge(q0, u, d, e1, e2):
     return L / p1, lg1, lg2
 
 
-def ray_minima(xi, origins, directions, d0=None):
+def ray_minima(xi, origins, directions, d0=None, start="grid"):
     """Minimiser and minimum of the superquadric's gauge along rays.
 
     Parameters
@@ -143,6 +143,8 @@ def ray_minima(xi, origins, directions, d0=None):
     d0 : (n,) float, optional
         Starting points (e.g. the minimisers at a nearby ``xi``): where ``g'`` changes sign within
         :data:`_WARM_BRACKET` (relative) of ``d0``, that is the bracket; the other rays use the grid.
+    start : str
+        Where a ray without a warm start begins (:func:`gauge_minima`): ``"grid"`` or ``"nearest"``.
 
     Returns
     -------
@@ -163,11 +165,12 @@ def ray_minima(xi, origins, directions, d0=None):
     shrinks at every evaluation, are replaced by bisection.
     """
     xi = np.asarray(xi, dtype=np.float64)
-    d, log_m = batch_ray_minima(xi[None], origins, directions, None if d0 is None else np.asarray(d0)[None])
+    d, log_m = batch_ray_minima(xi[None], origins, directions, None if d0 is None else np.asarray(d0)[None],
+                                start=start)
     return d[0], log_m[0]
 
 
-def batch_ray_minima(X, origins, directions, d0=None, rtol=_D_RTOL, max_newton=_MAX_NEWTON):
+def batch_ray_minima(X, origins, directions, d0=None, rtol=_D_RTOL, max_newton=_MAX_NEWTON, start="grid"):
     """:func:`ray_minima` for ``b`` superquadrics at once, on the same rays (one vectorised solve).
 
     Parameters
@@ -181,6 +184,8 @@ def batch_ray_minima(X, origins, directions, d0=None, rtol=_D_RTOL, max_newton=_
     max_newton : int
         Newton / bisection steps at most for a ray whose warm-start bracket did not hold (or with no
         warm start); rays whose bracket held take at most :data:`_MAX_NEWTON_WARM`.
+    start : str
+        :func:`gauge_minima`'s ``start``.
 
     Returns
     -------
@@ -200,7 +205,7 @@ def batch_ray_minima(X, origins, directions, d0=None, rtol=_D_RTOL, max_newton=_
         e1, e2 = float(X[0, 3]), float(X[0, 4])
     q0, u = np.ascontiguousarray((rel0 / a_ray).T), np.ascontiguousarray((ul / a_ray).T)
     d, log_m = gauge_minima(q0, u, rel0, ul, ratio, e1, e2, None if d0 is None else np.reshape(d0, b * n), rtol,
-                             max_newton)
+                             max_newton, start)
     return d.reshape(b, n), log_m.reshape(b, n)
 
 
@@ -209,24 +214,37 @@ def _take(e, idx):
     return e if np.ndim(e) == 0 else e[idx]
 
 
-def gauge_minima(q0, u, rel0, ul, ratio, e1, e2, d0, rtol=_D_RTOL, max_newton=_MAX_NEWTON):
+#: How a ray without a warm start finds its first point (:func:`gauge_minima`).
+STARTS = ("grid", "nearest")
+
+
+def gauge_minima(q0, u, rel0, ul, ratio, e1, e2, d0, rtol=_D_RTOL, max_newton=_MAX_NEWTON, start="grid"):
     """The solver of :func:`ray_minima` on rays in unit-size superquadric coordinates.
 
     ``q0``, ``u`` are ``(3, n)``; ``rel0``, ``ul`` the same rays in superquadric coordinates
     (metres), ``(n, 3)``; ``ratio`` is ``a_max / a_min`` per ray; ``e1``, ``e2`` scalars or ``(n,)``.
-    Runs the compiled kernel (:func:`sqfit.fitting.ray_kernels.gauge_minima`) unless :mod:`sqfit.fitting.backend`
-    chose numpy.
+    ``start``: where a ray without a warm start begins: ``"grid"`` at the best of a
+    :data:`_GRID`-point grid over its bracket (:func:`ray_minima`), ``"nearest"`` at the line's point
+    nearest the centre in unit coordinates (the minimiser for a sphere there), clipped to the
+    bracket: ``g`` is unimodal along a line, so Newton and bisection reach the same minimum from
+    there, with one evaluation instead of the grid's :data:`_GRID` (the factor graph's cold solves,
+    :func:`sqfit.graph.landmark.batch_silhouette_residuals`). Runs the compiled kernel
+    (:func:`sqfit.fitting.ray_kernels.gauge_minima`) unless :mod:`sqfit.fitting.backend` chose numpy.
     """
+    if start not in STARTS:
+        raise ValueError(f"start must be one of {STARTS}, got {start!r}")
     kernels = compiled()
     if kernels is not None:
         n = len(ratio)
         f = np.ascontiguousarray
         warm = d0 is not None
+        args = solver_args(rtol, max_newton)
+        if start == "nearest":  # an empty grid tells the kernel
+            args = args[:3] + (_NO_GRID,) + args[4:]
         return kernels.gauge_minima(f(q0, dtype=np.float64), f(u, dtype=np.float64), f(rel0, dtype=np.float64),
                                     f(ul, dtype=np.float64), f(ratio, dtype=np.float64),
                                     *(f(np.broadcast_to(e, (n,)), dtype=np.float64) for e in (e1, e2)),
-                                    f(d0, dtype=np.float64) if warm else _NO_WARM, warm,
-                                    *solver_args(rtol, max_newton))
+                                    f(d0, dtype=np.float64) if warm else _NO_WARM, warm, *args)
     bb = np.einsum("ij,ij->i", ul, ul)
     dc = -np.einsum("ij,ij->i", rel0, ul) / bb
     rho = np.linalg.norm(rel0 + dc[:, None] * ul, axis=1)
@@ -248,7 +266,11 @@ def gauge_minima(q0, u, rel0, ul, ratio, e1, e2, d0, rtol=_D_RTOL, max_newton=_M
         cold = ~ok
     d = 0.5 * (lo + hi)
     idx = np.flatnonzero(cold)
-    if len(idx):
+    if len(idx) and start == "nearest":
+        with np.errstate(divide="ignore", invalid="ignore"):
+            dn = -np.einsum("ij,ij->j", q0[:, idx], u[:, idx]) / np.einsum("ij,ij->j", u[:, idx], u[:, idx])
+        d[idx] = np.where(np.isnan(dn), d[idx], np.clip(dn, lo[idx], hi[idx]))
+    elif len(idx):
         t = np.linspace(0.0, 1.0, _GRID)
         grid = lo[idx, None] + (hi[idx] - lo[idx])[:, None] * t  # (k, G)
         e12 = [e if np.ndim(e) == 0 else np.repeat(e[idx], _GRID) for e in (e1, e2)]
@@ -291,6 +313,7 @@ def gauge_minima(q0, u, rel0, ul, ratio, e1, e2, d0, rtol=_D_RTOL, max_newton=_M
 
 
 _NO_WARM = np.zeros(1)
+_NO_GRID = np.zeros(0)
 
 
 def solver_args(rtol, max_newton):

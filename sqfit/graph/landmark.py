@@ -193,7 +193,7 @@ def stack_rays(ray_sets):
                        np.stack([r.offsets for r in ray_sets]), np.stack([r.radii for r in ray_sets]))
 
 
-def batch_silhouette_residuals(T_world_camera, T_world_sq, shape, rays, d0=None, offset=None):
+def batch_silhouette_residuals(T_world_camera, T_world_sq, shape, rays, d0=None, offset=None, start="nearest"):
     """:func:`silhouette_residuals` of ``k`` factors at once (one vectorised ray solve).
 
     The same residuals and Jacobians (``tests/test_graph.py`` compares them), computed on all the
@@ -216,6 +216,13 @@ def batch_silhouette_residuals(T_world_camera, T_world_sq, shape, rays, d0=None,
         for ``δ < 0`` its residual is weighted ``exp(-δ / radius)``: the 3G/3H residual with the
         offset as estimated there (:func:`sqfit.fitting.raycost.posed_ray_residuals`; README "Real
         masks"), so a superquadric grown by as much cannot buy a lower relative cost.
+    start : str
+        Where a ray without a warm start begins its solve (:func:`sqfit.fitting.raycost.gauge_minima`):
+        ``"nearest"`` (the default) at the line's point nearest the landmark's centre, ``"grid"``
+        at the best point of a grid over its bracket, as the fitter's stages do. Both find the
+        one minimum along the line (to ~1e-10 relative in depth); "nearest" costs one evaluation
+        where the grid costs 24: on the evaluation scenes the ray solves were a fifth of the
+        graph's CPU time with the grid (README "Issue 23, seventh pass").
 
     Returns
     -------
@@ -245,7 +252,7 @@ def batch_silhouette_residuals(T_world_camera, T_world_sq, shape, rays, d0=None,
     # the landmark sits at the identity pose in its own frame: ray_minima's solver on the unit-size
     # coordinates directly, each ray with its own factor's size and powers
     d, _ = gauge_minima(np.ascontiguousarray((rel0 / a).T), np.ascontiguousarray((ul_flat / a).T), rel0, ul_flat,
-                         ratio, e1, e2, None if d0 is None else np.reshape(d0, k * n))
+                         ratio, e1, e2, None if d0 is None else np.reshape(d0, k * n), start=start)
     d = d.reshape(k, n)
     y = origins + d[..., None] * ul
     # the factors of one landmark share its shape: one Jacobian call per distinct shape, not per factor
