@@ -207,10 +207,10 @@ def test_a_batch_from_isam2_far_from_the_odometry_is_solved_again_from_windows(m
     starts = []
     real = solve._batch_from
 
-    def batch_from(problem, options, start):
+    def batch_from(problem, options, start, scales=None):
         starts.append(start)
-        result, measured = real(problem, options, start)
-        return result, (chi2 if start == "isam2" else measured)
+        result, measured, asked = real(problem, options, start, scales)
+        return result, (chi2 if start == "isam2" else measured), asked
 
     monkeypatch.setattr(solve, "_batch_from", batch_from)
     res = graph.run(seq.intrinsics, seq.odometry_poses, seq.observations, ["graph"], {"floor_z": 0.0})["graph"]

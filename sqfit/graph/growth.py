@@ -29,7 +29,8 @@ from .landmark import camera_rays, left_grazing, superquadric_to_landmark
 from .problem import observation_at, ready_to_initialise
 
 __all__ = ["LandmarkFit", "Growth", "noise_models", "robust_noise", "pose_factors", "pose_matrices", "skip_object",
-           "initial_fit", "landmark_fit", "add_landmark", "view_factor", "offset_key", "landmark_keys"]
+           "initial_fit", "landmark_fit", "add_landmark", "view_factor", "silhouette_noise", "offset_key",
+           "landmark_keys"]
 
 
 class LandmarkFit(NamedTuple):
@@ -104,10 +105,12 @@ def landmark_fit(obs, options, pose_noise_refit, where):
     return LandmarkFit(superquadric_to_landmark(res.superquadric), "", left_grazing(res), float(res.r_iou_m))
 
 
-def add_landmark(graph, values, problem, oid, frames, landmark, options, batch, rays_cache=None, mismatched=False):
+def add_landmark(graph, values, problem, oid, frames, landmark, options, batch, rays_cache=None, mismatched=False,
+                 scale=1.0):
     """Landmark ``oid``'s variables at ``landmark`` ``(T, shape)``, its priors and its silhouette factors in
     ``frames``; ``mismatched``: its initial fit left the grazing cost (:func:`landmark_fit`): its rays
-    are bounded and it gets no floor factor (a table fitted as its top need not touch the floor)."""
+    are bounded and it gets no floor factor (a table fitted as its top need not touch the floor);
+    ``scale``: its silhouette noise scale (:func:`view_factor`)."""
     T, shape = landmark
     shape = np.asarray(shape, dtype=np.float64)
     values.insert(L(oid), gtsam.Pose3(T))
@@ -126,25 +129,36 @@ def add_landmark(graph, values, problem, oid, frames, landmark, options, batch, 
         graph.add(gtsam.PriorFactorVector(offset, np.zeros(1), gtsam.noiseModel.Isotropic.Sigma(
             1, options.outline_offset_sigma_px / OFFSET_UNIT_PX)))
     for f in frames:
-        graph.add(view_factor(problem, f, oid, options, batch, rays_cache, mismatched))
+        graph.add(view_factor(problem, f, oid, options, batch, rays_cache, mismatched, scale))
 
 
-def view_factor(problem, frame, oid, options, batch, rays_cache=None, bounded=False):
+def view_factor(problem, frame, oid, options, batch, rays_cache=None, bounded=False, scale=1.0):
     """The silhouette factor of ``(frame, oid)``, evaluated with the graph's other ones by ``batch``
     (a :class:`sqfit.graph.factors.SilhouetteFactors`); ``rays_cache`` (a dict) keeps the rays of
     the factors made so far, for the re-fit's factors of the same views. ``bounded``: each ray's
     whitened residual bounded by ``mismatch_ray_k`` (a landmark whose outline one superquadric
-    cannot graze, :func:`landmark_fit`)."""
+    cannot graze, :func:`landmark_fit`). ``scale``: its noise model's :func:`silhouette_noise`
+    scale (the landmark's, :mod:`sqfit.graph.weighting`); the ray bound stays at the unscaled sigma."""
     rays = None if rays_cache is None else rays_cache.get((frame, oid))
     if rays is None:
         rays = camera_rays(problem.observations[frame, oid], options.n_contour)
         if rays_cache is not None:
             rays_cache[frame, oid] = rays
-    # the ray residuals carry contour_rays' weights 1 / sqrt(n): sigma per weighted row
-    sigma = options.silhouette_sigma / np.sqrt(len(rays))
-    bound = options.mismatch_ray_k * sigma if bounded and options.mismatch_ray_k > 0 else np.inf
-    return silhouette_factor(robust_noise(len(rays), sigma, options.huber_k), X(frame), L(oid),
+    bound = options.mismatch_ray_k * _row_sigma(options, len(rays)) if bounded and options.mismatch_ray_k > 0 else np.inf
+    return silhouette_factor(silhouette_noise(options, len(rays), scale), X(frame), L(oid),
                              S(oid), rays, batch, offset_key(oid, options), OFFSET_UNIT_PX, bound)
+
+
+def _row_sigma(options, n_rays):
+    """The standard deviation of one weighted ray row: the ray residuals carry contour_rays'
+    weights ``1 / sqrt(n)``."""
+    return options.silhouette_sigma / np.sqrt(n_rays)
+
+
+def silhouette_noise(options, n_rays, scale=1.0):
+    """The robust noise model of a silhouette factor of ``n_rays`` rays, its sigma ``scale`` times
+    ``silhouette_sigma``."""
+    return robust_noise(n_rays, scale * _row_sigma(options, n_rays), options.huber_k)
 
 
 def offset_key(oid, options):
@@ -163,9 +177,10 @@ class Growth:
     chained from the current estimate of the previous one by the odometry step, its odometry factor,
     its silhouette factors, and the landmarks whose first frames have become enough for their
     initial fit (at the current pose estimates; ``pose_noise_refit``: :func:`initial_fit`), or whose
-    deferred initial fit (module docstring) is tried again."""
+    deferred initial fit (module docstring) is tried again. ``scales``: ``{oid: scale}`` of the
+    landmarks whose silhouette noise is scaled (:mod:`sqfit.graph.weighting`), 1 where absent."""
 
-    def __init__(self, problem, options, result, pose_noise_refit=True):
+    def __init__(self, problem, options, result, pose_noise_refit=True, scales=None):
         self.problem, self.options, self.result = problem, options, result
         self.pose_noise_refit = pose_noise_refit
         self.noise = noise_models(options)
@@ -180,6 +195,8 @@ class Growth:
         # landmarks whose initial fit was put off (module docstring): how often, and the best fit so far
         self.tries, self.deferred = {}, {}
         self.batch, self.rays = SilhouetteFactors(), {}
+        # each landmark's silhouette noise scale, where not 1 (sqfit.graph.weighting)
+        self.scales = {oid: float(v) for oid, v in (scales or {}).items() if v != 1.0}
 
     def add(self, frames):
         """``(graph, values)`` of the new factors and variables for ``frames`` (the next frames)."""
@@ -197,7 +214,8 @@ class Growth:
         if oid in self.failed:
             return
         if oid in self.added:
-            graph.add(view_factor(self.problem, i, oid, self.options, self.batch, self.rays, oid in self.bounded))
+            graph.add(view_factor(self.problem, i, oid, self.options, self.batch, self.rays, oid in self.bounded,
+                                  self.scales.get(oid, 1.0)))
             return
         frames = self.pending.setdefault(oid, [])
         frames.append(i)
@@ -231,7 +249,7 @@ class Growth:
         if fit.mismatched:
             self.bounded.add(oid)
         add_landmark(graph, values, self.problem, oid, frames, fit.landmark, self.options, self.batch, self.rays,
-                     fit.mismatched)
+                     fit.mismatched, self.scales.get(oid, 1.0))
         self.added.append(oid)
 
     def floored(self):

@@ -238,6 +238,12 @@ class GraphOptions(Options):
         floor and the scene's odometry noise, median object IoU 0.076 / 0.036 before, 0.184 / 0.125
         with this test). At the end of the batch the landmarks' misfits were 0.28-0.77 on the
         evaluation scenes, 2.0-6.8 on household sequences; 0: no landmark gets the tighter floor.
+    misfit_sigma : float
+        A landmark whose misfit (RMS whitened ray residual at ``silhouette_sigma``,
+        :func:`sqfit.graph.refit.object_misfits`) exceeds this gets its silhouette factors' sigma
+        scaled by misfit / ``misfit_sigma`` (:mod:`sqfit.graph.weighting`: a landmark no
+        superquadric follows counts by the spread its rays show); re-estimated at iSAM2's rebuilds
+        and before the batch's last solves. 0: every landmark keeps ``silhouette_sigma``.
     max_iterations : int
         Levenberg-Marquardt iterations of the batch solves.
     relative_tolerance : float
@@ -281,6 +287,7 @@ class GraphOptions(Options):
     floor_sigma_m: float = 0.01
     final_floor_sigma_m: float | None = 0.001
     final_floor_misfit: float = 1.0
+    misfit_sigma: float = 1.0
     max_iterations: int = 50
     relative_tolerance: float = 1e-3
     final_relative_tolerance: float = 1e-5
@@ -299,7 +306,7 @@ class GraphOptions(Options):
                                "isam2_relinearize_threshold", "window_relative_tolerance", "landmark_prior_sigma_m",
                                "shape_prior_sigma", "box_sigma_px", "relative_tolerance",
                                "final_relative_tolerance", "final_max_lambda", "floor_sigma_m"),
-                     nonnegative=("final_floor_misfit", "isam2_rescale_growth", "bounds_weight", "init_min_overlap", "refit_misfit", "outline_offset_sigma_px", "mismatch_ray_k"))
+                     nonnegative=("misfit_sigma", "final_floor_misfit", "isam2_rescale_growth", "bounds_weight", "init_min_overlap", "refit_misfit", "outline_offset_sigma_px", "mismatch_ray_k"))
         if self.batch_start not in BATCH_STARTS:
             raise ValueError(f"batch_start must be one of {', '.join(BATCH_STARTS)}, got {self.batch_start!r}")
         if self.final_floor_sigma_m is not None and not (np.isfinite(self.final_floor_sigma_m)

@@ -53,6 +53,7 @@ from .problem import GraphOptions, SlamResult, check_inputs
 from .quadric import initialise_quadric, observation_box, quadric_to_superquadric
 from .refit import object_misfits, refit_landmarks
 from .scale import best_scale, rescaled, scale_dependent_factors
+from .weighting import noise_scales
 
 __all__ = ["METHODS", "run", "rebuild_frames", "odometry_chi2", "odometry", "fixed_pose_fits", "superquadric_graph",
            "superquadric_isam2", "quadric_graph"]
@@ -155,19 +156,39 @@ def _batch(problem, options):
     re-fit of landmarks in poor minima (:func:`refit_landmarks`) and one solve of the whole graph to
     ``final_relative_tolerance`` (GraphOptions). With a floor (``floor_z``), a solution from iSAM2
     whose odometry factors' mean chi-square (:func:`odometry_chi2`) exceeds ``batch_odometry_chi2``
-    is solved again from windows, and the one with the lower error kept (a warning says so)."""
+    is solved again from windows, and the one with the lower error kept (a warning says so). Where
+    landmarks end with a misfit above ``misfit_sigma`` (:mod:`sqfit.graph.weighting`), the whole
+    batch runs once more with their silhouette noise scaled from the start, and that is the result
+    (a warning names the scales)."""
     clock = _Clock()
-    result, chi2 = _batch_from(problem, options, options.batch_start)
+    result, scales = _batch_once(problem, options)
+    if result.ok and scales:
+        second, _ = _batch_once(problem, options, scales)
+        note = ("solved again with the silhouette noise of the landmarks that fit their masks poorly scaled (misfit "
+                f"above {options.misfit_sigma}): " + ", ".join(f"object {oid} x{v:.2f}" for oid, v in sorted(scales.items())))
+        if second.ok:
+            result = second
+        else:
+            note += f"; that solve failed ({second.message}), kept the first"
+        result.warnings.append(note)
+    result.seconds, result.cpu_seconds = clock.elapsed()
+    return result
+
+
+def _batch_once(problem, options, scales=None):
+    """:func:`_batch` with the landmarks' silhouette noise ``scales`` (``{oid: scale}``, None: all 1):
+    ``(result, scales)``, the second the scales its solution asks for (:func:`noise_scales`; empty
+    when none differs from those given)."""
+    result, chi2, estimated = _batch_from(problem, options, options.batch_start, scales)
     if result.ok and options.batch_start == "isam2" and options.floor_z is not None and chi2 > options.batch_odometry_chi2:
         # iSAM2's undamped steps ran off (household sequences with a floor): the windows instead
-        fallback, chi2_windows = _batch_from(problem, options, "windows")
+        fallback, chi2_windows, estimated_windows = _batch_from(problem, options, "windows", scales)
         note = (f"batch from iSAM2 inconsistent with the odometry (mean chi-square {chi2:.1f} per step, above "
                 f"{options.batch_odometry_chi2}); solved again from windows (chi-square {chi2_windows:.1f})")
         if fallback.ok and fallback.error_final < result.error_final:
-            result = fallback
+            result, estimated = fallback, estimated_windows
         result.warnings.append(note + f", kept the {'windows' if result is fallback else 'iSAM2'} solution")
-    result.seconds, result.cpu_seconds = clock.elapsed()
-    return result
+    return result, estimated
 
 
 def odometry_chi2(graph, values):
@@ -178,13 +199,14 @@ def odometry_chi2(graph, values):
     return 2.0 * float(np.mean(errors)) if errors else 0.0
 
 
-def _batch_from(problem, options, start):
-    """:func:`_batch` from ``start`` (``GraphOptions.batch_start``); ``(result, odometry_chi2)``."""
+def _batch_from(problem, options, start, scales=None):
+    """:func:`_batch` from ``start`` (``GraphOptions.batch_start``) with the silhouette noise
+    ``scales``; ``(result, odometry_chi2, scales asked for)`` (:func:`_batch_once`)."""
     clock, n = _Clock(), problem.n_frames
     result = SlamResult("graph", problem.odometry_poses.copy(), skipped=dict(problem.skipped),
                         warnings=list(problem.warnings))
-    growth = Growth(problem, options, result, options.batch_pose_noise_refit)
-    chi2 = 0.0
+    growth = Growth(problem, options, result, options.batch_pose_noise_refit, scales)
+    chi2, estimated = 0.0, {}
     try:
         if start == "isam2":
             isam, values = _incremental(growth, options, result)
@@ -223,10 +245,11 @@ def _batch_from(problem, options, start):
         growth.finish()
         result.error_final = graph.error(values)
         chi2 = odometry_chi2(graph, values)
+        estimated = noise_scales(problem, values, growth.added, options, growth.scales, growth.rays, growth.bounded)
         result.poses, result.objects = pose_matrices(values, n), _objects(values, growth.added)
         result.outline_offsets = _offsets(values, growth.added, options)
     result.seconds, result.cpu_seconds = clock.elapsed()
-    return result, chi2
+    return result, chi2, estimated
 
 
 def _windows(growth, options, result):
