@@ -150,6 +150,29 @@ def test_batched_silhouette_residuals_equal_one_factor_at_a_time():
         np.testing.assert_allclose(got, want, rtol=1e-6, atol=1e-9)
 
 
+@pytest.mark.parametrize("start", ["nearest", "grid"])
+def test_batched_silhouette_residuals_compiled_and_numpy_agree(start):
+    pytest.importorskip("numba")
+    from sqfit.fitting import backend
+
+    cases = _factor_cases(8, seed=3)
+    Tc, Tl, shapes = (np.array(c) for c in list(zip(*cases))[:3])
+    rays = landmark.stack_rays([c[3] for c in cases])
+    shapes[5, 0] = 0.001  # a size below the evaluated domain (clipped, zero Jacobian column)
+    previous = backend.set_kernels(None)
+    try:
+        out = {}
+        for name in ("numba", "numpy"):
+            backend.set_kernels(name)
+            out[name] = landmark.batch_silhouette_residuals(Tc, Tl, shapes, rays, start=start)
+    finally:
+        backend.set_kernels(previous)
+    assert np.abs(out["numpy"][0]).max() > 1e-3 and np.any(out["numpy"][0] == 0)  # active and hinged rays
+    for got, want in zip(out["numba"], out["numpy"]):
+        np.testing.assert_allclose(got, want, rtol=1e-12, atol=1e-12 * max(1.0, np.abs(want).max()))
+    assert np.all(out["numba"][3][5, :, 0] == 0)
+
+
 def test_stack_rays_checks_its_input():
     with pytest.raises(ValueError, match="ray_sets must not be empty"):
         landmark.stack_rays([])

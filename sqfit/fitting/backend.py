@@ -29,7 +29,7 @@ KERNELS = ("auto", "numba", "numpy")
 ENV_VAR = "SQFIT_KERNELS"
 
 #: The kernel modules by part, imported at first use.
-PARTS = ("rays", "silhouettes")
+PARTS = ("rays", "silhouettes", "views")
 
 _state = {"choice": None, "modules": {}, "resolved": None}
 
@@ -68,9 +68,9 @@ def _requested():
 def compiled(part="rays"):
     """A compiled kernels module, or None for the numpy path.
 
-    ``part``: ``"rays"`` (:mod:`sqfit.fitting.ray_kernels`) or ``"silhouettes"``
-    (:mod:`sqfit.fitting.silhouette_kernels`); each is imported (and its kernels loaded) at the
-    first call that asks for it.
+    ``part``: ``"rays"`` (:mod:`sqfit.fitting.ray_kernels`), ``"silhouettes"``
+    (:mod:`sqfit.fitting.silhouette_kernels`) or ``"views"`` (:mod:`sqfit.fitting.view_kernels`, the
+    factor graph's); each is imported (and its kernels loaded) at the first call that asks for it.
     """
     if _state["resolved"] is None:
         _state["resolved"] = _resolve(_requested())
@@ -82,6 +82,8 @@ def compiled(part="rays"):
             from . import ray_kernels as module
         elif part == "silhouettes":
             from . import silhouette_kernels as module
+        elif part == "views":
+            from . import view_kernels as module
         else:
             raise ValueError(f"part must be one of {PARTS}, got {part!r}")
         _state["modules"][part] = module

@@ -22,7 +22,8 @@ import math
 import numpy as np
 from numba import njit
 
-__all__ = ["nan_max", "nan_min", "gauge_minima", "ray_rows", "posed_rows", "radial_rows", "g5_rows", "log_gauge_rows", "screen_lm"]
+__all__ = ["nan_max", "nan_min", "solve_ray", "gauge_minima", "rotation", "log_gauge_point", "ray_rows", "posed_rows",
+           "radial_rows", "g5_rows", "log_gauge_rows", "screen_lm"]
 
 _TINY = 1e-300
 _LOGE2 = math.log(2.0)
@@ -106,7 +107,7 @@ def _line_slope(q0x, q0y, q0z, ux, uy, uz, d, e1, e2):
 
 
 @njit(**_JIT)
-def _solve_ray(q0x, q0y, q0z, ux, uy, uz, r0x, r0y, r0z, lx, ly, lz, ratio, e1, e2, d0, warm, rtol, max_newton,
+def solve_ray(q0x, q0y, q0z, ux, uy, uz, r0x, r0y, r0z, lx, ly, lz, ratio, e1, e2, d0, warm, rtol, max_newton,
                max_warm, grid, znear, warm_bracket, newton_power):
     """Minimiser ``d`` and ``log g`` there of one ray; see :func:`sqfit.fitting.raycost.ray_minima`."""
     bb = lx * lx + ly * ly + lz * lz
@@ -178,7 +179,7 @@ def gauge_minima(q0, u, rel0, ul, ratio, e1, e2, d0, warm, rtol, max_newton, max
     n = rel0.shape[0]
     d, log_m = np.empty(n), np.empty(n)
     for i in range(n):
-        d[i], log_m[i] = _solve_ray(q0[0, i], q0[1, i], q0[2, i], u[0, i], u[1, i], u[2, i], rel0[i, 0], rel0[i, 1],
+        d[i], log_m[i] = solve_ray(q0[0, i], q0[1, i], q0[2, i], u[0, i], u[1, i], u[2, i], rel0[i, 0], rel0[i, 1],
                                     rel0[i, 2], ul[i, 0], ul[i, 1], ul[i, 2], ratio[i], e1[i], e2[i],
                                     d0[i] if warm else 0.0, warm, rtol, max_newton, max_warm, grid, znear,
                                     warm_bracket, newton_power)
@@ -190,7 +191,7 @@ def gauge_minima(q0, u, rel0, ul, ratio, e1, e2, d0, warm, rtol, max_newton, max
 
 
 @njit(**_JIT)
-def _rotation(r):
+def rotation(r):
     """``R`` ``(3, 3)`` and ``dR`` ``(3, 9)`` (``dR[k]`` is ``dR / dr_k`` flattened row-major)."""
     cx, cy, cz = math.cos(r[0]), math.cos(r[1]), math.cos(r[2])
     sx, sy, sz = math.sin(r[0]), math.sin(r[1]), math.sin(r[2])
@@ -272,7 +273,7 @@ def radial_rows(xi, points):
     """``sqfit.fitting.costs.radial_terms``: ``xi`` ``(11,)``, ``points`` ``(n, 3)`` -> ``g3`` ``(n,)``,
     ``d_xi`` ``(n, 11)``, ``d_point`` ``(n, 3)``."""
     n = points.shape[0]
-    R, dR = _rotation(xi[8:11])
+    R, dR = rotation(xi[8:11])
     log_a = np.log(np.abs(xi[0:3]))
     g3, d_xi, d_point = np.empty(n), np.empty((n, 11)), np.empty((n, 3))
     for i in range(n):
@@ -286,7 +287,7 @@ def g5_rows(xi, depths, origins, rays, scaled, weight, lower, upper):
     ``rays`` ``(n, 3)`` -> ``r`` ``(n + 11,)``, ``A`` ``(n, 11)``, ``D`` ``(n,)``, ``P`` ``(11,)``
     (sample points, radial terms, volume factor and penalty in one pass)."""
     n = depths.shape[0]
-    R, dR = _rotation(xi[8:11])
+    R, dR = rotation(xi[8:11])
     log_a = np.log(np.abs(xi[0:3]))
     r, A, D, P = np.empty(n + 11), np.empty((n, 11)), np.empty(n), np.empty(11)
     d_point = np.empty(3)
@@ -315,7 +316,7 @@ def g5_rows(xi, depths, origins, rays, scaled, weight, lower, upper):
 
 
 @njit(**_JIT)
-def _log_gauge_point(xi, log_a, R, dR, px, py, pz, out, d_g3, d_point):
+def log_gauge_point(xi, log_a, R, dR, px, py, pz, out, d_g3, d_point):
     """``log g`` of one world point; ``d log g / d xi`` into ``out`` ``(11,)`` (scratch ``d_g3``
     ``(11,)``, ``d_point`` ``(3,)``); see :func:`sqfit.fitting.raycost.log_gauge_jacobian`."""
     g3 = _radial_point(xi, log_a, R, dR, px, py, pz, d_g3, d_point)
@@ -342,10 +343,10 @@ def log_gauge_rows(X, points):
     log_g, d_xi = np.empty((b, n)), np.empty((b, n, 11))
     d_g3, d_point = np.empty(11), np.empty(3)
     for s in range(b):
-        R, dR = _rotation(X[s, 8:11])
+        R, dR = rotation(X[s, 8:11])
         log_a = np.log(np.abs(X[s, 0:3]))
         for i in range(n):
-            log_g[s, i] = _log_gauge_point(X[s], log_a, R, dR, points[s, i, 0], points[s, i, 1], points[s, i, 2], d_xi[s, i],
+            log_g[s, i] = log_gauge_point(X[s], log_a, R, dR, points[s, i, 0], points[s, i, 1], points[s, i, 2], d_xi[s, i],
                                            d_g3, d_point)
     return log_g, d_xi
 
@@ -363,7 +364,7 @@ def _ray_block(xi, origins, directions, weights, kind, d0, warm, rtol, max_newto
     ``kind`` ``(n,) int64``: 0 two-sided, 1 active where ``phi > 0`` (INSIDE and one-sided
     CONTOUR rays), 2 active where ``phi < 0`` (two-sided OUTSIDE), 3 never (one-sided OUTSIDE).
     """
-    R, dR = _rotation(xi[8:11])
+    R, dR = rotation(xi[8:11])
     log_a = np.log(np.abs(xi[0:3]))
     ax, ay, az = nan_max(abs(xi[0]), _TINY), nan_max(abs(xi[1]), _TINY), nan_max(abs(xi[2]), _TINY)
     ratio = max(ax, ay, az) / min(ax, ay, az)
@@ -377,11 +378,11 @@ def _ray_block(xi, origins, directions, weights, kind, d0, warm, rtol, max_newto
         lx = bx * R[0, 0] + by * R[1, 0] + bz * R[2, 0]
         ly = bx * R[0, 1] + by * R[1, 1] + bz * R[2, 1]
         lz = bx * R[0, 2] + by * R[1, 2] + bz * R[2, 2]
-        di, _ = _solve_ray(r0x / ax, r0y / ay, r0z / az, lx / ax, ly / ay, lz / az, r0x, r0y, r0z, lx, ly, lz, ratio,
+        di, _ = solve_ray(r0x / ax, r0y / ay, r0z / az, lx / ax, ly / ay, lz / az, r0x, r0y, r0z, lx, ly, lz, ratio,
                            xi[3], xi[4], d0[i] if warm else 0.0, warm, rtol, max_newton, max_warm, grid, znear,
                            warm_bracket, newton_power)
         d[i] = di
-        log_m = _log_gauge_point(xi, log_a, R, dR, origins[i, 0] + di * bx, origins[i, 1] + di * by,
+        log_m = log_gauge_point(xi, log_a, R, dR, origins[i, 0] + di * bx, origins[i, 1] + di * by,
                                  origins[i, 2] + di * bz, J[i], d_g3, d_point)
         if log_m < 0:
             phi, dphi = math.exp(nan_min(log_m, 0.0)) - 1.0, math.exp(nan_min(log_m, 0.0))

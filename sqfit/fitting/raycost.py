@@ -238,9 +238,7 @@ def gauge_minima(q0, u, rel0, ul, ratio, e1, e2, d0, rtol=_D_RTOL, max_newton=_M
         n = len(ratio)
         f = np.ascontiguousarray
         warm = d0 is not None
-        args = solver_args(rtol, max_newton)
-        if start == "nearest":  # an empty grid tells the kernel
-            args = args[:3] + (_NO_GRID,) + args[4:]
+        args = solver_args(rtol, max_newton, start)
         return kernels.gauge_minima(f(q0, dtype=np.float64), f(u, dtype=np.float64), f(rel0, dtype=np.float64),
                                     f(ul, dtype=np.float64), f(ratio, dtype=np.float64),
                                     *(f(np.broadcast_to(e, (n,)), dtype=np.float64) for e in (e1, e2)),
@@ -316,10 +314,14 @@ _NO_WARM = np.zeros(1)
 _NO_GRID = np.zeros(0)
 
 
-def solver_args(rtol, max_newton):
+def solver_args(rtol=_D_RTOL, max_newton=_MAX_NEWTON, start="grid"):
     """The ray minimiser's tolerances and constants, as the compiled kernels (:mod:`.ray_kernels`) take
-    them: ``(rtol, max_newton, max_newton_warm, grid, znear, warm_bracket, newton_power)``."""
-    return float(rtol), int(max_newton), _MAX_NEWTON_WARM, _GRID_T, ZNEAR, _WARM_BRACKET, _NEWTON_POWER
+    them: ``(rtol, max_newton, max_newton_warm, grid, znear, warm_bracket, newton_power)``; ``start``
+    (:func:`gauge_minima`): ``"nearest"`` passes an empty grid, which tells the kernels."""
+    if start not in STARTS:
+        raise ValueError(f"start must be one of {STARTS}, got {start!r}")
+    grid = _NO_GRID if start == "nearest" else _GRID_T
+    return float(rtol), int(max_newton), _MAX_NEWTON_WARM, grid, ZNEAR, _WARM_BRACKET, _NEWTON_POWER
 
 
 def ray_kind(rays):

@@ -36,7 +36,8 @@ from .._checks import check_shape
 from ..fitting.costs import LOWER_BOUNDS, UPPER_BOUNDS
 from ..views.observation import Observation
 from ..fitting.stages import to_superquadric
-from ..fitting.raycost import gauge_minima, gauge_phi, batch_log_gauge_jacobian, ray_residuals
+from ..fitting.backend import compiled
+from ..fitting.raycost import gauge_minima, gauge_phi, batch_log_gauge_jacobian, ray_residuals, solver_args
 from ..views.rays import contour_rays
 from ..geometry.superquadric import Superquadric
 
@@ -233,6 +234,13 @@ def batch_silhouette_residuals(T_world_camera, T_world_sq, shape, rays, d0=None,
     J_offset : (k, n) float
         ``d r / d δ`` (per px); only when ``offset`` is given.
     """
+    kernels = compiled("views") if offset is None and d0 is None else None
+    if kernels is not None:  # the same numbers in one compiled loop (sqfit.fitting.view_kernels)
+        f = np.ascontiguousarray
+        return kernels.silhouette_rows(f(T_world_camera, dtype=np.float64), f(T_world_sq, dtype=np.float64),
+                                       f(shape, dtype=np.float64), f(rays.directions, dtype=np.float64),
+                                       f(rays.weights, dtype=np.float64), f(rays.hinge_in), f(rays.hinge_out),
+                                       f(rays.two_sided), EVAL_LOWER, EVAL_UPPER, *solver_args(start=start))
     R_c, t_c = T_world_camera[:, :3, :3], T_world_camera[:, :3, 3]
     R_l, t_l = T_world_sq[:, :3, :3], T_world_sq[:, :3, 3]
     R_sc = np.einsum("kji,kjl->kil", R_l, R_c)  # R_l^T R_c
