@@ -20,7 +20,7 @@ milliseconds). ``--options JSON`` passes :class:`sqfit.graph.GraphOptions` field
 (median); a last table gives them per run for the two graph methods. Issue 23's, on its evaluation
 scenes (``--scene scenes/sequence-eval.toml --scene scenes/sequence-eval-waypoints.toml --seeds 2
 --sequences 3 --perturb 3``): batch CPU median <= 2 s, iSAM2 update median <= 20 ms (README
-"Speed, issue 23" has the measured figures; the batch's ``cpu_seconds`` include its landmark fits). ``--sequences N`` takes
+"Objects and camera poses together" has the measured figures; the batch's ``cpu_seconds`` include its landmark fits). ``--sequences N`` takes
 sequences 0..N-1 of each seed of the scene. The methods are chaotic on these sequences (a relative
 change of 1e-9 in one option can move one sequence's ATE by centimetres): ``--perturb N`` runs each
 sequence N times with ``silhouette_sigma`` scaled by ``1 + k 1e-9`` and a middle table gives medians,

@@ -13,7 +13,7 @@ Every evaluation solves each ray's minimiser from its own bracket search, never 
 the factor's previous evaluation: the error is then a function of the variables alone. Warm-started,
 a ray kept following the local minimum it had found before (the bracket search picks the ray's
 best one), so the same values could give different errors after different histories, and runs 1e-9
-apart took different paths. Measured on the evaluation scenes (README "Issue 23, seventh pass", 72
+apart took different paths. Measured on the evaluation scenes (docs/slam-history.md "Issue 23, seventh pass", 72
 runs, with the floor and the scenes' odometry noise): runs with ATE <= 0.015 m 65 -> 70, the largest
 spread of a sequence's ATE over its 3 runs 0.0096 -> 0.0050 m, of its median object IoU 0.033 ->
 0.020, at the same CPU time.

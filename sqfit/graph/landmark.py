@@ -223,7 +223,7 @@ def batch_silhouette_residuals(T_world_camera, T_world_sq, shape, rays, d0=None,
         at the best point of a grid over its bracket, as the fitter's stages do. Both find the
         one minimum along the line (to ~1e-10 relative in depth); "nearest" costs one evaluation
         where the grid costs 24: on the evaluation scenes the ray solves were a fifth of the
-        graph's CPU time with the grid (README "Issue 23, seventh pass").
+        graph's CPU time with the grid (docs/slam-history.md "Issue 23, seventh pass").
 
     Returns
     -------

@@ -89,7 +89,7 @@ class GraphOptions(Options):
         objects no superquadric follows (tables, chairs) overlap 0.3-0.6 and gain nothing from
         waiting (household sequences, seeds 0 / 1, graph median IoU over two 1e-9 perturbations:
         0.249 / 0.504 and 0.331 / 0.513 at 0.5, against 0.387 / 0.589 and 0.252 / 0.539 without
-        waiting and 0.347 / 0.600 and 0.267 / 0.543 at 0.1; README "Issue 23, fourth pass").
+        waiting and 0.347 / 0.600 and 0.267 / 0.543 at 0.1; docs/slam-history.md "Issue 23, fourth pass").
     init_chain : str
         Default :data:`INIT_CHAIN`.
     mismatch_ray_k : float
@@ -106,7 +106,7 @@ class GraphOptions(Options):
         of the batch's time, while the graph estimates the poses itself (evaluation scenes, 36
         runs: CPU median 3.89 -> 2.62 s, ATE median 0.041 -> 0.038 m, object IoU median / 10th
         percentile 0.863 / 0.701 -> 0.871 / 0.700). iSAM2, which never re-fits, lost with it
-        (ATE median 0.046 -> 0.052 m, IoU 10th percentile 0.497 -> 0.475). README "Speed".
+        (ATE median 0.046 -> 0.052 m, IoU 10th percentile 0.497 -> 0.475). docs/slam-history.md "Speed, issue 23".
     bounds_weight : float
         ``c_p`` of the size/shape bound penalty (eq. 7), >= 0.
     landmark_prior_sigma_deg, landmark_prior_sigma_m, shape_prior_sigma : float
@@ -120,7 +120,7 @@ class GraphOptions(Options):
         ``isam2_rescale_every`` frames), the batch's own initial fits (``batch_pose_noise_refit``).
         ``"windows"``: Levenberg-Marquardt over growing windows (``batch_window``,
         ``batch_free_frames``, ``batch_past_views``, ``window_relative_tolerance``). Measured on the
-        evaluation scenes (README "Issue 23, fifth pass"): the windows' result hinged on rounding
+        evaluation scenes (docs/slam-history.md "Issue 23, fifth pass"): the windows' result hinged on rounding
         in their first solves; from iSAM2 the spread between runs 1e-9 apart fell fourfold. With a
         floor, ``batch_odometry_chi2`` guards against iSAM2 running off.
     batch_odometry_chi2 : float
@@ -225,7 +225,7 @@ class GraphOptions(Options):
         None: ``floor_sigma_m``. Only with ``floor_z``. The landmarks then sit near their minima,
         and the floor, the one metric cue besides the odometry, fixes the map's scale: at 10 mm the
         odometry still pulled it 0.1-0.3 % off, the landmarks' lowest points up to 3 mm under the
-        floor. Measured on the evaluation scenes (36 runs of seeds 0-1 / 36 of seeds 2-3, README
+        floor. Measured on the evaluation scenes (36 runs of seeds 0-1 / 36 of seeds 2-3, docs/slam-history.md
         "Issue 23, fifth pass"): runs with ATE <= 0.015 m 28 / 31 at 10 mm, 32 / 33 at 2 mm, 31 / 33
         at 1 mm; largest spread of a sequence's ATE over 3 runs 1e-9 apart 0.021 / 0.010, 0.009 /
         0.009, 0.005 / 0.005 m. A 3 mm floor throughout (iSAM2 too) was worse: 20 / 31 runs.
@@ -234,7 +234,7 @@ class GraphOptions(Options):
         whitened ray residual, :func:`sqfit.graph.refit.object_misfits`) at most this before the
         last solves; the others keep ``floor_sigma_m``. A superquadric that does not follow its
         object (a chair, a plush toy) has no reliable lowest point, and a 1 mm floor under it pulled
-        whole household maps down with it (README "Issue 23, sixth pass": household seed 0 with the
+        whole household maps down with it (docs/slam-history.md "Issue 23, sixth pass": household seed 0 with the
         floor and the scene's odometry noise, median object IoU 0.076 / 0.036 before, 0.184 / 0.125
         with this test). At the end of the batch the landmarks' misfits were 0.28-0.77 on the
         evaluation scenes, 2.0-6.8 on household sequences; 0: no landmark gets the tighter floor.

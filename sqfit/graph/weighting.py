@@ -19,7 +19,7 @@ sequence the poses are still off and every landmark's misfit is high, so the sca
 error and one household sequence's trajectory error went from 0.25 to 0.66 m.
 
 Measured on 15 household sequences (``scenes/sequence-household.toml``, seeds 0-4, 3 sequences
-each, the floor and the scene's odometry noise given, README "Issue 23, seventh pass"): median
+each, the floor and the scene's odometry noise given, docs/slam-history.md "Issue 23, seventh pass"): median
 object IoU over all their objects 0.336 without, 0.390 with the second solve (quadrics from boxes:
 0.257), median trajectory error 0.082 -> 0.075 m; the evaluation scenes never ask for it.
 """

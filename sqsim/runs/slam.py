@@ -86,7 +86,7 @@ example: sqsim slam scenes/sequence.toml -o /tmp/slam --sequences 5 --workers 2"
                         help="give the graph the scene's odometry noise as its odometry sigmas "
                         "(noise.odometry_translation_m and odometry_rotation_deg; default: the graph's own, 5 mm and "
                         "0.5 deg per step): better trajectories on superquadric scenes, worse maps on household "
-                        "objects (README, \"Issue 23, third pass\")")
+                        "objects (docs/slam-history.md, \"Issue 23, third pass\")")
     parser.add_argument("--floor", action="store_true",
                         help="give the graph the floor the objects stand on (objects.layout = \"ground\": the plane "
                         "z = 0 of the first pose's world frame), as a robot with a level camera at a known height "
@@ -135,7 +135,7 @@ def scene_graph_options(scene, options=None, *, floor=False, odometry_noise=Fals
     defaults (5 mm and 0.5 deg) are five times too confident for ``scenes/sequence-eval.toml``'s
     2.5 cm, and the true sigma gives better trajectories there; but on household objects, whose
     silhouettes no superquadric follows, the looser odometry lets them pull the poses and the maps
-    get worse (README, "Issue 23, third pass"), so it is not the default. With ``floor`` the plane the objects
+    get worse (docs/slam-history.md, "Issue 23, third pass"), so it is not the default. With ``floor`` the plane the objects
     stand on is given too (``floor_z = 0``: ``objects.layout = "ground"`` rests every object on the
     plane z = 0 of the world frame of the first pose, which the graph holds at the first odometry
     pose, the true one): what a robot with a level camera at a known height over the floor knows.
