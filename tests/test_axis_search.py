@@ -185,7 +185,7 @@ def test_ray_minimiser_budget_is_honoured():
     rays = contour_rays(trial.observations, 16)
     box = trial.gt.to_vector().copy()
     box[3:5] = 0.05
-    from sqfit.fitting.raycost import batch_ray_minima
+    from sqfit.fitting.line_gauge import batch_ray_minima
 
     d_full, m_full = batch_ray_minima(box[None], rays.origins, rays.directions)
     d_one, m_one = batch_ray_minima(box[None], rays.origins, rays.directions, max_newton=1)
@@ -199,11 +199,11 @@ def test_ray_minimiser_budget_is_honoured():
 
 
 @pytest.mark.parametrize("kernels", ["numba", "numpy"])
-def test_the_screen_penalises_shapes_below_its_own_bound(kernels, monkeypatch):
-    from sqfit.fitting import axis_screen, raycost
+def test_the_screen_penalises_shapes_below_its_own_bound(kernels, request):
+    from sqfit.fitting import axis_screen, backend
 
-    if kernels == "numpy":
-        monkeypatch.setattr(raycost, "compiled", lambda: None)
+    previous = backend.set_kernels(kernels)
+    request.addfinalizer(lambda: backend.set_kernels(previous))
     assert axis_screen.SCREEN_SHAPE_MIN > C.SILHOUETTE_SHAPE_BOUNDS[0]
     trial = paper_trial(1)
     rays = contour_rays(trial.observations)

@@ -15,7 +15,7 @@ import numpy as np
 import pytest
 
 import sqfit
-from sqfit.fitting import axis_screen, backend, costs, raycost
+from sqfit.fitting import axis_screen, backend, costs, line_gauge, raycost
 from sqfit.views.rays import contour_rays
 from sqfit.testing import paper_trial
 from _helpers import stage
@@ -102,21 +102,21 @@ def test_ray_minima_agree(kernels, shape, warm, start):
     origins = rng.normal(size=(100, 3)) * 0.5 + [0.0, 0.0, -8.0]
     directions = xi[5:8] + rng.normal(size=(100, 3)) * 0.8 - origins
     directions /= directions[:, 2:3]
-    d0 = raycost.ray_minima(xi, origins, directions)[0] * 1.01 if warm else None
-    (d_k, m_k), (d_n, m_n) = kernels(lambda: raycost.ray_minima(xi, origins, directions, d0, start))
+    d0 = line_gauge.ray_minima(xi, origins, directions)[0] * 1.01 if warm else None
+    (d_k, m_k), (d_n, m_n) = kernels(lambda: line_gauge.ray_minima(xi, origins, directions, d0, start))
     assert _close(d_k, d_n, 1e-12) and _close(m_k, m_n, 1e-12)
-    if warm:  # warm rays stop after a few Newton steps (raycost._MAX_NEWTON_WARM): not always converged
+    if warm:  # warm rays stop after a few Newton steps (line_gauge's _MAX_NEWTON_WARM): not always converged
         return
     # and the answer is the minimum: no point of a fine grid along each ray is lower
     assert np.all(m_k <= _fine_minima(xi, origins, directions) + 1e-9)
     if start == "nearest":  # the one minimum along each line, whichever start
-        d_g, m_g = raycost.ray_minima(xi, origins, directions)
+        d_g, m_g = line_gauge.ray_minima(xi, origins, directions)
         assert _close(m_k, m_g, 1e-9) and _close(d_k, d_g, 1e-6)
 
 
 def test_ray_minima_reject_an_unknown_start():
     with pytest.raises(ValueError, match="start must be one of"):
-        raycost.ray_minima(_xi(SHAPES[0], np.random.default_rng(0)), np.zeros((1, 3)), np.ones((1, 3)), None, "middle")
+        line_gauge.ray_minima(_xi(SHAPES[0], np.random.default_rng(0)), np.zeros((1, 3)), np.ones((1, 3)), None, "middle")
 
 
 def test_ray_residuals_agree_on_a_paper_trial(kernels):

@@ -4,7 +4,8 @@ import pytest
 import sqfit
 from sqfit import constants as C
 from sqfit.metrics import iou_3d
-from sqfit.fitting.raycost import posed_ray_residuals, ray_minima, ray_residuals
+from sqfit.fitting.line_gauge import ray_minima
+from sqfit.fitting.raycost import posed_ray_residuals, ray_residuals
 from sqfit.views.rays import CONTOUR, INSIDE, OUTSIDE, RaySet, contour_rays, outward_normals
 from sqfit.geometry.superquadric import Superquadric, implicit
 from sqfit.testing import paper_trial

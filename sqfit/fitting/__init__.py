@@ -6,7 +6,8 @@ Above :mod:`sqfit.views`. Stages are registered by name in :data:`STAGES` (paper
 :mod:`.hull`), and a chain is a dash-joined list of them (``"1-2M-3H"``).
 
 - :mod:`.costs` — the paper's costs: R-IOU (G2), the analytic G3-G5, penalty, bounds;
-- :mod:`.raycost` — the grazing-ray cost: ray residuals and their batched minimisers;
+- :mod:`.line_gauge` — where a ray comes closest to a superquadric: the gauge's minimum along lines;
+- :mod:`.raycost` — the grazing-ray cost: ray residuals and their Jacobians;
 - :mod:`.lm` — Levenberg-Marquardt (dense, Schur-complement and batched);
 - :mod:`.stages` — the stage registry, the fit state, the paper's stages;
 - :mod:`.moments` — stage 2M: stage 2's ellipsoid from the masks' exact moments;

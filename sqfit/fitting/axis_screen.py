@@ -106,7 +106,8 @@ from .. import constants as C
 from .._checks import check_shape
 from .restarts import N_SCREEN_CONTOUR, screen_rays, symmetric_candidates
 from .backend import compiled
-from .raycost import RAY_BOUNDS, batch_ray_residuals, ray_bounds, ray_kind, solver_args
+from .line_gauge import solver_args
+from .raycost import RAY_BOUNDS, batch_ray_residuals, ray_bounds, ray_kind
 from .grazing import describe_values, offset_groups, shifted_rays, silhouette_fit
 from .costs import ObservationSet
 from .stages import NUMERICAL_ERRORS, STAGES, FitState, StageError, ellipsoid_depths, r_iou_m, register, to_superquadric
@@ -128,7 +129,7 @@ REFINE_FTOL = 1e-3
 #: 0.969 to 0.807 (cylinders): the right candidate is often still behind half-way.
 PRUNE_AFTER = None
 PRUNE_RATIO = 4.0
-#: Relative tolerance of the screen's ray minimisers (3G: 1e-10; see :func:`sqfit.fitting.raycost.batch_ray_minima`).
+#: Relative tolerance of the screen's ray minimisers (3G: 1e-10; see :func:`sqfit.fitting.line_gauge.batch_ray_minima`).
 SCREEN_RTOL = 1e-6
 #: Newton / bisection steps at most of the screen's ray minimisers for rays whose warm bracket did not
 #: hold (3G: 30; warm rays: 6 in both). The tail of slow rays (near-kinks of box-like candidates,

@@ -1,7 +1,7 @@
 """Compiled (numba) kernels of the ray minimisers, the 3G residuals and the radial terms.
 
 The same formulas as the numpy code, written per ray / per point: :func:`gauge_minima` is
-``sqfit.fitting.raycost.gauge_minima``, :func:`ray_rows` is :func:`sqfit.fitting.raycost.batch_ray_residuals`
+``sqfit.fitting.line_gauge.gauge_minima``, :func:`ray_rows` is :func:`sqfit.fitting.raycost.batch_ray_residuals`
 with the ray solve fused in, :func:`posed_rows` is :func:`sqfit.fitting.raycost.posed_ray_residuals`,
 :func:`radial_rows` is ``sqfit.fitting.costs._radial_core``, :func:`g5_rows` is
 :func:`sqfit.fitting.costs.g5_residuals` and :func:`log_gauge_rows` is
@@ -64,7 +64,7 @@ def _nz(x):
 
 
 # ------------------------------------------------------------------------------------------------
-# the ray minimiser (sqfit.fitting.raycost.gauge_minima, one ray at a time)
+# the ray minimiser (sqfit.fitting.line_gauge.gauge_minima, one ray at a time)
 
 
 @njit(**_JIT)
@@ -75,7 +75,7 @@ def _logs(q0x, q0y, q0z, ux, uy, uz, d):
 
 @njit(**_JIT)
 def _line_value(q0x, q0y, q0z, ux, uy, uz, d, e1, e2):
-    """``log g`` along a line (``sqfit.fitting.raycost._line_log_gauge``, first output)."""
+    """``log g`` along a line (``sqfit.fitting.line_gauge._line_log_gauge``, first output)."""
     qx, qy, qz = _nz(q0x + d * ux), _nz(q0y + d * uy), _nz(q0z + d * uz)
     p1, p2 = 2.0 / e1, 2.0 / e2
     sx, sy, sz = math.log(abs(qx)), math.log(abs(qy)), math.log(abs(qz))
@@ -86,7 +86,7 @@ def _line_value(q0x, q0y, q0z, ux, uy, uz, d, e1, e2):
 
 @njit(**_JIT)
 def _line_slope(q0x, q0y, q0z, ux, uy, uz, d, e1, e2):
-    """First and second derivative in ``d`` of ``log g`` along a line (``sqfit.fitting.raycost._line_log_gauge``;
+    """First and second derivative in ``d`` of ``log g`` along a line (``sqfit.fitting.line_gauge._line_log_gauge``;
     its softmax weights ``0.5 (1 + tanh(x / 2))`` written as ``1 / (1 + exp(-x))``, sharing the
     exponential with the log-sum-exp)."""
     sx, sy, sz, kx, ky, kz = _logs(q0x, q0y, q0z, ux, uy, uz, d)
@@ -109,7 +109,7 @@ def _line_slope(q0x, q0y, q0z, ux, uy, uz, d, e1, e2):
 @njit(**_JIT)
 def solve_ray(q0x, q0y, q0z, ux, uy, uz, r0x, r0y, r0z, lx, ly, lz, ratio, e1, e2, d0, warm, rtol, max_newton,
                max_warm, grid, znear, warm_bracket, newton_power):
-    """Minimiser ``d`` and ``log g`` there of one ray; see :func:`sqfit.fitting.raycost.ray_minima`."""
+    """Minimiser ``d`` and ``log g`` there of one ray; see :func:`sqfit.fitting.line_gauge.ray_minima`."""
     bb = lx * lx + ly * ly + lz * lz
     dc = -(r0x * lx + r0y * ly + r0z * lz) / bb
     cx, cy, cz = r0x + dc * lx, r0y + dc * ly, r0z + dc * lz
@@ -173,7 +173,7 @@ def solve_ray(q0x, q0y, q0z, ux, uy, uz, r0x, r0y, r0z, lx, ly, lz, ratio, e1, e
 @njit(**_JIT)
 def gauge_minima(q0, u, rel0, ul, ratio, e1, e2, d0, warm, rtol, max_newton, max_warm, grid, znear, warm_bracket,
                  newton_power):
-    """``sqfit.fitting.raycost.gauge_minima``: ``q0``, ``u`` ``(3, n)``; ``rel0``, ``ul`` ``(n, 3)``;
+    """``sqfit.fitting.line_gauge.gauge_minima``: ``q0``, ``u`` ``(3, n)``; ``rel0``, ``ul`` ``(n, 3)``;
     ``ratio``, ``e1``, ``e2``, ``d0`` ``(n,)`` (``d0`` read only if ``warm``). Returns ``d``,
     ``log_m`` ``(n,)``."""
     n = rel0.shape[0]

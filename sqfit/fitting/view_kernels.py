@@ -45,7 +45,7 @@ def silhouette_rows(T_world_camera, T_world_sq, shape, directions, weights, hing
     ``T_world_camera``, ``T_world_sq`` ``(k, 4, 4)``; ``shape`` ``(k, 5)``, clipped to ``[lower,
     upper]`` (zero Jacobian columns where clipped); ``directions`` ``(k, n, 3)`` camera-frame
     bearings; ``weights`` ``(k, n)``; ``hinge_in``, ``hinge_out``, ``two_sided`` ``(k, n)`` bool;
-    the solver's constants as :func:`sqfit.fitting.raycost.solver_args` gives them. Returns ``r``
+    the solver's constants as :func:`sqfit.fitting.line_gauge.solver_args` gives them. Returns ``r``
     ``(k, n)``, ``J_camera``, ``J_landmark`` ``(k, n, 6)``, ``J_shape`` ``(k, n, 5)``, ``d``
     ``(k, n)``.
     """

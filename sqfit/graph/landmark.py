@@ -37,7 +37,8 @@ from ..fitting.costs import LOWER_BOUNDS, UPPER_BOUNDS
 from ..views.observation import Observation
 from ..fitting.stages import to_superquadric
 from ..fitting.backend import compiled
-from ..fitting.raycost import gauge_minima, gauge_phi, batch_log_gauge_jacobian, ray_residuals, solver_args
+from ..fitting.line_gauge import gauge_minima, solver_args
+from ..fitting.raycost import gauge_phi, batch_log_gauge_jacobian, ray_residuals
 from ..views.rays import contour_rays
 from ..geometry.superquadric import Superquadric
 
@@ -218,7 +219,7 @@ def batch_silhouette_residuals(T_world_camera, T_world_sq, shape, rays, d0=None,
         offset as estimated there (:func:`sqfit.fitting.raycost.posed_ray_residuals`; README "Real
         masks"), so a superquadric grown by as much cannot buy a lower relative cost.
     start : str
-        Where a ray without a warm start begins its solve (:func:`sqfit.fitting.raycost.gauge_minima`):
+        Where a ray without a warm start begins its solve (:func:`sqfit.fitting.line_gauge.gauge_minima`):
         ``"nearest"`` (the default) at the line's point nearest the landmark's centre, ``"grid"``
         at the best point of a grid over its bracket, as the fitter's stages do. Both find the
         one minimum along the line (to ~1e-10 relative in depth); "nearest" costs one evaluation
