@@ -242,8 +242,10 @@ class GraphOptions(Options):
         A landmark whose misfit (RMS whitened ray residual at ``silhouette_sigma``,
         :func:`sqfit.graph.refit.object_misfits`) exceeds this gets its silhouette factors' sigma
         scaled by misfit / ``misfit_sigma`` (:mod:`sqfit.graph.weighting`: a landmark no
-        superquadric follows counts by the spread its rays show); re-estimated at iSAM2's rebuilds
-        and before the batch's last solves. 0: every landmark keeps ``silhouette_sigma``.
+        superquadric follows counts by the spread its rays show). Batch only: the misfits are
+        measured at the batch's solution and, where any landmark's scale is needed, the whole batch
+        runs again with the scales from the first frame (a warning names them); the incremental
+        method keeps ``silhouette_sigma``. 0: every landmark keeps ``silhouette_sigma``.
     max_iterations : int
         Levenberg-Marquardt iterations of the batch solves.
     relative_tolerance : float

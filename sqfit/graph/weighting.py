@@ -21,7 +21,9 @@ error and one household sequence's trajectory error went from 0.25 to 0.66 m.
 Measured on 15 household sequences (``scenes/sequence-household.toml``, seeds 0-4, 3 sequences
 each, the floor and the scene's odometry noise given, docs/slam-history.md "Issue 23, seventh pass"): median
 object IoU over all their objects 0.336 without, 0.390 with the second solve (quadrics from boxes:
-0.257), median trajectory error 0.082 -> 0.075 m; the evaluation scenes never ask for it.
+0.257), median trajectory error 0.082 -> 0.075 m, at the commit that introduced it; with the
+graph's factors compiled since (the same model, other rounding), two runs 1e-9 apart gave 0.498 and
+0.398 (README "Household objects in a sequence"). The evaluation scenes never ask for it.
 """
 
 from __future__ import annotations
@@ -37,16 +39,16 @@ __all__ = ["RESCALE_STEP", "noise_scales"]
 RESCALE_STEP = 1.1
 
 
-def noise_scales(problem, values, oids, options, current, rays_cache=None, bounded=frozenset(), n=None):
+def noise_scales(problem, values, oids, options, current, rays_cache=None, bounded=frozenset()):
     """The landmarks of ``oids`` whose silhouette noise scale changes at ``values``, ``{oid: scale}``.
 
     A landmark's scale is ``max(1, m / misfit_sigma)`` with ``m`` its misfit on at most
-    ``refit_max_frames`` of its frames before frame ``n`` (all with None);
-    ``current``: the scales so far (``{oid: scale}``, 1 where absent). Only scales that move by
-    more than :data:`RESCALE_STEP` are returned. Empty when ``misfit_sigma`` is 0."""
+    ``refit_max_frames`` of its frames; ``current``: the scales so far (``{oid: scale}``, 1 where
+    absent). Only scales that move by more than :data:`RESCALE_STEP` are returned. Empty when
+    ``misfit_sigma`` is 0."""
     if options.misfit_sigma <= 0 or not oids:
         return {}
-    misfits = object_misfits(problem, values, oids, options, rays_cache, bounded, n, most=options.refit_max_frames)
+    misfits = object_misfits(problem, values, oids, options, rays_cache, bounded, most=options.refit_max_frames)
     changed = {}
     for oid, m in misfits.items():
         new = max(1.0, m / options.misfit_sigma) if np.isfinite(m) else current.get(oid, 1.0)
