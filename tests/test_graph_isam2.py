@@ -9,7 +9,7 @@ gtsam = pytest.importorskip("gtsam")
 
 import sqfit  # noqa: E402
 from sqfit import graph  # noqa: E402
-from sqfit.graph import landmark, refit, solve  # noqa: E402
+from sqfit.graph import landmark, refit, schedule, solve  # noqa: E402
 from sqfit.graph import problem as gproblem  # noqa: E402
 from sqfit.graph.testing import object_ious, position_rmse, synthetic_sequence  # noqa: E402
 from sqfit.metrics import iou_3d  # noqa: E402
@@ -60,7 +60,8 @@ def _isam2_refits(monkeypatch, seq, options):
 
 @pytest.mark.parametrize("on", [True, False])
 def test_isam2_refits_at_its_rebuilds(monkeypatch, seq, on):
-    result, calls = _isam2_refits(monkeypatch, seq, {"isam2_refit": on, "isam2_rescale_every": 5})
+    result, calls = _isam2_refits(monkeypatch, seq, {"isam2_refit": on, "isam2_rescale_every": 5,
+                                                     "isam2_rescale_parallax_deg": 0})
     assert result.status == "ok"
     assert calls == ([5, 10, 15] if on else [])
 
@@ -171,17 +172,91 @@ def test_batch_start_is_checked():
     (300, {"isam2_rescale_every": 0}, []),
 ])
 def test_isam2_rebuilds_come_later_as_the_sequence_grows(n, options, expected):
-    assert sorted(solve.rebuild_frames(n, graph.GraphOptions(**options))) == expected
+    options = graph.GraphOptions(**options, isam2_rescale_parallax_deg=0)
+    assert sorted(schedule.rebuild_frames(n, options)) == expected
+    # the frame-by-frame schedule in frame units says the same
+    sched = schedule.RebuildSchedule(None, options)
+    assert [i + 1 for i in range(n) if sched.due(None, i)] == expected == sched.frames
 
 
 def test_isam2_rebuilds_follow_the_schedule(monkeypatch, seq):
-    _, calls = _isam2_refits(monkeypatch, seq, {"isam2_rescale_every": 3, "isam2_rescale_growth": 1.0})
+    _, calls = _isam2_refits(monkeypatch, seq, {"isam2_rescale_every": 3, "isam2_rescale_growth": 1.0,
+                                                "isam2_rescale_parallax_deg": 0})
     assert calls == [6, 12]  # of 16 frames; at 3 no landmark is in the graph yet, nothing to rebuild
+
+
+def _schedule_at_truth(seq, options):
+    """The :class:`schedule.RebuildSchedule` of ``seq`` run over its true poses, and its problem."""
+    prob = gproblem.check_inputs(seq.intrinsics, seq.odometry_poses, seq.observations)
+    values = gtsam.Values()
+    for i, T in enumerate(seq.true_poses):
+        values.insert(X(i), gtsam.Pose3(T))
+    sched = schedule.RebuildSchedule(prob, graph.GraphOptions(**options))
+    for i in range(len(seq.true_poses)):
+        sched.due(values, i)
+    return sched, prob, values
+
+
+def test_step_parallax_is_the_angle_a_step_subtends_at_the_objects():
+    seq = synthetic_sequence(2, n_frames=21, n_objects=3, arc_deg=100.0)  # 5 degrees of orbit per step
+    _, prob, values = _schedule_at_truth(seq, {})
+    steps = [schedule.step_parallax_deg(prob, values, i) for i in range(1, 21)]
+    # objects within 1.6 m of the orbit's centre, cameras 5 m out: about the orbit's 5 degrees
+    assert 3.0 < np.median(steps) < 8.0
+    assert schedule.step_parallax_deg(prob, values, 0) == 0.0
+    alone = gproblem.check_inputs(seq.intrinsics, seq.odometry_poses,
+                                  {k: o for k, o in seq.observations.items() if k[0] != 4})
+    assert schedule.step_parallax_deg(alone, values, 4) == 0.0  # no object seen in both frames
+
+
+def test_parallax_schedule_rebuilds_where_the_viewpoint_has_moved_whatever_the_frame_rate():
+    def sequence(n):  # the same 240-degree orbit, 240 / (n - 1) degrees per step
+        return synthetic_sequence(4, n_frames=n, n_objects=3, arc_deg=240.0, min_area_px=20, n_samples=40)
+
+    options = {"isam2_rescale_every": 4, "isam2_rescale_parallax_deg": 30.0}
+    where, frames = {}, {}
+    for n in (17, 33, 65):  # 15, 7.5 and 3.75 degrees per step
+        seq = sequence(n)
+        sched, _, _ = _schedule_at_truth(seq, options)
+        where[n] = np.array([(f - 1) * 240.0 / (n - 1) for f in sched.frames])  # the orbit angle of each rebuild
+        frames[n] = sorted(schedule.rebuild_frames(n, graph.GraphOptions(**options)))
+        assert sched.frames == sorted(set(sched.frames))
+        # never before the frame floor: each rebuild at least as far apart as by frames alone
+        gaps, floor = np.diff([0] + sched.frames), np.diff([0] + frames[n][:len(sched.frames)])
+        assert np.all(gaps >= floor[:len(gaps)])
+    # 15 degrees per step: 30 degrees come within the 4 frames, the frames set the pace
+    assert sched_frames(sequence(17), options) == frames[17]
+    # finer: the parallax sets it, the rebuilds fall at the same places of the orbit
+    k = min(len(where[33]), len(where[65]))
+    assert k >= 4 and abs(len(where[65]) - len(where[33])) <= 1  # one more or less at the orbit's end
+    # each rebuild overshoots its mark by up to a step, and the next mark counts from it
+    assert np.abs(where[65][:k] - where[33][:k]).max() <= 15.0
+    assert len(where[65]) < len(frames[65])
+
+
+def sched_frames(seq, options):
+    return _schedule_at_truth(seq, options)[0].frames
+
+
+def test_isam2_rebuilds_follow_the_parallax_schedule(monkeypatch, seq):
+    real, made = schedule.RebuildSchedule, []
+
+    def recording(problem, options):
+        made.append(real(problem, options))
+        return made[-1]
+
+    monkeypatch.setattr(solve, "RebuildSchedule", recording)
+    result, calls = _isam2_refits(monkeypatch, seq, {"isam2_rescale_every": 1, "isam2_rescale_parallax_deg": 20.0})
+    # every rebuild the schedule called for once a landmark was in the graph (none before: nothing to rebuild)
+    assert result.ok and len(calls) >= 3 and calls == made[0].frames[-len(calls):]
+    assert calls != [10]  # not the frame schedule's
 
 
 def test_isam2_rescale_growth_is_checked():
     with pytest.raises(ValueError, match="isam2_rescale_growth"):
         graph.GraphOptions(isam2_rescale_growth=-0.1)
+    with pytest.raises(ValueError, match="isam2_rescale_parallax_deg"):
+        graph.GraphOptions(isam2_rescale_parallax_deg=-1.0)
 
 
 def test_odometry_chi2_is_about_its_degrees_of_freedom_at_the_truth():

@@ -12,7 +12,8 @@ Methods (:data:`METHODS`): ``odometry``, ``fixed`` (per-object fits on the odome
 ``quadric`` (QuadricSLAM: dual quadrics from boxes), ``graph`` (batch Levenberg-Marquardt) and
 ``graph-isam2`` (iSAM2, frame by frame). Inputs and bad input: :mod:`sqfit.graph.problem`; the
 methods: :mod:`sqfit.graph.solve`; building the graph as frames arrive: :mod:`sqfit.graph.growth`;
-re-initialising landmarks: :mod:`sqfit.graph.refit`; the silhouette factor: :mod:`sqfit.graph.landmark`.
+re-initialising landmarks: :mod:`sqfit.graph.refit`; when iSAM2 is rebuilt: :mod:`sqfit.graph.schedule`;
+the silhouette factor: :mod:`sqfit.graph.landmark`.
 """
 
 from .landmark import (bounds_residuals, camera_rays, landmark_to_superquadric, silhouette_residuals,

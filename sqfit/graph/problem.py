@@ -32,7 +32,7 @@ from ..geometry.camera import Camera, Intrinsics
 from ..views.observation import Observation
 
 __all__ = ["INIT_CHAIN", "BATCH_STARTS", "GraphOptions", "SlamResult", "Problem", "check_inputs", "observations_from_instances", "observation_at",
-           "parallax_deg",
+           "parallax_deg", "rays_parallax_deg", "centroid_bearing",
            "ready_to_initialise"]
 
 #: The landmarks' fitting chain: the fitter's default without its stage 3R
@@ -116,8 +116,8 @@ class GraphOptions(Options):
         Standard deviation of a box side, pixels (quadric baseline).
     batch_start : str
         How the batch reaches the whole graph before its re-fit and last solve. ``"isam2"`` (the
-        default): iSAM2 frame by frame, as the ``graph-isam2`` method (with its rebuilds every
-        ``isam2_rescale_every`` frames), the batch's own initial fits (``batch_pose_noise_refit``).
+        default): iSAM2 frame by frame, as the ``graph-isam2`` method (with its rebuilds,
+        ``isam2_rescale_parallax_deg``), the batch's own initial fits (``batch_pose_noise_refit``).
         ``"windows"``: Levenberg-Marquardt over growing windows (``batch_window``,
         ``batch_free_frames``, ``batch_past_views``, ``window_relative_tolerance``). Measured on the
         evaluation scenes (docs/slam-history.md "Issue 23, fifth pass"): the windows' result hinged on rounding
@@ -191,16 +191,22 @@ class GraphOptions(Options):
     isam2_relinearize_threshold : float
         iSAM2 relinearises a variable when its update exceeds this (tangent-space norm).
     isam2_rescale_every : int
-        Every this many frames, iSAM2 is rebuilt on the same factors at its estimate moved to the
-        best scale (:mod:`sqfit.graph.scale`): its partial relinearisation never moves the whole map
-        together, so the scale set by the first landmarks' first frames sticks (0: never).
+        iSAM2 is rebuilt on the same factors at its estimate moved to the best scale
+        (:mod:`sqfit.graph.scale`: its partial relinearisation never moves the whole map together,
+        so the scale set by the first landmarks' first frames sticks) once at least this many frames
+        and ``isam2_rescale_parallax_deg`` of parallax have passed since the last rebuild
+        (:mod:`sqfit.graph.schedule`). 0: never.
     isam2_rescale_growth : float
-        Once ``isam2_rescale_every`` frames are less than this fraction of the frames so far, the
-        rebuilds come that fraction later instead (:func:`sqfit.graph.solve.rebuild_frames`: at
-        0.25 after 10, 20, 30, 40, 50, 63, 79, 99 frames), so their total cost grows with the
-        length, not with its square; 0: every ``isam2_rescale_every`` frames.
+        Once either spacing is less than this fraction of the frames or parallax so far, it becomes
+        that fraction (by frames alone: after 10, 20, 30, 40, 50, 63, 79, 99 frames), so the
+        rebuilds' total cost grows with the length, not with its square; 0: evenly.
+    isam2_rescale_parallax_deg : float
+        The rebuilds' spacing in degrees of parallax (the median angle each frame's step subtends
+        at the mask centroids it shares with the previous frame, summed; about 5.5 per frame on the
+        evaluation scenes): a path filmed at a higher frame rate is not rebuilt more often. 0: by
+        frames alone.
     isam2_refit : bool
-        At each of those rebuilds, the landmarks left in a poor minimum are re-fitted first, as after
+        At each rebuild, the landmarks left in a poor minimum are re-fitted first, as after
         the batch solve (``refit_misfit``; on the frames so far): without it iSAM2 never re-fits a
         landmark, and one in 3G's far, huge minimum drags the trajectory with it.
     isam2_dogleg : bool
@@ -282,6 +288,7 @@ class GraphOptions(Options):
     isam2_relinearize_threshold: float = 0.01
     isam2_rescale_every: int = 10
     isam2_rescale_growth: float = 0.25
+    isam2_rescale_parallax_deg: float = 50.0
     isam2_refit: bool = True
     isam2_dogleg: bool = False
     outline_offset_sigma_px: float = 0.0
@@ -308,7 +315,7 @@ class GraphOptions(Options):
                                "isam2_relinearize_threshold", "window_relative_tolerance", "landmark_prior_sigma_m",
                                "shape_prior_sigma", "box_sigma_px", "relative_tolerance",
                                "final_relative_tolerance", "final_max_lambda", "floor_sigma_m"),
-                     nonnegative=("misfit_sigma", "final_floor_misfit", "isam2_rescale_growth", "bounds_weight", "init_min_overlap", "refit_misfit", "outline_offset_sigma_px", "mismatch_ray_k"))
+                     nonnegative=("misfit_sigma", "final_floor_misfit", "isam2_rescale_growth", "isam2_rescale_parallax_deg", "bounds_weight", "init_min_overlap", "refit_misfit", "outline_offset_sigma_px", "mismatch_ray_k"))
         if self.batch_start not in BATCH_STARTS:
             raise ValueError(f"batch_start must be one of {', '.join(BATCH_STARTS)}, got {self.batch_start!r}")
         if self.final_floor_sigma_m is not None and not (np.isfinite(self.final_floor_sigma_m)
@@ -469,21 +476,36 @@ def parallax_deg(first, last, T_first, T_last):
     T_first, T_last : (4, 4) float
         The frames' ``T_world_camera``.
     """
+    d = [T[:3, :3] @ centroid_bearing(o) for o, T in ((first, T_first), (last, T_last))]
+    return float(rays_parallax_deg(T_first[:3, 3], T_last[:3, 3], d[0][None], d[1][None])[0])
+
+
+def centroid_bearing(observation):
+    """The unit bearing of ``observation``'s mask centroid in its camera frame, (3,)."""
     from ..geometry.camera import bearings
 
-    c = np.stack([T_first[:3, 3], T_last[:3, 3]])
-    d = np.stack([T[:3, :3] @ bearings(o.camera, o.centroid[None])[0] for o, T in ((first, T_first), (last, T_last))])
-    # closest points c_i + t_i d_i of the two rays
-    A = np.array([[d[0] @ d[0], -d[0] @ d[1]], [d[0] @ d[1], -d[1] @ d[1]]])
-    rhs = np.array([d[0] @ (c[1] - c[0]), d[1] @ (c[1] - c[0])])
-    if abs(np.linalg.det(A)) < 1e-12:
-        return 0.0
-    t = np.linalg.solve(A, rhs)
-    if np.any(t <= 0):
-        return 0.0
-    X = 0.5 * (c[0] + t[0] * d[0] + c[1] + t[1] * d[1])
-    u, v = c[0] - X, c[1] - X
-    return float(np.degrees(np.arccos(np.clip(u @ v / (np.linalg.norm(u) * np.linalg.norm(v)), -1.0, 1.0))))
+    return bearings(observation.camera, observation.centroid[None])[0]
+
+
+def rays_parallax_deg(c0, c1, d0, d1):
+    """:func:`parallax_deg` of ``k`` ray pairs from two camera centres ``c0``, ``c1`` (3,) along
+    world directions ``d0``, ``d1`` (k, 3): the angle at each pair's triangulated point (the
+    midpoint of the rays' closest points) between the centres, degrees; 0 where the rays are
+    parallel or do not meet in front of both cameras. (k,)."""
+    d0, d1 = np.asarray(d0, dtype=np.float64), np.asarray(d1, dtype=np.float64)
+    base = np.asarray(c1, dtype=np.float64) - np.asarray(c0, dtype=np.float64)
+    # closest points c0 + t0 d0 and c1 + t1 d1: [[a, -b], [b, -e]] (t0, t1) = (d0 . base, d1 . base)
+    a, b, e = np.einsum("ij,ij->i", d0, d0), np.einsum("ij,ij->i", d0, d1), np.einsum("ij,ij->i", d1, d1)
+    r0, r1 = d0 @ base, d1 @ base
+    det = b * b - a * e
+    ok = np.abs(det) >= 1e-12
+    det = np.where(ok, det, 1.0)
+    t0, t1 = (b * r1 - e * r0) / det, (a * r1 - b * r0) / det
+    ok &= (t0 > 0) & (t1 > 0)
+    X = 0.5 * (c0 + t0[:, None] * d0 + c1 + t1[:, None] * d1)
+    u, v = c0 - X, c1 - X
+    cos = np.einsum("ij,ij->i", u, v) / np.maximum(np.linalg.norm(u, axis=1) * np.linalg.norm(v, axis=1), 1e-300)
+    return np.where(ok, np.degrees(np.arccos(np.clip(cos, -1.0, 1.0))), 0.0)
 
 
 def ready_to_initialise(problem, oid, frames, poses, options):

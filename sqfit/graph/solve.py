@@ -26,8 +26,8 @@ Methods (every one returns a :class:`sqfit.graph.problem.SlamResult`):
   (``batch_odometry_chi2``) is solved again from windows;
 - ``graph-isam2``: the same graph grown frame by frame with iSAM2 (one update per frame; a landmark
   joins once its first frames are enough for its initial fit (``init_frames``, ``init_parallax_deg``),
-  or at the last frame if they never are); every ``isam2_rescale_every`` frames (later ones further
-  apart, :func:`rebuild_frames`) the landmarks in
+  or at the last frame if they never are); after every ``isam2_rescale_parallax_deg`` of parallax
+  (later ones further apart, :mod:`sqfit.graph.schedule`) the landmarks in
   poor minima are re-fitted on the frames so far and iSAM2 is rebuilt at the best scale;
 - ``quadric``: QuadricSLAM (:mod:`sqfit.graph.quadric`): ellipsoid landmarks ``L(j)``, radii
   ``Q(j)``, one box factor per (frame, object) whose mask does not touch the image border, batch
@@ -53,9 +53,10 @@ from .problem import GraphOptions, SlamResult, check_inputs
 from .quadric import initialise_quadric, observation_box, quadric_to_superquadric
 from .refit import object_misfits, refit_landmarks
 from .scale import best_scale, rescaled, scale_dependent_factors
+from .schedule import RebuildSchedule
 from .weighting import noise_scales
 
-__all__ = ["METHODS", "run", "rebuild_frames", "odometry_chi2", "odometry", "fixed_pose_fits", "superquadric_graph",
+__all__ = ["METHODS", "run", "odometry_chi2", "odometry", "fixed_pose_fits", "superquadric_graph",
            "superquadric_isam2", "quadric_graph"]
 
 
@@ -209,10 +210,10 @@ def _batch_from(problem, options, start, scales=None):
     chi2, estimated = 0.0, {}
     try:
         if start == "isam2":
-            isam, values = _incremental(growth, options, result)
+            isam, values, rebuilt = _incremental(growth, options, result)
             graph = isam.getFactorsUnsafe()
             # iSAM2's last rebuild at frame n re-fitted at these values already
-            refit = not (options.isam2_refit and n in rebuild_frames(n, options))
+            refit = not (options.isam2_refit and rebuilt)
         else:
             graph, values = _windows(growth, options, result)
             refit = True
@@ -317,7 +318,7 @@ def _isam2(problem, options):
                         warnings=list(problem.warnings), frame_seconds=np.zeros(n), frame_cpu_seconds=np.zeros(n))
     growth = Growth(problem, options, result)
     try:
-        isam, estimate = _incremental(growth, options, result)
+        isam, estimate, _ = _incremental(growth, options, result)
     except _SOLVER_ERRORS as exc:
         result.fail(getattr(exc, "where", "iSAM2"), exc)
         result.seconds, result.cpu_seconds = clock.elapsed()
@@ -332,8 +333,9 @@ def _isam2(problem, options):
 
 
 def _incremental(growth, options, result):
-    """iSAM2 over the sequence, one update per frame, rebuilt every ``isam2_rescale_every`` frames
-    (:func:`_isam2_rescaled`); ``(isam, estimate)``. Each frame's wall and CPU time goes to
+    """iSAM2 over the sequence, one update per frame, rebuilt (:func:`_isam2_rescaled`) when
+    :class:`sqfit.graph.schedule.RebuildSchedule` says; ``(isam, estimate, rebuilt)``, the last
+    whether it was rebuilt after the last frame. Each frame's wall and CPU time goes to
     ``result.frame_seconds`` and ``result.frame_cpu_seconds`` when those are arrays. A solver error
     is raised with the attribute ``where`` naming the frame."""
     params = gtsam.ISAM2Params()
@@ -342,13 +344,14 @@ def _incremental(growth, options, result):
     params.setRelinearizeThreshold(options.isam2_relinearize_threshold)
     params.relinearizeSkip = 1
     isam = gtsam.ISAM2(params)
-    rebuilds = rebuild_frames(growth.problem.n_frames, options)
+    schedule, rebuilt = RebuildSchedule(growth.problem, options), False
     for i in range(growth.problem.n_frames):
         step = _Clock()
         try:
             isam.update(*growth.add([i]))
             estimate = isam.calculateEstimate()
-            if i + 1 in rebuilds and growth.added:
+            rebuilt = schedule.due(estimate, i) and bool(growth.added)
+            if rebuilt:
                 isam, estimate = _isam2_rescaled(isam, estimate, params, i + 1, growth, options, result)
         except _SOLVER_ERRORS as exc:
             exc.where = f"iSAM2 update at frame {i}"
@@ -356,21 +359,7 @@ def _incremental(growth, options, result):
         growth.update(estimate, i + 1)
         if result.frame_seconds is not None:
             result.frame_seconds[i], result.frame_cpu_seconds[i] = step.elapsed()
-    return isam, estimate
-
-
-def rebuild_frames(n, options):
-    """The frame counts (<= ``n``) after which iSAM2 is rebuilt (:func:`_isam2_rescaled`): the first
-    at ``isam2_rescale_every``, each next one ``isam2_rescale_every`` frames later or, once that is
-    less, ``isam2_rescale_growth`` times the frames so far later (a rebuild costs as much as the
-    graph, so at a fixed interval their total grows with the square of the length; measured at 160
-    frames of ``scenes/sequence.toml``: batch CPU 5.9 -> 4.6 s). Empty when ``isam2_rescale_every``
-    is 0."""
-    every, frames, out = options.isam2_rescale_every, options.isam2_rescale_every, set()
-    while every and frames <= n:
-        out.add(frames)
-        frames = max(frames + every, int(np.ceil(frames * (1.0 + options.isam2_rescale_growth))))
-    return out
+    return isam, estimate, rebuilt
 
 
 def _isam2_rescaled(isam, estimate, params, n, growth, options, result):
