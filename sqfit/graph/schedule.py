@@ -18,7 +18,7 @@ whose first steps see much parallax were rebuilt from frame 7-8 on, re-fitting l
 frames, and iSAM2 then ran off the odometry in 4 of 30 household batches (0 of 30 by frames), two of
 which lost the map (docs/slam-history.md, "Issue 23, eighth pass"). So the frames are the floor and
 the parallax the pace when frames come faster than the viewpoint changes: on the evaluation scenes
-(about 5.5 degrees per frame) the rebuilds stay every 10 frames.
+(about 5.5 degrees per frame) the rebuilds come after 10-12, 20-23, 30-33 and 40-43 frames.
 
 ``isam2_rescale_parallax_deg = 0``: by frames alone; ``isam2_rescale_every = 0``: no rebuilds.
 """

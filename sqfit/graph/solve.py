@@ -26,9 +26,10 @@ Methods (every one returns a :class:`sqfit.graph.problem.SlamResult`):
   (``batch_odometry_chi2``) is solved again from windows;
 - ``graph-isam2``: the same graph grown frame by frame with iSAM2 (one update per frame; a landmark
   joins once its first frames are enough for its initial fit (``init_frames``, ``init_parallax_deg``),
-  or at the last frame if they never are); after every ``isam2_rescale_parallax_deg`` of parallax
-  (later ones further apart, :mod:`sqfit.graph.schedule`) the landmarks in
-  poor minima are re-fitted on the frames so far and iSAM2 is rebuilt at the best scale;
+  or at the last frame if they never are); once both ``isam2_rescale_every`` frames and
+  ``isam2_rescale_parallax_deg`` of parallax have passed since the last time (later ones further
+  apart, :mod:`sqfit.graph.schedule`), the landmarks in poor minima are re-fitted on the frames so
+  far and iSAM2 is rebuilt at the best scale;
 - ``quadric``: QuadricSLAM (:mod:`sqfit.graph.quadric`): ellipsoid landmarks ``L(j)``, radii
   ``Q(j)``, one box factor per (frame, object) whose mask does not touch the image border, batch
   Levenberg-Marquardt, initialised by the paper's linear method from all the object's boxes.
