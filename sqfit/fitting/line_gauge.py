@@ -205,8 +205,7 @@ def gauge_minima(q0, u, rel0, ul, ratio, e1, e2, d0, rtol=D_RTOL, max_newton=MAX
             dn = -np.einsum("ij,ij->j", q0[:, idx], u[:, idx]) / np.einsum("ij,ij->j", u[:, idx], u[:, idx])
         d[idx] = np.where(np.isnan(dn), d[idx], np.clip(dn, lo[idx], hi[idx]))
     elif len(idx):
-        t = np.linspace(0.0, 1.0, _GRID)
-        grid = lo[idx, None] + (hi[idx] - lo[idx])[:, None] * t  # (k, G)
+        grid = lo[idx, None] + (hi[idx] - lo[idx])[:, None] * _GRID_T  # (k, G)
         e12 = [e if np.ndim(e) == 0 else np.repeat(e[idx], _GRID) for e in (e1, e2)]
         lg = _line_log_gauge(np.repeat(q0[:, idx], _GRID, 1), np.repeat(u[:, idx], _GRID, 1), grid.ravel(),
                              *e12)[0]
