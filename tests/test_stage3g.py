@@ -125,6 +125,18 @@ def test_contour_rays_needs_observations(trial):
         contour_rays(["mask"])
 
 
+@pytest.mark.parametrize("views, kwargs", [(1, {}), (4, {}), (4, dict(smooth_px=2.0)), (4, dict(band_px=1.0, n_inside=3))])
+def test_contour_rays_pass_the_checks_they_skip(trial, views, kwargs):
+    """contour_rays builds its RaySet without re-running RaySet's checks: what it builds must pass
+    them unchanged (dtypes, shapes, finite values, radii > 0)."""
+    rays = contour_rays(trial.observations[:views], 12, **kwargs)
+    fields = ("origins", "directions", "modes", "weights", "view", "two_sided", "offsets", "radii")
+    checked = RaySet(*(getattr(rays, f) for f in fields))
+    for f in fields:
+        a, b = getattr(rays, f), getattr(checked, f)
+        assert a.dtype == b.dtype and a.shape == b.shape and np.array_equal(a, b), f
+
+
 def test_rayset_validation():
     o, d = np.zeros((2, 3)), np.ones((2, 3))
     with pytest.raises(ValueError, match="modes must be CONTOUR"):

@@ -205,9 +205,9 @@ def bearings(camera, pixels):
     """
     k = camera.intrinsics
     pixels = np.asarray(pixels, dtype=np.float64)
-    return np.stack(
-        [(pixels[:, 0] - k.cx) / k.fx, (pixels[:, 1] - k.cy) / k.fy, np.ones(len(pixels))], axis=1
-    )
+    out = np.empty((len(pixels), 3))
+    out[:, 0], out[:, 1], out[:, 2] = (pixels[:, 0] - k.cx) / k.fx, (pixels[:, 1] - k.cy) / k.fy, 1.0
+    return out
 
 
 def pixel_centers(rows, cols):

@@ -110,10 +110,25 @@ class RaySet:
         if np.any(~(radii > 0)):
             raise ValueError("radii must be > 0")
         object.__setattr__(self, "radii", radii)
+        self._index_hinges()
+
+    def _index_hinges(self):
         # Rays with a hinge residual (see the module docstring), as indices: computed once, not
         # per evaluation. One-sided CONTOUR rays act as INSIDE rays; one-sided OUTSIDE rays are dropped.
-        object.__setattr__(self, "_hinge_in", np.flatnonzero((modes == INSIDE) | ((modes == CONTOUR) & ~two_sided)))
+        modes = self.modes
+        object.__setattr__(self, "_hinge_in", np.flatnonzero((modes == INSIDE) | ((modes == CONTOUR) & ~self.two_sided)))
         object.__setattr__(self, "_hinge_out", np.flatnonzero(modes == OUTSIDE))
+
+    @classmethod
+    def _made(cls, origins, directions, modes, weights, view, two_sided, offsets, radii):
+        """A RaySet of arrays that :func:`contour_rays` made from checked observations (float64 and
+        int64 arrays of the right shapes, finite, weights >= 0, radii > 0), without checking them
+        again: the graph makes one per view of every frame (the checks were a third of its cost)."""
+        rays = object.__new__(cls)
+        rays.__dict__.update(origins=origins, directions=directions, modes=modes, weights=weights, view=view,
+                             two_sided=two_sided, offsets=offsets, radii=radii)
+        rays._index_hinges()
+        return rays
 
     def __len__(self):
         return len(self.origins)
@@ -152,8 +167,11 @@ def arc_normals(contour, arc_lengths, half_arc=NORMAL_ARC_PX):
 
 def _chord_normals(chord):
     """Unit outward normals ``(n, 2)`` of chords ``(n, 2)`` of a counter-clockwise polygon."""
-    normal = np.stack([chord[:, 1], -chord[:, 0]], axis=1)
-    return normal / np.maximum(np.linalg.norm(normal, axis=1, keepdims=True), _TINY)
+    normal = np.empty_like(chord)
+    normal[:, 0], normal[:, 1] = chord[:, 1], -chord[:, 0]
+    # np.linalg.norm's sums, without its overhead (the graph makes the rays of every new view)
+    length = np.sqrt(normal[:, 0] * normal[:, 0] + normal[:, 1] * normal[:, 1])
+    return normal / np.maximum(length, _TINY)[:, None]
 
 
 def _arc_sampler(polygon, arc=None):
@@ -162,19 +180,21 @@ def _arc_sampler(polygon, arc=None):
     each (edge ``k`` runs from vertex ``k`` to ``k + 1``); ``integral(s, points, edges)`` the integral
     of the point along the polygon from arc length 0 to ``s`` (``(n, 2)``; ``points, edges = at(s)``),
     exact on the straight edges. ``arc``: :func:`sqfit.views.observation.arc_lengths` of the polygon
-    if already known (``Observation.contour_arc``)."""
-    closed = np.concatenate([polygon, polygon[:1]])
-    edge = np.diff(closed, axis=0)
+    if already known (``Observation.contour_arc``). ``at`` touches only the edges it samples (a
+    view's rays need a few dozen of its outline's hundreds of edges)."""
     seg, cum = arc_lengths(polygon) if arc is None else arc
-    inverse = 1.0 / np.where(seg > 0, seg, 1.0)
-    last = len(seg) - 1
+    m = len(seg)
+    last = m - 1
 
     def at(s):
         s = np.mod(s, cum[-1])
         idx = np.minimum(np.searchsorted(cum, s, side="right") - 1, last)
-        return closed[idx] + ((s - cum[idx]) * inverse[idx])[:, None] * edge[idx], idx
+        start, length = polygon[idx], seg[idx]
+        edge = polygon[(idx + 1) % m] - start
+        return start + ((s - cum[idx]) * (1.0 / np.where(length > 0, length, 1.0)))[:, None] * edge, idx
 
     def integral(s, points, idx):
+        closed = np.concatenate([polygon, polygon[:1]])
         area = np.concatenate([[[0.0, 0.0]], np.cumsum(seg[:, None] * 0.5 * (closed[:-1] + closed[1:]), axis=0)])
         turns = np.floor(s / cum[-1])
         rest = s - turns * cum[-1]
@@ -237,7 +257,9 @@ def contour_rays(observations, n_contour=64, band_px=0.0, n_inside=0, smooth_px=
                       np.full(len(points), i), two_sided, offsets, radii))
     if not parts:
         raise ValueError("observations must not be empty")
-    return RaySet(*(np.concatenate(col) for col in zip(*parts)))
+    origins, *rest = parts[0] if len(parts) == 1 else [np.concatenate(col) for col in zip(*parts)]
+    # the points come from checked observations: finite, with radii >= MIN_RADIUS_PX
+    return RaySet._made(np.ascontiguousarray(origins), *rest)
 
 
 @cache
@@ -283,4 +305,4 @@ def _view_points(observation, n_contour, band_px, n_inside, smooth_px):
         modes.append(np.full(len(inner), INSIDE))
         two_sided.append(np.ones(len(inner), dtype=bool))
         normals.append(np.zeros((len(inner), 2)))
-    return tuple(np.concatenate(c) for c in (points, modes, two_sided, normals))
+    return tuple(c[0] if len(c) == 1 else np.concatenate(c) for c in (points, modes, two_sided, normals))
