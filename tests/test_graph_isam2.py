@@ -295,3 +295,55 @@ def test_a_batch_from_isam2_far_from_the_odometry_is_solved_again_from_windows(m
     starts.clear()  # without a floor no test
     graph.run(seq.intrinsics, seq.odometry_poses, seq.observations, ["graph"])
     assert starts == ["isam2"]
+
+
+def test_relinearisation_thresholds_cover_every_kind_of_variable():
+    import gtsam
+
+    params = gtsam.ISAM2Params()
+    params.setRelinearizeThreshold(solve.relinearize_thresholds(
+        graph.GraphOptions(isam2_relinearize_threshold=0.02, isam2_landmark_relinearize_threshold=0.07)))
+    text = str(params)
+    for kind, value in (("x", "0.02"), ("l", "0.07"), ("s", "0.07"), ("o", "0.07")):
+        assert f"'{kind}' -> [{value} " in text, text
+
+
+@pytest.mark.parametrize("offsets", [0.0, 0.5])
+def test_equal_thresholds_per_kind_are_the_single_threshold(monkeypatch, seq, offsets):
+    """The map with the landmarks' threshold equal to the cameras' is GTSAM's single threshold: the
+    same run to the last bit, with and without outline-offset variables (a kind missing from the
+    map would be looked up without a default)."""
+    options = {"isam2_relinearize_threshold": 0.01, "isam2_landmark_relinearize_threshold": 0.01,
+               "outline_offset_sigma_px": offsets}
+    mapped = graph.superquadric_isam2(seq.intrinsics, seq.odometry_poses, seq.observations, options)
+    monkeypatch.setattr(solve, "relinearize_thresholds", lambda o: float(o.isam2_relinearize_threshold))
+    single = graph.superquadric_isam2(seq.intrinsics, seq.odometry_poses, seq.observations, options)
+    assert mapped.ok and single.ok
+    np.testing.assert_array_equal(mapped.poses, single.poses)
+    assert all(np.array_equal(mapped.objects[k].to_vector(), single.objects[k].to_vector()) for k in single.objects)
+
+
+def test_a_coarser_landmark_threshold_evaluates_fewer_views(monkeypatch, seq):
+    from sqfit.graph import growth
+    from sqfit.graph.factors import SilhouetteFactors
+
+    made = []
+
+    class Counted(SilhouetteFactors):
+        def __init__(self):
+            super().__init__()
+            made.append(self)
+
+    monkeypatch.setattr(growth, "SilhouetteFactors", Counted)
+    counts = []
+    for threshold in (0.01, 0.1):
+        made.clear()
+        options = {"isam2_landmark_relinearize_threshold": threshold, "isam2_rescale_every": 0}
+        assert graph.superquadric_isam2(seq.intrinsics, seq.odometry_poses, seq.observations, options).ok
+        counts.append(sum(b.factor_evaluations for b in made))
+    assert counts[1] < 0.8 * counts[0], counts
+
+
+def test_landmark_relinearisation_threshold_is_checked():
+    with pytest.raises(ValueError, match="isam2_landmark_relinearize_threshold"):
+        graph.GraphOptions(isam2_landmark_relinearize_threshold=0.0)

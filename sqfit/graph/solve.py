@@ -49,7 +49,7 @@ from .factors import box_factor, with_floor_factors
 from .fixedlag import condition_on_past
 from .growth import (Growth, initial_fit, landmark_keys, noise_models, pose_factors, pose_matrices, robust_noise,
                      skip_object)
-from .landmark import landmark_to_superquadric
+from .landmark import N_SHAPE, landmark_to_superquadric
 from .problem import GraphOptions, SlamResult, check_inputs
 from .quadric import initialise_quadric, observation_box, quadric_to_superquadric
 from .refit import object_misfits, refit_landmarks
@@ -57,7 +57,7 @@ from .scale import best_scale, rescaled, scale_dependent_factors
 from .schedule import RebuildSchedule
 from .weighting import noise_scales
 
-__all__ = ["METHODS", "run", "odometry_chi2", "odometry", "fixed_pose_fits", "superquadric_graph",
+__all__ = ["METHODS", "run", "odometry_chi2", "relinearize_thresholds", "odometry", "fixed_pose_fits", "superquadric_graph",
            "superquadric_isam2", "quadric_graph"]
 
 
@@ -342,7 +342,7 @@ def _incremental(growth, options, result):
     params = gtsam.ISAM2Params()
     if options.isam2_dogleg:
         params.setOptimizationParams(gtsam.ISAM2DoglegParams())
-    params.setRelinearizeThreshold(options.isam2_relinearize_threshold)
+    params.setRelinearizeThreshold(relinearize_thresholds(options))
     params.relinearizeSkip = 1
     isam = gtsam.ISAM2(params)
     schedule, rebuilt = RebuildSchedule(growth.problem, options), False
@@ -361,6 +361,18 @@ def _incremental(growth, options, result):
         if result.frame_seconds is not None:
             result.frame_seconds[i], result.frame_cpu_seconds[i] = step.elapsed()
     return isam, estimate, rebuilt
+
+
+def relinearize_thresholds(options):
+    """iSAM2's relinearisation thresholds per kind of variable (``gtsam.ISAM2ThresholdMap``): the
+    camera poses ``isam2_relinearize_threshold``, the landmarks' pose, size/shape and outline offset
+    ``isam2_landmark_relinearize_threshold`` (GraphOptions). Every kind of variable in the graph must
+    be in the map: GTSAM looks a variable's kind up without a default."""
+    thresholds, landmark = gtsam.ISAM2ThresholdMap(), float(options.isam2_landmark_relinearize_threshold)
+    for key, dim, value in ((X(0), 6, float(options.isam2_relinearize_threshold)), (L(0), 6, landmark),
+                            (S(0), N_SHAPE, landmark), (O(0), 1, landmark)):
+        thresholds.insert((chr(gtsam.Symbol(key).chr()), np.full(dim, value)))
+    return thresholds
 
 
 def _isam2_rescaled(isam, estimate, params, n, growth, options, result):
