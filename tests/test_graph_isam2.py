@@ -297,15 +297,26 @@ def test_a_batch_from_isam2_far_from_the_odometry_is_solved_again_from_windows(m
     assert starts == ["isam2"]
 
 
-def test_relinearisation_thresholds_cover_every_kind_of_variable():
+@pytest.mark.parametrize("batch, landmark", [(False, "0.07"), (True, "0.04")])
+def test_relinearisation_thresholds_cover_every_kind_of_variable(batch, landmark):
     import gtsam
 
     params = gtsam.ISAM2Params()
-    params.setRelinearizeThreshold(solve.relinearize_thresholds(
-        graph.GraphOptions(isam2_relinearize_threshold=0.02, isam2_landmark_relinearize_threshold=0.07)))
+    params.setRelinearizeThreshold(solve.relinearize_thresholds(graph.GraphOptions(
+        isam2_relinearize_threshold=0.02, isam2_landmark_relinearize_threshold=0.07,
+        batch_landmark_relinearize_threshold=0.04), batch))
     text = str(params)
-    for kind, value in (("x", "0.02"), ("l", "0.07"), ("s", "0.07"), ("o", "0.07")):
+    for kind, value in (("x", "0.02"), ("l", landmark), ("s", landmark), ("o", landmark)):
         assert f"'{kind}' -> [{value} " in text, text
+
+
+def test_the_batch_starts_from_its_own_landmark_threshold(monkeypatch, seq):
+    seen = []
+    thresholds = solve.relinearize_thresholds
+    monkeypatch.setattr(solve, "relinearize_thresholds", lambda o, batch=False: seen.append(batch) or thresholds(o, batch))
+    graph.superquadric_graph(seq.intrinsics, seq.odometry_poses, seq.observations)
+    graph.superquadric_isam2(seq.intrinsics, seq.odometry_poses, seq.observations)
+    assert seen == [True, False]
 
 
 @pytest.mark.parametrize("offsets", [0.0, 0.5])
@@ -316,7 +327,7 @@ def test_equal_thresholds_per_kind_are_the_single_threshold(monkeypatch, seq, of
     options = {"isam2_relinearize_threshold": 0.01, "isam2_landmark_relinearize_threshold": 0.01,
                "outline_offset_sigma_px": offsets}
     mapped = graph.superquadric_isam2(seq.intrinsics, seq.odometry_poses, seq.observations, options)
-    monkeypatch.setattr(solve, "relinearize_thresholds", lambda o: float(o.isam2_relinearize_threshold))
+    monkeypatch.setattr(solve, "relinearize_thresholds", lambda o, batch=False: float(o.isam2_relinearize_threshold))
     single = graph.superquadric_isam2(seq.intrinsics, seq.odometry_poses, seq.observations, options)
     assert mapped.ok and single.ok
     np.testing.assert_array_equal(mapped.poses, single.poses)
@@ -344,6 +355,7 @@ def test_a_coarser_landmark_threshold_evaluates_fewer_views(monkeypatch, seq):
     assert counts[1] < 0.8 * counts[0], counts
 
 
-def test_landmark_relinearisation_threshold_is_checked():
-    with pytest.raises(ValueError, match="isam2_landmark_relinearize_threshold"):
-        graph.GraphOptions(isam2_landmark_relinearize_threshold=0.0)
+@pytest.mark.parametrize("name", ["isam2_landmark_relinearize_threshold", "batch_landmark_relinearize_threshold"])
+def test_landmark_relinearisation_threshold_is_checked(name):
+    with pytest.raises(ValueError, match=name):
+        graph.GraphOptions(**{name: 0.0})

@@ -211,7 +211,7 @@ def _batch_from(problem, options, start, scales=None):
     chi2, estimated = 0.0, {}
     try:
         if start == "isam2":
-            isam, values, rebuilt = _incremental(growth, options, result)
+            isam, values, rebuilt = _incremental(growth, options, result, batch=True)
             graph = isam.getFactorsUnsafe()
             # iSAM2's last rebuild at frame n re-fitted at these values already
             refit = not (options.isam2_refit and rebuilt)
@@ -333,16 +333,17 @@ def _isam2(problem, options):
     return result
 
 
-def _incremental(growth, options, result):
+def _incremental(growth, options, result, batch=False):
     """iSAM2 over the sequence, one update per frame, rebuilt (:func:`_isam2_rescaled`) when
     :class:`sqfit.graph.schedule.RebuildSchedule` says; ``(isam, estimate, rebuilt)``, the last
-    whether it was rebuilt after the last frame. Each frame's wall and CPU time goes to
+    whether it was rebuilt after the last frame. ``batch``: the batch's start (its relinearisation
+    thresholds, :func:`relinearize_thresholds`). Each frame's wall and CPU time goes to
     ``result.frame_seconds`` and ``result.frame_cpu_seconds`` when those are arrays. A solver error
     is raised with the attribute ``where`` naming the frame."""
     params = gtsam.ISAM2Params()
     if options.isam2_dogleg:
         params.setOptimizationParams(gtsam.ISAM2DoglegParams())
-    params.setRelinearizeThreshold(relinearize_thresholds(options))
+    params.setRelinearizeThreshold(relinearize_thresholds(options, batch))
     params.relinearizeSkip = 1
     isam = gtsam.ISAM2(params)
     schedule, rebuilt = RebuildSchedule(growth.problem, options), False
@@ -363,12 +364,14 @@ def _incremental(growth, options, result):
     return isam, estimate, rebuilt
 
 
-def relinearize_thresholds(options):
+def relinearize_thresholds(options, batch=False):
     """iSAM2's relinearisation thresholds per kind of variable (``gtsam.ISAM2ThresholdMap``): the
     camera poses ``isam2_relinearize_threshold``, the landmarks' pose, size/shape and outline offset
-    ``isam2_landmark_relinearize_threshold`` (GraphOptions). Every kind of variable in the graph must
-    be in the map: GTSAM looks a variable's kind up without a default."""
-    thresholds, landmark = gtsam.ISAM2ThresholdMap(), float(options.isam2_landmark_relinearize_threshold)
+    ``isam2_landmark_relinearize_threshold`` (the ``graph-isam2`` method) or, with ``batch`` (the
+    batch's iSAM2 start), ``batch_landmark_relinearize_threshold`` (GraphOptions). Every kind of
+    variable in the graph must be in the map: GTSAM looks a variable's kind up without a default."""
+    landmark = options.batch_landmark_relinearize_threshold if batch else options.isam2_landmark_relinearize_threshold
+    thresholds, landmark = gtsam.ISAM2ThresholdMap(), float(landmark)
     for key, dim, value in ((X(0), 6, float(options.isam2_relinearize_threshold)), (L(0), 6, landmark),
                             (S(0), N_SHAPE, landmark), (O(0), 1, landmark)):
         thresholds.insert((chr(gtsam.Symbol(key).chr()), np.full(dim, value)))
