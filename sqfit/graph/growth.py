@@ -26,7 +26,8 @@ from ..fitting import pipeline
 from ..fitting.grazing import OFFSET_UNIT_PX
 from .factors import SilhouetteFactors, bounds_factor, floor_factor, silhouette_factor
 from .landmark import camera_rays, left_grazing, superquadric_to_landmark
-from .problem import observation_at, ready_to_initialise
+from .parallax import ready_to_initialise
+from .problem import observation_at
 
 __all__ = ["LandmarkFit", "Growth", "noise_models", "robust_noise", "pose_factors", "pose_matrices", "skip_object",
            "initial_fit", "landmark_fit", "add_landmark", "view_factor", "silhouette_noise", "offset_key",

@@ -7,7 +7,7 @@ since the last (each spacing, once it is less than ``isam2_rescale_growth`` time
 parallax so far, that much instead: the total cost then grows with the length, not with its square).
 A frame's parallax is the median, over the objects it and the previous frame both see, of the angle
 their camera centres subtend at the object's mask centroid triangulated
-(:func:`sqfit.graph.problem.parallax_deg`, at the current pose estimates: from the data, whether or
+(:func:`sqfit.graph.parallax.parallax_deg`, at the current pose estimates: from the data, whether or
 not the object's landmark is in the graph yet).
 
 Why both. What a rebuild corrects (a scale the first frames set, a landmark stuck in a minimum its
@@ -28,7 +28,7 @@ from __future__ import annotations
 import numpy as np
 from gtsam.symbol_shorthand import X
 
-from .problem import centroid_bearing, rays_parallax_deg
+from .parallax import centroid_bearing, rays_parallax_deg
 
 __all__ = ["RebuildSchedule", "rebuild_frames", "next_mark", "step_parallax_deg"]
 
@@ -53,7 +53,7 @@ def rebuild_frames(n, options):
 
 def step_parallax_deg(problem, estimate, frame, bearings=None):
     """Median over the objects seen in both ``frame - 1`` and ``frame`` of the parallax between the
-    two frames (:func:`sqfit.graph.problem.parallax_deg`, the poses from ``estimate``), degrees;
+    two frames (:func:`sqfit.graph.parallax.parallax_deg`, the poses from ``estimate``), degrees;
     0 for frame 0 or when no object is seen in both. ``bearings``: a dict kept between calls, the
     mask centroids' camera-frame bearings by ``(frame, object)``."""
     if frame == 0:
