@@ -36,7 +36,7 @@ def check_shape(x, shape, name, dtype=np.float64, finite=True):
         raise ValueError(f"{name} must be numeric with shape {_fmt(shape)}: {exc}") from None
     if arr.ndim != len(shape) or any(s is not None and s != n for s, n in zip(shape, arr.shape)):
         raise ValueError(f"{name} must have shape {_fmt(shape)}, got {arr.shape}")
-    if finite and arr.dtype.kind == "f" and not np.all(np.isfinite(arr)):
+    if finite and arr.dtype.kind == "f" and not np.isfinite(arr).all():
         raise ValueError(f"{name} contains NaN or inf values")
     return arr
 
