@@ -347,6 +347,32 @@ def test_hidden_counts_kernel_agrees():
     assert inter[2] == 0 and union[2] == in_q.sum() and inter[0] > 0 and inter[-1] > 0
 
 
+def test_points_in_convex_kernel_agrees():
+    # the occluding pixels inside an observation polygon: the numpy edge tests' answers bit for bit,
+    # for points on edges and vertices, just outside, a padded polygon (repeated last vertex, as
+    # ObservationSet.targets pads) and a NaN vertex or point
+    from sqfit.fitting.backend import compiled
+    from sqfit.geometry.visible_iou import points_in_convex
+
+    k = compiled("silhouettes")
+    if k is None:
+        pytest.skip("numba kernels not selected")
+    rng = np.random.default_rng(5)
+    t = np.linspace(0.0, 2.0 * np.pi, 37, endpoint=False)
+    hull = np.stack([120.0 + 55.0 * np.cos(t), 70.0 + 33.0 * np.sin(t)], -1)
+    padded = np.vstack([hull, hull[-1:].repeat(9, 0)])
+    points = np.vstack([rng.uniform(0.0, 240.0, (3000, 2)) // 1 + 0.5, hull, 0.5 * (hull + np.roll(hull, -1, 0)),
+                        hull * (1 + 1e-15), [[np.nan, 70.0]]])
+    for polygon in (hull, padded):
+        got = k.points_in_convex(np.ascontiguousarray(polygon), np.ascontiguousarray(points))
+        assert got.dtype == bool and np.array_equal(got, points_in_convex(polygon, points))
+        assert 0 < got.sum() < len(points) and not got[-1]
+    broken = hull.copy()
+    broken[3] = np.nan
+    assert not k.points_in_convex(broken, np.ascontiguousarray(points)).any()
+    assert not points_in_convex(broken, points).any()
+
+
 def test_compiled_parts_load_lazily():
     code = ("import sys, sqfit.fitting.backend as b; b.compiled(); print('silhouette_kernels' in str(sys.modules)); "
             "b.compiled('silhouettes'); print('sqfit.fitting.silhouette_kernels' in sys.modules)")

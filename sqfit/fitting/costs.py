@@ -136,10 +136,14 @@ class ObservationSet:
         """Per view, ``(k,) bool``: which of ``Observation.hidden`` lie in the observation polygon."""
         if kind not in self._hidden_in_target:
             targets, convex, _ = self.targets(kind)
+            kernels = compiled("silhouettes") if convex else None
             out = []
             for o, target in zip(self.observations, targets):
                 if not len(o.hidden):
                     out.append(np.zeros(0, dtype=bool))
+                elif kernels is not None:  # the same edge tests, compiled (bit for bit)
+                    out.append(kernels.points_in_convex(np.ascontiguousarray(target, dtype=np.float64),
+                                                        np.ascontiguousarray(o.hidden, dtype=np.float64)))
                 elif convex:
                     out.append(points_in_convex(target, o.hidden))
                 else:
