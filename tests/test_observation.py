@@ -103,3 +103,46 @@ def test_dataset_reader_passes_cleanup_through():
     raw = observations_from_images([CAM, CAM], images, 1, rng=0, cleanup=False)
     tidy = observations_from_images([CAM, CAM], images, 1, rng=0)
     assert [o.area_px for o in raw] == [259, 259] and [o.area_px for o in tidy] == [250, 250]
+
+
+def test_with_camera_moves_the_camera_and_keeps_what_the_pixels_gave():
+    # the factor graph moves every observation to its current pose estimate many times: what depends
+    # on the pixels alone is carried over, and the rays are those of a fresh observation, bit for bit
+    from dataclasses import replace
+
+    from sqfit import Camera, look_at
+    from sqfit.views.rays import contour_rays
+
+    obs = Observation.from_mask(CAM, rect_mask(), rng=0)
+    rays = contour_rays([obs], 16, smooth_px=1.0)
+    arc, hull = obs.contour_arc, obs.hull
+    other = Camera(CAM.intrinsics, look_at([9.0, 2.0, 1.0], [0, 0, 0.5]))
+    moved = obs.with_camera(other)
+    assert moved.camera is other and obs.camera is CAM
+    assert moved.contour is obs.contour and moved.samples is obs.samples
+    assert moved.contour_arc is arc and moved.hull is hull
+    fresh = replace(obs, camera=other)  # nothing carried over
+    got, want = contour_rays([moved], 16, smooth_px=1.0), contour_rays([fresh], 16, smooth_px=1.0)
+    for name in ("origins", "directions", "modes", "weights", "view", "two_sided", "offsets", "radii"):
+        assert np.array_equal(getattr(got, name), getattr(want, name)), name
+    assert not np.array_equal(got.directions, rays.directions)  # the camera did move
+    with pytest.raises(ValueError, match="camera must be a Camera"):
+        obs.with_camera(other.pose)
+
+
+def test_derived_values_are_computed_once_and_read_only():
+    obs = Observation.from_mask(CAM, rect_mask(), rng=0)
+    calls = []
+
+    def compute():
+        calls.append(1)
+        return np.arange(3.0), np.ones(2)
+
+    first = obs.derived("k", compute)
+    assert obs.derived("k", compute) is first and len(calls) == 1
+    assert obs.with_camera(CAM).derived("k", compute) is first and len(calls) == 1  # shared by copies
+    with pytest.raises(ValueError):
+        first[0][0] = 1.0
+    from dataclasses import replace
+
+    assert replace(obs, camera=CAM).derived("k", compute) is not first and len(calls) == 2  # not carried

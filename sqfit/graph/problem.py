@@ -22,7 +22,7 @@ makes them) give one-sided ray residuals.
 
 from __future__ import annotations
 
-from dataclasses import asdict, dataclass, field, replace
+from dataclasses import asdict, dataclass, field
 
 import numpy as np
 
@@ -539,5 +539,6 @@ def observations_from_instances(intrinsics, poses, instance_images, min_area_px=
 
 
 def observation_at(observation, T_world_camera):
-    """The observation with its camera moved to ``T_world_camera`` (pixels unchanged)."""
-    return replace(observation, camera=Camera(observation.camera.intrinsics, T_world_camera))
+    """The observation with its camera moved to ``T_world_camera`` (pixels unchanged, and what was
+    computed from them kept: ``Observation.with_camera``)."""
+    return observation.with_camera(Camera(observation.camera.intrinsics, T_world_camera))

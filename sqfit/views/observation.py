@@ -54,6 +54,9 @@ from .visibility import (BACKGROUND, BORDER, INTERIOR, hiding_pixels, outline_la
 __all__ = ["Observation", "ObservationList", "SAMPLING_METHODS", "POLYGON_KINDS"]
 
 SAMPLING_METHODS = ("uniform", "contour", "mixed")
+#: What an observation computes from its pixels alone, carried to its copies at other camera poses
+#: (:meth:`Observation.with_camera`): cached properties and the memo of :meth:`Observation.derived`.
+_PIXEL_CACHES = ("contour_arc", "hull", "silhouette_fraction", "_derived")
 POLYGON_KINDS = ("hull", "contour")
 
 
@@ -265,6 +268,34 @@ class Observation:
     def partial(self):
         """``bool``: some of the outline is labelled ``instance`` or ``border``."""
         return bool(np.any(self.contour_labels != BACKGROUND))
+
+    def with_camera(self, camera):
+        """These pixels seen from ``camera`` (the same view at another pose, e.g. a factor graph's
+        estimate). What depends on the pixels alone is carried over, not computed again: the
+        outline's arc lengths, the hull, the silhouette fraction and the values of :meth:`derived`
+        (one memo, shared by this observation and its copies)."""
+        if not isinstance(camera, Camera):
+            raise ValueError(f"camera must be a Camera, got {type(camera).__name__}")
+        moved = replace(self, camera=camera)
+        for name in _PIXEL_CACHES:
+            if name in self.__dict__:
+                moved.__dict__[name] = self.__dict__[name]
+        return moved
+
+    def derived(self, key, compute):
+        """``compute()``, remembered under ``key`` (hashable) for these pixels: for values that
+        depend on the mask's pixels alone, never on the camera (:meth:`with_camera`'s copies share
+        them). Arrays in the value (an array or a tuple of them) are made read-only."""
+        memo = self.__dict__.get("_derived")
+        if memo is None:
+            memo = self.__dict__["_derived"] = {}
+        if key not in memo:
+            value = compute()
+            for item in value if isinstance(value, tuple) else (value,):
+                if isinstance(item, np.ndarray):
+                    item.flags.writeable = False
+            memo[key] = value
+        return memo[key]
 
     def without_labels(self):
         """This observation with every outline label ``background`` (occlusion-unaware fitting)."""

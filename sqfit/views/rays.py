@@ -242,8 +242,9 @@ def contour_rays(observations, n_contour=64, band_px=0.0, n_inside=0, smooth_px=
     for i, o in enumerate(observations):
         if not isinstance(o, Observation):
             raise TypeError(f"observations[{i}] must be a sqfit.Observation, got {type(o).__name__}")
-        points, modes, two_sided, normals = _view_points(o, int(n_contour), float(band_px), int(n_inside),
-                                                         float(smooth_px))
+        args = (int(n_contour), float(band_px), int(n_inside), float(smooth_px))
+        # the image side depends on the pixels alone: once per mask, whatever the camera's pose
+        points, modes, two_sided, normals = o.derived(("contour_rays",) + args, lambda: _view_points(o, *args))
         radii = np.maximum(np.einsum("ij,ij->i", points - o.centroid, normals), MIN_RADIUS_PX)
         if n_inside:  # interior samples: no outline, no offset
             radii[len(points) - min(int(n_inside), len(o.samples)):] = np.inf
