@@ -275,13 +275,20 @@ def test_r_iou_m_agrees(kernels, seed):
     assert np.abs(iou_k - iou_n).max() < 1e-9 and iou_n.max() > 0.3
 
 
-def test_convex_iou_kernel_on_known_overlaps():
+def _silhouette_kernels():
+    """The compiled R-IOU-M kernels, or skip the test (numba not selected)."""
     from sqfit.fitting.backend import compiled
-    from sqfit.geometry.polygon import MIN_EDGE, half_planes
 
     k = compiled("silhouettes")
     if k is None:
         pytest.skip("numba kernels not selected")
+    return k
+
+
+def test_convex_iou_kernel_on_known_overlaps():
+    from sqfit.geometry.polygon import MIN_EDGE, half_planes
+
+    k = _silhouette_kernels()
     square = np.array([[0.0, 0.0], [2.0, 0.0], [2.0, 2.0], [0.0, 2.0]])
     target = np.vstack([square, square[-1:]])[None].repeat(3, 0)  # padded by repeating a vertex
 
@@ -302,11 +309,7 @@ def test_convex_iou_kernel_on_known_overlaps():
 def test_convex_hull_kernel():
     from scipy.spatial import ConvexHull
 
-    from sqfit.fitting.backend import compiled
-
-    k = compiled("silhouettes")
-    if k is None:
-        pytest.skip("numba kernels not selected")
+    k = _silhouette_kernels()
     rng = np.random.default_rng(4)
     for n in (3, 10, 100, 1000):
         points = rng.normal(size=(n, 2)) * [30.0, 5.0]
@@ -325,12 +328,9 @@ def test_convex_hull_kernel():
 def test_hidden_counts_kernel_agrees():
     # the occluding pixels inside each silhouette: the same counts as the numpy edge tests, also for
     # points on a silhouette's edges and vertices, outside its bounding box, and a non-finite vertex
-    from sqfit.fitting.backend import compiled
     from sqfit.geometry.visible_iou import hidden_counts
 
-    k = compiled("silhouettes")
-    if k is None:
-        pytest.skip("numba kernels not selected")
+    k = _silhouette_kernels()
     rng = np.random.default_rng(3)
     t = np.linspace(0.0, 2.0 * np.pi, 48, endpoint=False)
     S = np.stack([np.stack([100.0 + 50.0 * s * np.cos(t), 80.0 + 30.0 * s * np.sin(t)], -1)
@@ -351,12 +351,9 @@ def test_points_in_convex_kernel_agrees():
     # the occluding pixels inside an observation polygon: the numpy edge tests' answers bit for bit,
     # for points on edges and vertices, just outside, a padded polygon (repeated last vertex, as
     # ObservationSet.targets pads) and a NaN vertex or point
-    from sqfit.fitting.backend import compiled
     from sqfit.geometry.visible_iou import points_in_convex
 
-    k = compiled("silhouettes")
-    if k is None:
-        pytest.skip("numba kernels not selected")
+    k = _silhouette_kernels()
     rng = np.random.default_rng(5)
     t = np.linspace(0.0, 2.0 * np.pi, 37, endpoint=False)
     hull = np.stack([120.0 + 55.0 * np.cos(t), 70.0 + 33.0 * np.sin(t)], -1)
