@@ -66,6 +66,37 @@ def test_invalid_intrinsics(kwargs, match):
         Intrinsics(**{**base, **kwargs})
 
 
+def test_rigid_pose_fault_is_np_allclose_and_det_written_out():
+    # the same verdicts as the np.allclose / np.linalg.det checks it replaces, at and around their
+    # tolerances (rtol 1e-5; atol 1e-8 for the last row, 1e-6 for R R^T)
+    from sqfit.geometry.camera import rigid_pose_fault
+
+    def reference(T):
+        R = T[:3, :3]
+        if not np.allclose(T[3], [0, 0, 0, 1]):
+            return "must have last row [0, 0, 0, 1]"
+        if not np.allclose(R @ R.T, np.eye(3), atol=1e-6) or np.linalg.det(R) < 0:
+            return "rotation block must be a proper rotation (orthonormal, det = +1)"
+        return ""
+
+    rng = np.random.default_rng(0)
+    poses = [look_at(rng.normal(size=3) * 5, rng.normal(size=3)) for _ in range(20)]
+    for T in list(poses):
+        for eps in (1e-9, 5e-9, 9.9e-9, 1.1e-8, 1e-7, 4e-7, 6e-7, 1e-6, 1e-5):
+            row, rot = T.copy(), T.copy()
+            row[3, rng.integers(4)] += eps * rng.choice([-1, 1])
+            rot[:3, :3] *= 1.0 + eps
+            poses += [row, rot]
+    reflected = np.diag([1.0, 1.0, -1.0, 1.0])
+    nan = np.eye(4)
+    nan[3, 3] = np.nan
+    poses += [reflected, nan, np.eye(4)]
+    verdicts = [rigid_pose_fault(T) for T in poses]
+    assert verdicts == [reference(T) for T in poses]
+    assert "" in verdicts and "must have last row [0, 0, 0, 1]" in verdicts
+    assert rigid_pose_fault(reflected).startswith("rotation block must be a proper rotation")
+
+
 def test_invalid_poses():
     bad = np.eye(4)
     bad[0, 0] = np.nan

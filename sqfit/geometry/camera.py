@@ -19,7 +19,7 @@ import numpy as np
 
 from .._checks import check_positive, check_shape
 
-__all__ = ["Intrinsics", "Camera", "look_at", "project", "back_project", "bearings", "pixel_centers"]
+__all__ = ["Intrinsics", "Camera", "rigid_pose_fault", "look_at", "project", "back_project", "bearings", "pixel_centers"]
 
 
 @dataclass(frozen=True)
@@ -73,10 +73,25 @@ _ORTHONORMAL_TOL = 1e-6 + 1e-5 * _EYE3  # np.allclose(R R^T, I, atol=1e-6)
 
 
 def _det3(R):
-    """Determinant of a ``(3, 3)`` matrix (its sign is what :class:`Camera` checks)."""
+    """Determinant of a ``(3, 3)`` matrix (its sign is what :func:`rigid_pose_fault` checks)."""
     r = R.tolist()
     return (r[0][0] * (r[1][1] * r[2][2] - r[1][2] * r[2][1]) - r[0][1] * (r[1][0] * r[2][2] - r[1][2] * r[2][0])
             + r[0][2] * (r[1][0] * r[2][1] - r[1][1] * r[2][0]))
+
+
+def rigid_pose_fault(T):
+    """Why a ``(4, 4)`` float pose ``T`` is not a rigid transform with a proper rotation, as the end of
+    a sentence about it (``"must have last row [0, 0, 0, 1]"`` or ``"rotation block must be a proper
+    rotation (orthonormal, det = +1)"``), or ``""`` when it is. The tolerances are ``np.allclose``'s
+    (rtol 1e-5; atol 1e-8 for the last row, 1e-6 for ``R R^T = I``), written out: ``np.allclose`` and
+    ``np.linalg.det`` cost ~0.15 ms a pose, and the factor graph builds thousands of moved cameras.
+    A NaN fails, as in ``np.allclose``."""
+    if not (np.abs(T[3] - _LAST_ROW) <= _LAST_ROW_TOL).all():
+        return "must have last row [0, 0, 0, 1]"
+    R = T[:3, :3]
+    if not (np.abs(R @ R.T - _EYE3) <= _ORTHONORMAL_TOL).all() or _det3(R) < 0:
+        return "rotation block must be a proper rotation (orthonormal, det = +1)"
+    return ""
 
 
 @dataclass(frozen=True, eq=False)
@@ -98,13 +113,9 @@ class Camera:
         if not isinstance(self.intrinsics, Intrinsics):
             raise ValueError(f"intrinsics must be an Intrinsics, got {type(self.intrinsics).__name__}")
         pose = check_shape(self.pose, (4, 4), "pose").copy()
-        R = pose[:3, :3]
-        # np.allclose's test (|a - b| <= atol + rtol |b|, NaN fails) written out: allclose and
-        # det cost ~0.15 ms a camera, and the factor graph builds thousands of moved cameras
-        if not (np.abs(pose[3] - _LAST_ROW) <= _LAST_ROW_TOL).all():
-            raise ValueError("pose must have last row [0, 0, 0, 1]")
-        if not (np.abs(R @ R.T - _EYE3) <= _ORTHONORMAL_TOL).all() or _det3(R) < 0:
-            raise ValueError("pose rotation block must be a proper rotation (orthonormal, det = +1)")
+        fault = rigid_pose_fault(pose)
+        if fault:
+            raise ValueError(f"pose {fault}")
         pose.flags.writeable = False
         object.__setattr__(self, "pose", pose)
 

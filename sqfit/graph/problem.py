@@ -28,7 +28,7 @@ import numpy as np
 
 from .. import constants as C
 from .._checks import Options, check_fields, check_shape
-from ..geometry.camera import Camera, Intrinsics
+from ..geometry.camera import Camera, Intrinsics, rigid_pose_fault
 from ..views.observation import Observation
 
 __all__ = ["INIT_CHAIN", "BATCH_STARTS", "GraphOptions", "SlamResult", "Problem", "check_inputs", "observations_from_instances",
@@ -433,9 +433,7 @@ class Problem:
 def _check_pose(T, i):
     if not np.all(np.isfinite(T)):
         raise ValueError(f"frame {i} has no pose: odometry_poses[{i}] contains NaN or inf")
-    R = T[:3, :3]
-    if (not np.allclose(T[3], [0, 0, 0, 1]) or not np.allclose(R @ R.T, np.eye(3), atol=1e-6)
-            or np.linalg.det(R) < 0):
+    if rigid_pose_fault(T):
         raise ValueError(f"odometry_poses[{i}] is not a rigid transform (proper rotation, last row [0, 0, 0, 1])")
 
 

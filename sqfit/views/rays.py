@@ -239,12 +239,13 @@ def contour_rays(observations, n_contour=64, band_px=0.0, n_inside=0, smooth_px=
     if not (np.isfinite(smooth_px) and smooth_px >= 0):
         raise ValueError(f"smooth_px must be a finite number >= 0, got {smooth_px}")
     parts = []
+    args = (int(n_contour), float(band_px), int(n_inside), float(smooth_px))
+    key = ("contour_rays",) + args
     for i, o in enumerate(observations):
         if not isinstance(o, Observation):
             raise TypeError(f"observations[{i}] must be a sqfit.Observation, got {type(o).__name__}")
-        args = (int(n_contour), float(band_px), int(n_inside), float(smooth_px))
         # the image side depends on the pixels alone: once per mask, whatever the camera's pose
-        points, modes, two_sided, normals = o.derived(("contour_rays",) + args, lambda: _view_points(o, *args))
+        points, modes, two_sided, normals = o.derived(key, lambda: _view_points(o, *args))
         radii = np.maximum(np.einsum("ij,ij->i", points - o.centroid, normals), MIN_RADIUS_PX)
         if n_inside:  # interior samples: no outline, no offset
             radii[len(points) - min(int(n_inside), len(o.samples)):] = np.inf
