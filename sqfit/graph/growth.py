@@ -25,7 +25,7 @@ from .. import constants as C
 from ..fitting import pipeline
 from ..fitting.grazing import OFFSET_UNIT_PX
 from .factors import SilhouetteFactors, bounds_factor, floor_factor, silhouette_factor
-from .landmark import camera_rays, left_grazing, superquadric_to_landmark
+from .landmark import N_SHAPE, camera_rays, left_grazing, superquadric_to_landmark
 from .parallax import ready_to_initialise
 from .problem import observation_at
 
@@ -198,6 +198,9 @@ class Growth:
         self.batch, self.rays = SilhouetteFactors(), {}
         # each landmark's silhouette noise scale, where not 1 (sqfit.graph.weighting)
         self.scales = {oid: float(v) for oid, v in (scales or {}).items() if v != 1.0}
+        # damping priors on new landmarks' size/shape (iSAM2 only): sigma (0: none), their factor
+        # indices in iSAM2 by landmark, and the positions in the graph add() returned last
+        self.damping_sigma, self.damping, self._damping_new = 0.0, {}, []
 
     def add(self, frames):
         """``(graph, values)`` of the new factors and variables for ``frames`` (the next frames)."""
@@ -251,7 +254,27 @@ class Growth:
             self.bounded.add(oid)
         add_landmark(graph, values, self.problem, oid, frames, fit.landmark, self.options, self.batch, self.rays,
                      fit.mismatched, self.scales.get(oid, 1.0))
+        if self.damping_sigma > 0:
+            graph.add(gtsam.PriorFactorVector(S(oid), np.asarray(fit.landmark[1], dtype=np.float64),
+                                              gtsam.noiseModel.Isotropic.Sigma(N_SHAPE, self.damping_sigma)))
+            self._damping_new.append((graph.size() - 1, oid))
         self.added.append(oid)
+
+    def placed(self, indices):
+        """Take iSAM2's indices of the factors add() returned last (``ISAM2Result.getNewFactorsIndices``)."""
+        for position, oid in self._damping_new:
+            self.damping[oid] = int(indices[position])
+        self._damping_new = []
+
+    def undamped(self, graph):
+        """``graph`` (iSAM2's factors) without the damping priors still in it."""
+        if not self.damping:
+            return graph
+        drop, out = set(self.damping.values()), gtsam.NonlinearFactorGraph()
+        for k in range(graph.size()):
+            if k not in drop:
+                out.add(graph.at(k))
+        return out
 
     def floored(self):
         """The landmarks with a floor factor (:func:`add_landmark`: all but the bounded ones, when

@@ -212,7 +212,7 @@ def _batch_from(problem, options, start, scales=None):
     try:
         if start == "isam2":
             isam, values, rebuilt = _incremental(growth, options, result, batch=True)
-            graph = isam.getFactorsUnsafe()
+            graph = growth.undamped(isam.getFactorsUnsafe())
             # iSAM2's last rebuild at frame n re-fitted at these values already
             refit = not (options.isam2_refit and rebuilt)
         else:
@@ -347,10 +347,11 @@ def _incremental(growth, options, result, batch=False):
     params.relinearizeSkip = 1
     isam = gtsam.ISAM2(params)
     schedule, rebuilt = RebuildSchedule(growth.problem, options), False
+    growth.damping_sigma = options.batch_landmark_damping_sigma if batch else 0.0
     for i in range(growth.problem.n_frames):
         step = _Clock()
         try:
-            isam.update(*growth.add([i]))
+            growth.placed(isam.update(*growth.add([i])).getNewFactorsIndices())
             estimate = isam.calculateEstimate()
             rebuilt = schedule.due(estimate, i) and bool(growth.added)
             if rebuilt:
@@ -387,7 +388,7 @@ def _isam2_rescaled(isam, estimate, params, n, growth, options, result):
     of the evaluation scenes, at frame 10 landmarks sat in 3G's far, huge minimum (R-IOU-M 0.00) or
     far off (misfit 7.7), and their silhouettes then pulled the trajectory away. A new
     iSAM2 on the same factors, linearised at the result; the old one is kept when nothing moved."""
-    graph = isam.getFactorsUnsafe()
+    graph = growth.undamped(isam.getFactorsUnsafe())
     moved = _rescale(graph, estimate, n, growth.added, growth.batch)
     refitted = options.isam2_refit and refit_landmarks(growth.problem, moved, growth.added, options, result, growth.rays,
                                               bounded=growth.bounded, n=n, pose_noise_refit=growth.pose_noise_refit,
@@ -396,6 +397,7 @@ def _isam2_rescaled(isam, estimate, params, n, growth, options, result):
         return isam, estimate
     fresh = gtsam.ISAM2(params)
     fresh.update(graph, moved)
+    growth.damping.clear()
     return fresh, fresh.calculateEstimate()
 
 
