@@ -1,6 +1,6 @@
-"""The batch's iSAM2 start damps its new landmarks' size/shape (GraphOptions.batch_landmark_damping_sigma):
-a prior at the initial fit, in iSAM2 until the next rebuild, never in a rebuilt iSAM2 nor in the
-batch's last solves, never in the graph-isam2 method."""
+"""The batch's iSAM2 start can damp its new landmarks' size/shape (GraphOptions.batch_landmark_damping_sigma,
+off by default): a prior at the initial fit, in iSAM2 until the next rebuild, never in a rebuilt
+iSAM2 nor in the batch's last solves, never in the graph-isam2 method."""
 
 import numpy as np
 import pytest
@@ -72,11 +72,11 @@ def test_new_landmarks_are_damped_until_the_next_rebuild(monkeypatch, seq):
     assert len(undamped[0][1]) > 0  # the first landmarks were damped until the first rebuild
 
 
-def test_the_isam2_method_and_a_zero_sigma_add_none(monkeypatch, seq):
+def test_the_isam2_method_and_the_default_add_none(monkeypatch, seq):
     added, undamped = _watch(monkeypatch)
-    assert graph.superquadric_isam2(seq.intrinsics, seq.odometry_poses, seq.observations, REBUILDS).ok
-    assert graph.superquadric_graph(seq.intrinsics, seq.odometry_poses, seq.observations,
-                                    {"batch_landmark_damping_sigma": 0.0, **REBUILDS}).ok
+    assert graph.superquadric_isam2(seq.intrinsics, seq.odometry_poses, seq.observations,
+                                    {"batch_landmark_damping_sigma": SIGMA, **REBUILDS}).ok
+    assert graph.superquadric_graph(seq.intrinsics, seq.odometry_poses, seq.observations, REBUILDS).ok
     assert all(d == [] for _, d, _ in added)
     assert all(into == [] and out == [] for _, into, out in undamped)
 

@@ -203,17 +203,20 @@ class GraphOptions(Options):
         ATE 0.40 against 0.18 m; the evaluation scenes' batch 10 % faster, as accurate), so it
         keeps the cameras' 0.01.
     batch_landmark_damping_sigma : float
-        In the batch's iSAM2 start, each new landmark's size/shape also gets a Gaussian prior of
-        this standard deviation (metres and exponent units) at its initial fit, dropped at the next
-        rebuild and before the batch's last solves (0: none). iSAM2 takes one undamped
-        Gauss-Newton step per frame, and a landmark seen in 2-5 frames has size/exponent directions
-        its silhouettes barely fix, held only by ``shape_prior_sigma``: on an evaluation sequence
-        one such step took a landmark's (a_y, e2) from (0.45, 1.66) to (-5.3, -4.4), off the bound
-        penalty (zero inside the bounds, so invisible to a step taken from inside) and back, and
-        runs 1e-9 apart parted there by a centimetre (``scripts/graph_divergence.py``). Not in the
-        ``graph-isam2`` method, where it stays in the estimate of the landmarks added after the last
-        rebuild and did not make the runs agree better (docs/slam-history.md, "Issue 23, eleventh
-        pass").
+        > 0: in the batch's iSAM2 start, each new landmark's size/shape also gets a Gaussian prior
+        of this standard deviation (metres and exponent units) at its initial fit, dropped at the
+        next rebuild and before the batch's last solves; 0 (the default): none. iSAM2 takes one
+        undamped Gauss-Newton step per frame, and a landmark seen in 2-5 frames has size/exponent
+        directions its silhouettes barely fix, held only by ``shape_prior_sigma``: on an evaluation
+        sequence one such step took a landmark's (a_y, e2) from (0.45, 1.66) to (-5.3, -4.4), off
+        the bound penalty (zero inside the bounds, so invisible to a step taken from inside) and
+        back, and runs 1e-9 apart parted there (``scripts/graph_divergence.py``). At 0.1 the
+        evaluation scenes' batch was a little steadier (71 of 72 runs at most 0.015 m against 69,
+        the same IoU and CPU) but the household sequences' maps were worse (pooled object IoU 0.461
+        / 0.398 against 0.443 / 0.509 in two runs, one run's ATE 0.48 m against at most 0.18 m), so
+        it is off (docs/slam-history.md, "Issue 23, eleventh pass"). Never in the ``graph-isam2``
+        method, where it stays in the estimate of the landmarks added after the last rebuild and
+        widened the spreads.
     isam2_rescale_every : int
         iSAM2 is rebuilt on the same factors at its estimate moved to the best scale
         (:mod:`sqfit.graph.scale`: its partial relinearisation never moves the whole map together,
@@ -312,7 +315,7 @@ class GraphOptions(Options):
     isam2_relinearize_threshold: float = 0.01
     isam2_landmark_relinearize_threshold: float = 0.03
     batch_landmark_relinearize_threshold: float = 0.01
-    batch_landmark_damping_sigma: float = 0.1
+    batch_landmark_damping_sigma: float = 0.0
     isam2_rescale_every: int = 10
     isam2_rescale_growth: float = 0.25
     isam2_rescale_parallax_deg: float = 50.0
