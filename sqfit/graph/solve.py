@@ -387,7 +387,9 @@ def _isam2_rescaled(isam, estimate, params, n, growth, options, result):
     there as after the batch solve (:func:`refit_landmarks` on frames ``0 .. n-1``): in the two failed runs
     of the evaluation scenes, at frame 10 landmarks sat in 3G's far, huge minimum (R-IOU-M 0.00) or
     far off (misfit 7.7), and their silhouettes then pulled the trajectory away. A new
-    iSAM2 on the same factors, linearised at the result; the old one is kept when nothing moved."""
+    iSAM2 on the same factors, less the damping priors of the landmarks added since the last rebuild
+    (``batch_landmark_damping_sigma``), linearised at the result; the old one is kept when nothing
+    moved."""
     graph = growth.undamped(isam.getFactorsUnsafe())
     moved = _rescale(graph, estimate, n, growth.added, growth.batch)
     refitted = options.isam2_refit and refit_landmarks(growth.problem, moved, growth.added, options, result, growth.rays,
