@@ -42,14 +42,6 @@ from sqfit.fitting import pipeline  # noqa: E402
 from sqfit.geometry.camera import Camera  # noqa: E402
 from sqfit.graph import growth, refit  # noqa: E402
 
-PARAMS = ("size", "shape", "position", "rotation")
-
-
-def params(sq):
-    """The 11 parameters of a :class:`sqfit.Superquadric` as one vector."""
-    return np.concatenate([np.ravel(getattr(sq, k)) for k in PARAMS])
-
-
 def _patch(module, name, value):
     old = getattr(module, name)
     setattr(module, name, value)
@@ -164,13 +156,13 @@ def print_fits(calls, eps, most, seed=0):
         if a.superquadric is None or b.superquadric is None:
             print(f"{j:3d} {n_views:5d} {where[:36]:>36s} {'failed':>15s}  {a.status} / {b.status}")
             continue
-        change = float(np.abs(params(a.superquadric) - params(b.superquadric)).max())
+        change = float(np.abs(a.superquadric.to_vector() - b.superquadric.to_vector()).max())
         note = ""
         if change > 1e-6:
             moved += 1
             stage = next((sa.name for sa, sb in zip(a.stages, b.stages) if sa.superquadric is not None
                           and sb.superquadric is not None
-                          and np.abs(params(sa.superquadric) - params(sb.superquadric)).max() > 1e-6), "?")
+                          and np.abs(sa.superquadric.to_vector() - sb.superquadric.to_vector()).max() > 1e-6), "?")
             note = f"  ({stage}: {a.message[:120]})"
         print(f"{j:3d} {n_views:5d} {where[:36]:>36s} {change:15.2e}{note}")
     n = len(calls[:most or None])

@@ -260,8 +260,12 @@ class Growth:
             self._damping_new.append((graph.size() - 1, oid))
         self.added.append(oid)
 
-    def placed(self, indices):
-        """Take iSAM2's indices of the factors add() returned last (``ISAM2Result.getNewFactorsIndices``)."""
+    def placed(self, update):
+        """Take from iSAM2's ``update`` (the ``ISAM2Result`` of the factors add() returned last) the
+        indices of the damping priors among them; asks iSAM2 for its indices only when there are."""
+        if not self._damping_new:
+            return
+        indices = update.getNewFactorsIndices()
         for position, oid in self._damping_new:
             self.damping[oid] = int(indices[position])
         self._damping_new = []

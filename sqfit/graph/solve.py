@@ -351,7 +351,7 @@ def _incremental(growth, options, result, batch=False):
     for i in range(growth.problem.n_frames):
         step = _Clock()
         try:
-            growth.placed(isam.update(*growth.add([i])).getNewFactorsIndices())
+            growth.placed(isam.update(*growth.add([i])))
             estimate = isam.calculateEstimate()
             rebuilt = schedule.due(estimate, i) and bool(growth.added)
             if rebuilt:
