@@ -31,6 +31,7 @@ from gtsam.symbol_shorthand import L, S
 from .floor import floor_residual
 from .landmark import StackedRays, batch_silhouette_residuals, bounded_residuals, bounds_residuals, stack_rays
 from .quadric import box_residuals
+from .shapevar import PLAIN
 
 __all__ = ["SilhouetteFactors", "silhouette_factor", "bounds_factor", "floor_factor", "with_floor_factors", "box_factor"]
 
@@ -51,7 +52,8 @@ class SilhouetteFactors:
         Factor evaluations they contained (one factor, all its rays).
     """
 
-    def __init__(self):
+    def __init__(self, variable=PLAIN):
+        self.variable = variable  # the size/shape variable (sqfit.graph.shapevar)
         self._keys, self._rays, self._units, self._stacked = [], [], [], {}
         self._bounds = []  # per factor: its rays' residual bound (inf: none; bounded_residuals)
         self._key_set = set()  # every factor's keys (holds)
@@ -156,7 +158,8 @@ class SilhouetteFactors:
         for i in stale.tolist():
             groups.setdefault((len(self._rays[i]), len(self._keys[i])), []).append(i)
         for (_, n_keys), idx in groups.items():
-            Tc, Tl, shape = (np.stack([read[self._keys[i][slot]] for i in idx]) for slot in range(3))
+            Tc, Tl, z = (np.stack([read[self._keys[i][slot]] for i in idx]) for slot in range(3))
+            shape, dz = self.variable.shape_and_jacobian(z)
             unit = np.array([self._units[i] for i in idx])
             offset = None if n_keys == 3 else np.array([read[self._keys[i][3]][0] for i in idx]) * unit
             with np.errstate(all="ignore"):
@@ -165,6 +168,8 @@ class SilhouetteFactors:
             finite = np.logical_and.reduce([np.isfinite(a).reshape(len(idx), -1).all(axis=1)
                                             for j, a in enumerate(out) if j != 4])
             r, Jc, Jl, Js = out[:4]
+            if not self.variable.plain:
+                Js = Js * dz[:, None, :]
             # the offset variable is in units of `unit` px
             Jo = () if offset is None else (out[5] * unit[:, None],)
             bound = np.array([self._bounds[i] for i in idx])
@@ -246,32 +251,36 @@ def silhouette_factor(noise, camera_key, pose_key, shape_key, rays, batch=None, 
                                                                     offset_key, offset_unit_px, ray_bound)
 
 
-def bounds_factor(shape_key, weight):
-    """Unary factor of the bound penalty (:func:`sqfit.graph.landmark.bounds_residuals`)."""
+def bounds_factor(shape_key, weight, variable=PLAIN):
+    """Unary factor of the bound penalty (:func:`sqfit.graph.landmark.bounds_residuals`);
+    ``variable``: the size/shape variable's kind (:mod:`sqfit.graph.shapevar`)."""
     def error(this, values, jacobians):
-        r, J = bounds_residuals(values.atVector(shape_key), weight)
+        shape, d = variable.shape_and_jacobian(values.atVector(shape_key))
+        r, J = bounds_residuals(shape, weight)
         if jacobians is not None:
-            jacobians[0] = J
+            jacobians[0] = J * d
         return r
 
     return gtsam.CustomFactor(gtsam.noiseModel.Unit.Create(5), [shape_key], error)
 
 
-def floor_factor(noise, pose_key, shape_key, floor_z):
+def floor_factor(noise, pose_key, shape_key, floor_z, variable=PLAIN):
     """Binary factor: the landmark's lowest point on the floor ``z = floor_z``
-    (:func:`sqfit.graph.floor.floor_residual`); ``noise`` of dimension 1, metres."""
+    (:func:`sqfit.graph.floor.floor_residual`); ``noise`` of dimension 1, metres; ``variable``: the
+    size/shape variable's kind (:mod:`sqfit.graph.shapevar`)."""
     floor_z = float(floor_z)
 
     def error(this, values, jacobians):
-        r, J_pose, J_shape = floor_residual(values.atPose3(pose_key).matrix(), values.atVector(shape_key), floor_z)
+        shape, d = variable.shape_and_jacobian(values.atVector(shape_key))
+        r, J_pose, J_shape = floor_residual(values.atPose3(pose_key).matrix(), shape, floor_z)
         if jacobians is not None:
-            jacobians[0], jacobians[1] = J_pose, J_shape
+            jacobians[0], jacobians[1] = J_pose, J_shape * d
         return r
 
     return gtsam.CustomFactor(noise, [pose_key, shape_key], error)
 
 
-def with_floor_factors(graph, oids, noise, floor_z):
+def with_floor_factors(graph, oids, noise, floor_z, variable=PLAIN):
     """A copy of ``graph`` whose floor factors on the landmarks ``oids`` (keys ``L(oid), S(oid)``:
     :func:`floor_factor`, the superquadric graph's only factor on exactly a landmark's pose and
     size/shape) are replaced by new ones with ``noise``; the other factors are shared."""
@@ -282,7 +291,7 @@ def with_floor_factors(graph, oids, noise, floor_z):
         if tuple(factor.keys()) not in floors:
             out.add(factor)
     for oid in oids:
-        out.add(floor_factor(noise, L(oid), S(oid), floor_z))
+        out.add(floor_factor(noise, L(oid), S(oid), floor_z, variable))
     return out
 
 

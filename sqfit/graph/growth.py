@@ -25,12 +25,13 @@ from .. import constants as C
 from ..fitting import pipeline
 from ..fitting.grazing import OFFSET_UNIT_PX
 from .factors import SilhouetteFactors, bounds_factor, floor_factor, silhouette_factor
-from .landmark import N_SHAPE, camera_rays, left_grazing, superquadric_to_landmark
+from .landmark import camera_rays, left_grazing, superquadric_to_landmark
 from .parallax import ready_to_initialise
 from .problem import observation_at
+from .shapevar import shape_variable
 
 __all__ = ["LandmarkFit", "Growth", "noise_models", "robust_noise", "pose_factors", "pose_matrices", "skip_object",
-           "initial_fit", "landmark_fit", "add_landmark", "view_factor", "silhouette_noise", "offset_key",
+           "initial_fit", "landmark_fit", "add_landmark", "shape_prior", "view_factor", "silhouette_noise", "offset_key",
            "landmark_keys"]
 
 
@@ -113,17 +114,18 @@ def add_landmark(graph, values, problem, oid, frames, landmark, options, batch, 
     are bounded and it gets no floor factor (a table fitted as its top need not touch the floor);
     ``scale``: its silhouette noise scale (:func:`view_factor`)."""
     T, shape = landmark
-    shape = np.asarray(shape, dtype=np.float64)
+    variable = shape_variable(options)
     values.insert(L(oid), gtsam.Pose3(T))
-    values.insert(S(oid), shape)
-    graph.add(bounds_factor(S(oid), options.bounds_weight))
+    values.insert(S(oid), variable.value(shape))
+    graph.add(bounds_factor(S(oid), options.bounds_weight, variable))
     # Weak priors at the initial fit: the rotation of a shape with a symmetry axis (and e.g. e1 of a
     # shape seen only side-on) is not observed, which iSAM2's undamped Gauss-Newton cannot solve.
-    rot, pos, size = np.radians(options.landmark_prior_sigma_deg), options.landmark_prior_sigma_m, options.shape_prior_sigma
+    rot, pos = np.radians(options.landmark_prior_sigma_deg), options.landmark_prior_sigma_m
     graph.add(gtsam.PriorFactorPose3(L(oid), gtsam.Pose3(T), gtsam.noiseModel.Diagonal.Sigmas(np.array([rot] * 3 + [pos] * 3))))
-    graph.add(gtsam.PriorFactorVector(S(oid), shape, gtsam.noiseModel.Isotropic.Sigma(len(shape), size)))
+    graph.add(shape_prior(oid, shape, options.shape_prior_sigma, variable))
     if options.floor_z is not None and not mismatched:
-        graph.add(floor_factor(robust_noise(1, options.floor_sigma_m, options.huber_k), L(oid), S(oid), options.floor_z))
+        graph.add(floor_factor(robust_noise(1, options.floor_sigma_m, options.huber_k), L(oid), S(oid), options.floor_z,
+                               variable))
     offset = offset_key(oid, options)
     if offset is not None:  # the masks' outline offset, px / OFFSET_UNIT_PX, prior at 0
         values.insert(offset, np.zeros(1))
@@ -131,6 +133,16 @@ def add_landmark(graph, values, problem, oid, frames, landmark, options, batch, 
             1, options.outline_offset_sigma_px / OFFSET_UNIT_PX)))
     for f in frames:
         graph.add(view_factor(problem, f, oid, options, batch, rays_cache, mismatched, scale))
+
+
+def shape_prior(oid, shape, sigma, variable):
+    """A prior on landmark ``oid``'s size/shape at ``shape`` of ``sigma`` (units of ``shape``) per
+    entry; ``variable``: the graph's :class:`sqfit.graph.shapevar.ShapeVariable` (the prior is on
+    the variable, of the same sigma to first order)."""
+    shape = np.asarray(shape, dtype=np.float64)
+    noise = (gtsam.noiseModel.Isotropic.Sigma(len(shape), sigma) if variable.plain
+             else gtsam.noiseModel.Diagonal.Sigmas(variable.prior_sigmas(shape, sigma)))
+    return gtsam.PriorFactorVector(S(oid), variable.value(shape), noise)
 
 
 def view_factor(problem, frame, oid, options, batch, rays_cache=None, bounded=False, scale=1.0):
@@ -195,7 +207,7 @@ class Growth:
         self.rejected = {}
         # landmarks whose initial fit was put off (module docstring): how often, and the best fit so far
         self.tries, self.deferred = {}, {}
-        self.batch, self.rays = SilhouetteFactors(), {}
+        self.batch, self.rays = SilhouetteFactors(shape_variable(options)), {}
         # each landmark's silhouette noise scale, where not 1 (sqfit.graph.weighting)
         self.scales = {oid: float(v) for oid, v in (scales or {}).items() if v != 1.0}
         # damping priors on new landmarks' size/shape (iSAM2 only): sigma (0: none), their factor
@@ -255,8 +267,7 @@ class Growth:
         add_landmark(graph, values, self.problem, oid, frames, fit.landmark, self.options, self.batch, self.rays,
                      fit.mismatched, self.scales.get(oid, 1.0))
         if self.damping_sigma > 0:
-            graph.add(gtsam.PriorFactorVector(S(oid), np.asarray(fit.landmark[1], dtype=np.float64),
-                                              gtsam.noiseModel.Isotropic.Sigma(N_SHAPE, self.damping_sigma)))
+            graph.add(shape_prior(oid, fit.landmark[1], self.damping_sigma, self.batch.variable))
             self._damping_new.append((graph.size() - 1, oid))
         self.added.append(oid)
 

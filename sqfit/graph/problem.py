@@ -30,6 +30,7 @@ from .. import constants as C
 from .._checks import Options, check_fields, check_shape
 from ..geometry.camera import Camera, Intrinsics, rigid_pose_fault
 from ..views.observation import Observation
+from .shapevar import KINDS as SHAPE_VARIABLES
 
 __all__ = ["INIT_CHAIN", "BATCH_STARTS", "GraphOptions", "SlamResult", "Problem", "check_inputs", "observations_from_instances",
            "observation_at"]
@@ -111,6 +112,16 @@ class GraphOptions(Options):
     landmark_prior_sigma_deg, landmark_prior_sigma_m, shape_prior_sigma : float
         Weak priors on each landmark's pose and size/shape vector at its initial fit (degrees,
         metres, metres or unitless): they fix what a symmetric shape leaves unobserved.
+    shape_variable : str
+        How the graph stores a landmark's size/shape (:mod:`sqfit.graph.shapevar`): ``"plain"``
+        the vector ``[ax, ay, az, e1, e2]`` itself, ``"log"`` log sizes and logistic exponents, so
+        that every value of the variable is a valid superquadric (the priors, the relinearisation
+        thresholds and iSAM2's steps then act on those units). Measured on the evaluation scenes
+        (docs/slam-history.md "Issue 23, twelfth pass"): ``log`` did not steady the ``graph-isam2``
+        method (7 sequences of 24 beyond a stability limit against 5) and slowed its updates
+        (median 20-23 ms against 13-14), and the batch's gain on seeds 0-3 (72 of 72 runs at most
+        0.015 m against 69) was lost on seeds 4-5 (34 of 36 against 36), so the default is
+        ``"plain"``.
     box_sigma_px : float
         Standard deviation of a box side, pixels (quadric baseline).
     batch_start : str
@@ -303,6 +314,7 @@ class GraphOptions(Options):
     landmark_prior_sigma_deg: float = 90.0
     landmark_prior_sigma_m: float = 10.0
     shape_prior_sigma: float = 10.0
+    shape_variable: str = "plain"
     box_sigma_px: float = 2.0
     batch_start: str = "isam2"
     batch_odometry_chi2: float = 8.0
@@ -348,6 +360,8 @@ class GraphOptions(Options):
                                "final_relative_tolerance", "final_max_lambda", "floor_sigma_m"),
                      nonnegative=("misfit_sigma", "final_floor_misfit", "isam2_rescale_growth", "isam2_rescale_parallax_deg", "bounds_weight", "init_min_overlap", "refit_misfit", "outline_offset_sigma_px", "mismatch_ray_k",
                                   "batch_landmark_damping_sigma"))
+        if self.shape_variable not in SHAPE_VARIABLES:
+            raise ValueError(f"shape_variable must be one of {', '.join(SHAPE_VARIABLES)}, got {self.shape_variable!r}")
         if self.batch_start not in BATCH_STARTS:
             raise ValueError(f"batch_start must be one of {', '.join(BATCH_STARTS)}, got {self.batch_start!r}")
         if self.final_floor_sigma_m is not None and not (np.isfinite(self.final_floor_sigma_m)

@@ -15,6 +15,7 @@ from .fixedlag import evenly_spread
 from .growth import landmark_fit, pose_matrices, view_factor
 from .landmark import landmark_to_superquadric
 from .problem import observation_at
+from .shapevar import shape_variable
 
 __all__ = ["RETRY_MISFIT", "RETRY_FRAMES", "OVERLAP_FRAMES", "refit_landmarks", "object_misfits", "landmark_overlap", "observation_set", "frames_before"]
 
@@ -25,7 +26,7 @@ def object_misfits(problem, values, oids, options, rays_cache=None, bounded=froz
     (those of the landmarks in ``bounded`` bounded, as in the graph), in frames ``0 .. n-1`` (all
     with None), at most ``most`` of them per object, evenly spread
     (:func:`sqfit.graph.fixedlag.evenly_spread`; 0: all)."""
-    batch, factors = SilhouetteFactors(), {}
+    batch, factors = SilhouetteFactors(shape_variable(options)), {}
     for oid in oids:
         factors[oid] = [view_factor(problem, f, oid, options, batch, rays_cache, oid in bounded)
                         for f in evenly_spread(frames_before(problem, oid, n), most)]
@@ -46,11 +47,12 @@ def observation_set(problem, oid, poses, frames):
     return ObservationSet([observation_at(problem.observations[f, oid], poses[f]) for f in frames])
 
 
-def landmark_overlap(values, oid, obs):
+def landmark_overlap(values, oid, obs, variable):
     """R-IOU-M of object ``oid``'s landmark at ``values`` against ``obs`` (an ObservationSet): how
     much its silhouettes overlap its masks (``sqfit.fitting.stages.r_iou_m``; 3G's "far, huge"
-    minimum has a low misfit but almost no overlap)."""
-    sq = landmark_to_superquadric(values.atPose3(L(oid)).matrix(), values.atVector(S(oid)))
+    minimum has a low misfit but almost no overlap); ``variable``: the graph's size/shape variable
+    (:mod:`sqfit.graph.shapevar`)."""
+    sq = landmark_to_superquadric(values.atPose3(L(oid)).matrix(), variable.shape(values.atVector(S(oid))))
     return float(r_iou_m([sq], obs)[0])
 
 
@@ -88,13 +90,13 @@ def refit_landmarks(problem, values, oids, options, result, rays_cache=None, ove
     poses = pose_matrices(values, problem.n_frames if n is None else n)
     if pose_noise_refit is None:
         pose_noise_refit = options.batch_pose_noise_refit
-    most = options.refit_max_frames
+    most, variable = options.refit_max_frames, shape_variable(options)
     misfits = {} if overlap_only else object_misfits(problem, values, oids, options, rays_cache, bounded, n, most)
     changed = False
     for oid in oids:
         seen = frames_before(problem, oid, n)
         tested = observation_set(problem, oid, poses, evenly_spread(seen, OVERLAP_FRAMES))
-        overlap = landmark_overlap(values, oid, tested)
+        overlap = landmark_overlap(values, oid, tested, variable)
         disjoint = overlap < C.POOR_FIT_R_IOU_M
         if overlap_only and not disjoint:
             continue
@@ -113,9 +115,9 @@ def refit_landmarks(problem, values, oids, options, result, rays_cache=None, ove
             continue
         trial = gtsam.Values(values)
         trial.update(L(oid), gtsam.Pose3(landmark[0]))
-        trial.update(S(oid), np.asarray(landmark[1], dtype=np.float64))
+        trial.update(S(oid), variable.value(landmark[1]))
         after = object_misfits(problem, trial, [oid], options, rays_cache, bounded, n, most)[oid]
-        overlap_after = landmark_overlap(trial, oid, tested) if disjoint else None
+        overlap_after = landmark_overlap(trial, oid, tested, variable) if disjoint else None
         kept = (overlap_after > overlap) if disjoint else (after < before)
         if rejected is not None and not disjoint:
             if kept:
@@ -124,9 +126,9 @@ def refit_landmarks(problem, values, oids, options, result, rays_cache=None, ove
                 rejected[oid] = (before, len(seen))
         if kept:
             if overlap_after is None:
-                overlap_after = landmark_overlap(trial, oid, tested)
+                overlap_after = landmark_overlap(trial, oid, tested, variable)
             values.update(L(oid), gtsam.Pose3(landmark[0]))
-            values.update(S(oid), np.asarray(landmark[1], dtype=np.float64))
+            values.update(S(oid), variable.value(landmark[1]))
             result.warnings.append(f"object {oid}: re-initialised from {len(frames)} of its {len(problem.frames[oid])} frames "
                                    f"{'' if n is None else f'(at frame {n}) '}"
                                    f"(misfit {before:.2f} -> {after:.2f}, R-IOU-M {overlap:.2f} -> "

@@ -18,6 +18,8 @@ import gtsam
 import numpy as np
 from scipy.optimize import minimize_scalar
 
+from .shapevar import PLAIN
+
 __all__ = ["rescaled", "best_scale", "scale_dependent_factors"]
 
 #: The scale factor is searched in ``[1 - SCALE_RANGE, 1 + SCALE_RANGE]`` (the odometry's scale
@@ -27,7 +29,7 @@ SCALE_RANGE = 0.1
 SCALE_XTOL = 1e-7
 
 
-def rescaled(values, centre, s, pose_keys, landmark_keys, shape_keys):
+def rescaled(values, centre, s, pose_keys, landmark_keys, shape_keys, variable=PLAIN):
     """``values`` with positions scaled by ``s`` about ``centre`` and landmark sizes by ``s``.
 
     Parameters
@@ -41,6 +43,8 @@ def rescaled(values, centre, s, pose_keys, landmark_keys, shape_keys):
         Keys of ``Pose3`` variables (camera poses, landmark poses): their translations scale.
     shape_keys : iterable of int
         Keys of ``[ax, ay, az, e1, e2]`` vectors: the sizes ``a`` scale, the shapes ``e`` do not.
+    variable : ShapeVariable
+        How those vectors are stored (:mod:`sqfit.graph.shapevar`).
 
     Returns
     -------
@@ -55,9 +59,7 @@ def rescaled(values, centre, s, pose_keys, landmark_keys, shape_keys):
         T = values.atPose3(key)
         out.update(key, gtsam.Pose3(T.rotation(), centre + s * (T.translation() - centre)))
     for key in shape_keys:
-        v = np.array(values.atVector(key), dtype=np.float64)
-        v[:3] *= s
-        out.update(key, v)
+        out.update(key, variable.scaled(values.atVector(key), s))
     return out
 
 
@@ -71,7 +73,7 @@ def scale_dependent_factors(graph, invariant):
     return out
 
 
-def best_scale(graph, values, centre, pose_keys, landmark_keys, shape_keys):
+def best_scale(graph, values, centre, pose_keys, landmark_keys, shape_keys, variable=PLAIN):
     """The scale factor about ``centre`` that minimises ``graph``'s error (arguments: :func:`rescaled`).
 
     ``graph`` should hold only the factors the scale changes (:func:`scale_dependent_factors`): the
@@ -85,7 +87,7 @@ def best_scale(graph, values, centre, pose_keys, landmark_keys, shape_keys):
     pose_keys, landmark_keys, shape_keys = list(pose_keys), list(landmark_keys), list(shape_keys)
 
     def error(s):
-        return graph.error(rescaled(values, centre, s, pose_keys, landmark_keys, shape_keys))
+        return graph.error(rescaled(values, centre, s, pose_keys, landmark_keys, shape_keys, variable))
 
     found = minimize_scalar(error, bounds=(1.0 - SCALE_RANGE, 1.0 + SCALE_RANGE), method="bounded",
                             options={"xatol": SCALE_XTOL})

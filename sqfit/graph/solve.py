@@ -96,8 +96,10 @@ def _lm(graph, values, options, max_lambda=None):
     return out, optimizer.iterations()
 
 
-def _objects(values, oids):
-    return {oid: landmark_to_superquadric(values.atPose3(L(oid)).matrix(), values.atVector(S(oid))) for oid in oids}
+def _objects(values, oids, variable):
+    """The landmarks ``oids`` at ``values`` as superquadrics; ``variable``: the size/shape variable."""
+    return {oid: landmark_to_superquadric(values.atPose3(L(oid)).matrix(), variable.shape(values.atVector(S(oid))))
+            for oid in oids}
 
 
 def odometry(intrinsics, odometry_poses, observations, options=None):
@@ -229,7 +231,7 @@ def _batch_from(problem, options, start, scales=None):
             floored = [oid for oid in floored if misfits[oid] <= options.final_floor_misfit]
         if options.final_floor_sigma_m is not None and floored:
             graph = with_floor_factors(graph, floored, robust_noise(1, options.final_floor_sigma_m, options.huber_k),
-                                       options.floor_z)
+                                       options.floor_z, growth.batch.variable)
         for check in (False, True):
             # the last solve moves far along the scale valley: a landmark it drops into 3G's far,
             # huge minimum is re-fitted (overlap test only) and the graph solved once more
@@ -248,7 +250,7 @@ def _batch_from(problem, options, start, scales=None):
         result.error_final = graph.error(values)
         chi2 = odometry_chi2(graph, values)
         estimated = noise_scales(problem, values, growth.added, options, growth.scales, growth.rays, growth.bounded)
-        result.poses, result.objects = pose_matrices(values, n), _objects(values, growth.added)
+        result.poses, result.objects = pose_matrices(values, n), _objects(values, growth.added, growth.batch.variable)
         result.outline_offsets = _offsets(values, growth.added, options)
     result.seconds, result.cpu_seconds = clock.elapsed()
     return result, chi2, estimated
@@ -286,7 +288,7 @@ def _rescale(graph, values, n, oids, batch):
     centre = values.atPose3(X(0)).translation()
     keys = ([X(i) for i in range(n)], [L(oid) for oid in oids], [S(oid) for oid in oids])
     changing = scale_dependent_factors(graph, batch.holds)
-    return rescaled(values, centre, best_scale(changing, values, centre, *keys), *keys)
+    return rescaled(values, centre, best_scale(changing, values, centre, *keys, batch.variable), *keys, batch.variable)
 
 
 def _window_solve(graph, by_key, values, growth, end, options):
@@ -327,7 +329,7 @@ def _isam2(problem, options):
     growth.finish()
     result.iterations = n
     result.error_final = isam.getFactorsUnsafe().error(estimate)
-    result.poses, result.objects = pose_matrices(estimate, n), _objects(estimate, sorted(growth.added))
+    result.poses, result.objects = pose_matrices(estimate, n), _objects(estimate, sorted(growth.added), growth.batch.variable)
     result.outline_offsets = _offsets(estimate, sorted(growth.added), options)
     result.seconds, result.cpu_seconds = clock.elapsed()
     return result
