@@ -120,8 +120,8 @@ class GraphOptions(Options):
         (docs/slam-history.md "Issue 23, twelfth pass"): ``log`` did not steady the ``graph-isam2``
         method (7 sequences of 24 beyond a stability limit against 5) and slowed its updates
         (median 20-23 ms against 13-14), and the batch's gain on seeds 0-3 (72 of 72 runs at most
-        0.015 m against 69) was lost on seeds 4-5 (34 of 36 against 36), so the default is
-        ``"plain"``.
+        0.015 m against 69) was lost on seeds 4-5 (34 of 36 against 36); the household maps were
+        worse too (pooled object IoU 0.421 against 0.443 / 0.509), so the default is ``"plain"``.
     box_sigma_px : float
         Standard deviation of a box side, pixels (quadric baseline).
     batch_start : str
