@@ -15,6 +15,7 @@ of its fits (:meth:`Growth.add`).
 
 from __future__ import annotations
 
+from dataclasses import replace
 from typing import NamedTuple
 
 import gtsam
@@ -290,6 +291,24 @@ class Growth:
             if k not in drop:
                 out.add(graph.at(k))
         return out
+
+    def resampled(self, graph, n_contour):
+        """``(graph', evaluator)``: ``graph`` with each silhouette factor of this growth's evaluator
+        replaced by one of the same view with ``n_contour`` rays (bounded and scaled as before), all
+        evaluated by a new :class:`SilhouetteFactors`, which it returns; the other factors are
+        shared (``GraphOptions.final_n_contour``)."""
+        options = replace(self.options, n_contour=int(n_contour))
+        batch, rays, out = SilhouetteFactors(self.batch.variable), {}, gtsam.NonlinearFactorGraph()
+        for k in range(graph.size()):
+            factor = graph.at(k)
+            if not self.batch.holds(factor):
+                out.add(factor)
+                continue
+            keys = factor.keys()
+            frame, oid = gtsam.Symbol(keys[0]).index(), gtsam.Symbol(keys[1]).index()
+            out.add(view_factor(self.problem, frame, oid, options, batch, rays, oid in self.bounded,
+                                self.scales.get(oid, 1.0)))
+        return out, batch
 
     def floored(self):
         """The landmarks with a floor factor (:func:`add_landmark`: all but the bounded ones, when

@@ -61,6 +61,9 @@ class GraphOptions(Options):
     ----------
     n_contour : int
         Rays per (frame, object) silhouette factor, >= 3.
+    final_n_contour : int
+        The batch's last solves use this many rays per silhouette factor (0: ``n_contour``); the
+        iSAM2 start, the re-fits' misfits and the ``graph-isam2`` method keep ``n_contour``.
     silhouette_sigma : float
         Standard deviation of one ray residual ``phi`` of a good mask (unitless: about the contour
         error over the object's image radius), > 0. Default 0.03: ~4x the pixelisation error of the
@@ -297,6 +300,7 @@ class GraphOptions(Options):
     """
 
     n_contour: int = 32
+    final_n_contour: int = 0
     silhouette_sigma: float = 0.03
     huber_k: float = 1.345
     odometry_sigma_deg: float = 0.5
@@ -348,7 +352,7 @@ class GraphOptions(Options):
     WHAT = "graph"
 
     def __post_init__(self):
-        check_fields(self, integers={"n_contour": 3, "init_frames": MIN_FRAMES, "init_retries": 0, "max_iterations": 1, "batch_window": 0,
+        check_fields(self, integers={"n_contour": 3, "final_n_contour": 0, "init_frames": MIN_FRAMES, "init_retries": 0, "max_iterations": 1, "batch_window": 0,
                                          "batch_free_frames": 0, "batch_past_views": 0,
                                          "refit_max_frames": 0,
                                          "isam2_rescale_every": 0},
@@ -360,6 +364,8 @@ class GraphOptions(Options):
                                "final_relative_tolerance", "final_max_lambda", "floor_sigma_m"),
                      nonnegative=("misfit_sigma", "final_floor_misfit", "isam2_rescale_growth", "isam2_rescale_parallax_deg", "bounds_weight", "init_min_overlap", "refit_misfit", "outline_offset_sigma_px", "mismatch_ray_k",
                                   "batch_landmark_damping_sigma"))
+        if 0 < self.final_n_contour < 3:
+            raise ValueError(f"final_n_contour must be 0 (n_contour) or at least 3, got {self.final_n_contour}")
         if self.shape_variable not in SHAPE_VARIABLES:
             raise ValueError(f"shape_variable must be one of {', '.join(SHAPE_VARIABLES)}, got {self.shape_variable!r}")
         if self.batch_start not in BATCH_STARTS:

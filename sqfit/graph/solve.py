@@ -232,6 +232,9 @@ def _batch_from(problem, options, start, scales=None):
         if options.final_floor_sigma_m is not None and floored:
             graph = with_floor_factors(graph, floored, robust_noise(1, options.final_floor_sigma_m, options.huber_k),
                                        options.floor_z, growth.batch.variable)
+        silhouettes = growth.batch
+        if options.final_n_contour and options.final_n_contour != options.n_contour:
+            graph, silhouettes = growth.resampled(graph, options.final_n_contour)
         for check in (False, True):
             # the last solve moves far along the scale valley: a landmark it drops into 3G's far,
             # huge minimum is re-fitted (overlap test only) and the graph solved once more
@@ -239,7 +242,7 @@ def _batch_from(problem, options, start, scales=None):
                                              bounded=growth.bounded):
                 break
             if options.rescale:
-                values = _rescale(graph, values, n, growth.added, growth.batch)
+                values = _rescale(graph, values, n, growth.added, silhouettes)
             result.error_initial = graph.error(values)
             values, iterations = _lm(graph, values, final, options.final_max_lambda)
             result.iterations += iterations
