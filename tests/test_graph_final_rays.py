@@ -68,10 +68,43 @@ def test_resampling_swaps_the_silhouette_factors_only(seq):
     assert e40 == pytest.approx(e32, rel=0.5)
 
 
-def test_final_n_contour_equal_to_n_contour_changes_nothing(seq):
+def test_landmarks_that_do_not_fit_their_masks_keep_their_rays(seq):
+    # bounded (the initial fit left the grazing cost) or noise scaled by the misfit: the outline's
+    # misfit is the model's, so those landmarks' factors are made again as they were
+    problem = graph.check_inputs(seq.intrinsics, seq.odometry_poses, seq.observations)
+    oids = sorted(seq.objects)
+    grown = growth.Growth(problem, graph.GraphOptions(), graph.SlamResult("graph", problem.odometry_poses.copy()),
+                          scales={oids[0]: 1.7})
+    grown.bounded.add(oids[1])
+    g, values = grown.add(list(range(problem.n_frames)))
+    out, batch = grown.resampled(g, 48)
+    rays = {}
+    for k in range(out.size()):
+        f = out.at(k)
+        if batch.holds(f):
+            rays.setdefault(gtsam.Symbol(f.keys()[1]).index(), set()).add(f.dim())
+    assert rays == {oids[0]: {32}, oids[1]: {32}, oids[2]: {48}}
+    # the scaled landmark's factors are the same rows as before (the bounded one's were made
+    # unbounded in its first frames here: in a run, a landmark is bounded from its initial fit on)
+    before = {tuple(g.at(k).keys()): g.at(k).error(values) for k in range(g.size()) if grown.batch.holds(g.at(k))}
+    after = {tuple(out.at(k).keys()): out.at(k).error(values) for k in range(out.size()) if batch.holds(out.at(k))}
+    kept = [keys for keys in before if gtsam.Symbol(keys[1]).index() == oids[0]]
+    assert kept and all(after[keys] == before[keys] for keys in kept)
+
+
+def test_final_n_contour_0_or_n_contour_keeps_the_rays(monkeypatch, seq):
+    seen = _last_solves(monkeypatch)
     runs = [graph.superquadric_graph(seq.intrinsics, seq.odometry_poses, seq.observations, options)
-            for options in ({}, {"final_n_contour": 32})]
+            for options in ({"final_n_contour": 0}, {"final_n_contour": 32})]
     np.testing.assert_array_equal(runs[0].poses, runs[1].poses)
+    assert set(_silhouette_dims(seen[-1])) == {32}
+
+
+def test_the_default_last_solves_use_64_rays(monkeypatch, seq):
+    seen = _last_solves(monkeypatch)
+    assert graph.GraphOptions().final_n_contour == 64
+    result = graph.superquadric_graph(seq.intrinsics, seq.odometry_poses, seq.observations)
+    assert result.ok and set(_silhouette_dims(seen[-1])) == {64}
 
 
 @pytest.mark.parametrize("value", [-1, 1, 2, 3.5])

@@ -341,8 +341,8 @@ def test_a_coarser_landmark_threshold_evaluates_fewer_views(monkeypatch, seq):
     made = []
 
     class Counted(SilhouetteFactors):
-        def __init__(self):
-            super().__init__()
+        def __init__(self, *args):
+            super().__init__(*args)
             made.append(self)
 
     monkeypatch.setattr(growth, "SilhouetteFactors", Counted)

@@ -96,18 +96,21 @@ def test_landmarks_whose_fit_left_grazing_get_bounded_factors(monkeypatch, k, bo
     real = factors.SilhouetteFactors.factor
 
     def factor(self, *args, **kw):
-        made.append(args[7] if len(args) > 7 else kw.get("ray_bound", np.inf))
+        made.append((args[7] if len(args) > 7 else kw.get("ray_bound", np.inf), len(args[4])))
         return real(self, *args, **kw)
 
     monkeypatch.setattr(factors.SilhouetteFactors, "factor", factor)
     result = solve.run(seq.intrinsics, seq.odometry_poses, seq.observations, ["graph"],
                        {"mismatch_ray_k": k})["graph"]
     assert result.status == "ok" and made
-    sigma = 0.03 / np.sqrt(32)
+    bounds, rays = np.array(made).T
+    # every landmark left the grazing cost here: the last solves keep their 32 rays (final_n_contour
+    # applies to the landmarks that fit their masks)
+    assert set(rays) == {32}
     if bounded:
-        np.testing.assert_allclose(made, k * sigma)
+        np.testing.assert_allclose(bounds, k * 0.03 / np.sqrt(rays))  # a ray's row sigma
     else:
-        assert np.all(np.isinf(made))
+        assert np.all(np.isinf(bounds))
 
 
 def test_mismatch_ray_k_is_checked():

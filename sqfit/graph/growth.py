@@ -293,11 +293,14 @@ class Growth:
         return out
 
     def resampled(self, graph, n_contour):
-        """``(graph', evaluator)``: ``graph`` with each silhouette factor of this growth's evaluator
-        replaced by one of the same view with ``n_contour`` rays (bounded and scaled as before), all
-        evaluated by a new :class:`SilhouetteFactors`, which it returns; the other factors are
-        shared (``GraphOptions.final_n_contour``)."""
-        options = replace(self.options, n_contour=int(n_contour))
+        """``(graph', evaluator)``: ``graph`` with the silhouette factors of this growth's evaluator
+        made again by a new :class:`SilhouetteFactors`, which it returns, those of the landmarks
+        that fit their masks with ``n_contour`` rays (``GraphOptions.final_n_contour``), the others
+        as they were; the other factors are shared. A landmark fits unless its silhouette factors
+        are bounded (its initial fit left the grazing cost) or its noise is scaled by its misfit
+        (:mod:`sqfit.graph.weighting`): there the outline's misfit is the model's, not noise, and
+        denser rays would only weigh the wrong outline more."""
+        dense = replace(self.options, n_contour=int(n_contour))
         batch, rays, out = SilhouetteFactors(self.batch.variable), {}, gtsam.NonlinearFactorGraph()
         for k in range(graph.size()):
             factor = graph.at(k)
@@ -306,8 +309,10 @@ class Growth:
                 continue
             keys = factor.keys()
             frame, oid = gtsam.Symbol(keys[0]).index(), gtsam.Symbol(keys[1]).index()
-            out.add(view_factor(self.problem, frame, oid, options, batch, rays, oid in self.bounded,
-                                self.scales.get(oid, 1.0)))
+            scale = self.scales.get(oid, 1.0)
+            fits = oid not in self.bounded and scale == 1.0
+            out.add(view_factor(self.problem, frame, oid, dense if fits else self.options, batch,
+                                rays if fits else self.rays, oid in self.bounded, scale))
         return out, batch
 
     def floored(self):

@@ -15,7 +15,7 @@ from .fixedlag import evenly_spread
 from .growth import landmark_fit, pose_matrices, view_factor
 from .landmark import landmark_to_superquadric
 from .problem import observation_at
-from .shapevar import shape_variable
+from .shapevar import PLAIN, shape_variable
 
 __all__ = ["RETRY_MISFIT", "RETRY_FRAMES", "OVERLAP_FRAMES", "refit_landmarks", "object_misfits", "landmark_overlap", "observation_set", "frames_before"]
 
@@ -47,7 +47,7 @@ def observation_set(problem, oid, poses, frames):
     return ObservationSet([observation_at(problem.observations[f, oid], poses[f]) for f in frames])
 
 
-def landmark_overlap(values, oid, obs, variable):
+def landmark_overlap(values, oid, obs, variable=PLAIN):
     """R-IOU-M of object ``oid``'s landmark at ``values`` against ``obs`` (an ObservationSet): how
     much its silhouettes overlap its masks (``sqfit.fitting.stages.r_iou_m``; 3G's "far, huge"
     minimum has a low misfit but almost no overlap); ``variable``: the graph's size/shape variable
