@@ -1,5 +1,6 @@
 """The batch's last solves can use more rays per silhouette factor than its iSAM2 start
-(GraphOptions.final_n_contour): Growth.resampled swaps the silhouette factors and nothing else."""
+(GraphOptions.final_n_contour) on the landmarks that fit their masks: Growth.resampled swaps
+those silhouette factors and nothing else."""
 
 import numpy as np
 import pytest
