@@ -74,7 +74,9 @@ class GraphOptions(Options):
         0.015 m (largest 0.0121 against 0.0155 m), the object IoU's 10th percentile rose from
         0.957-0.958 to 0.967-0.974, at about the same CPU; 128 rays gained little more (seeds 0-1:
         ATE median 0.0054 m). A lower ``silhouette_sigma`` at 32 rays, the same weight without the
-        extra rays, did not (ATE median 0.0069 m but 3 of 36 runs above 0.015 m).
+        extra rays, did not (ATE median 0.0069 m but 3 of 36 runs above 0.015 m). Household
+        sequences: pooled object IoU as before (0.463 / 0.475 against 0.443 / 0.509), but one
+        sequence of tables and chairs ran off (ATE 0.32-0.34 m against 0.107 m).
     silhouette_sigma : float
         Standard deviation of one ray residual ``phi`` of a good mask (unitless: about the contour
         error over the object's image radius), > 0. Default 0.03: ~4x the pixelisation error of the
