@@ -158,8 +158,9 @@ class SilhouetteFactors:
         for i in stale.tolist():
             groups.setdefault((len(self._rays[i]), len(self._keys[i])), []).append(i)
         for (_, n_keys), idx in groups.items():
-            Tc, Tl, z = (np.stack([read[self._keys[i][slot]] for i in idx]) for slot in range(3))
-            shape, dz = self.variable.shape_and_jacobian(z)
+            Tc, Tl, shape = (np.stack([read[self._keys[i][slot]] for i in idx]) for slot in range(3))
+            if not self.variable.plain:  # the plain variable is the shape itself: no map on this hot path
+                shape, dz = self.variable.shape_and_jacobian(shape)
             unit = np.array([self._units[i] for i in idx])
             offset = None if n_keys == 3 else np.array([read[self._keys[i][3]][0] for i in idx]) * unit
             with np.errstate(all="ignore"):
@@ -254,11 +255,15 @@ def silhouette_factor(noise, camera_key, pose_key, shape_key, rays, batch=None, 
 def bounds_factor(shape_key, weight, variable=PLAIN):
     """Unary factor of the bound penalty (:func:`sqfit.graph.landmark.bounds_residuals`);
     ``variable``: the size/shape variable's kind (:mod:`sqfit.graph.shapevar`)."""
+    plain = variable.plain  # no map (and no numpy call) per evaluation for the plain variable
+
     def error(this, values, jacobians):
-        shape, d = variable.shape_and_jacobian(values.atVector(shape_key))
+        shape = values.atVector(shape_key)
+        if not plain:
+            shape, d = variable.shape_and_jacobian(shape)
         r, J = bounds_residuals(shape, weight)
         if jacobians is not None:
-            jacobians[0] = J * d
+            jacobians[0] = J if plain else J * d
         return r
 
     return gtsam.CustomFactor(gtsam.noiseModel.Unit.Create(5), [shape_key], error)
@@ -268,13 +273,15 @@ def floor_factor(noise, pose_key, shape_key, floor_z, variable=PLAIN):
     """Binary factor: the landmark's lowest point on the floor ``z = floor_z``
     (:func:`sqfit.graph.floor.floor_residual`); ``noise`` of dimension 1, metres; ``variable``: the
     size/shape variable's kind (:mod:`sqfit.graph.shapevar`)."""
-    floor_z = float(floor_z)
+    floor_z, plain = float(floor_z), variable.plain  # plain: no map (floor_residual avoids numpy calls)
 
     def error(this, values, jacobians):
-        shape, d = variable.shape_and_jacobian(values.atVector(shape_key))
+        shape = values.atVector(shape_key)
+        if not plain:
+            shape, d = variable.shape_and_jacobian(shape)
         r, J_pose, J_shape = floor_residual(values.atPose3(pose_key).matrix(), shape, floor_z)
         if jacobians is not None:
-            jacobians[0], jacobians[1] = J_pose, J_shape * d
+            jacobians[0], jacobians[1] = J_pose, (J_shape if plain else J_shape * d)
         return r
 
     return gtsam.CustomFactor(noise, [pose_key, shape_key], error)
