@@ -111,6 +111,7 @@ class ObservationSet:
         self.frames = image_rectangles([(o.camera.intrinsics.width, o.camera.intrinsics.height) for o in obs])
         self.occluded_views = np.array([len(o.hidden) > 0 for o in obs], dtype=bool)
         self._targets = {}
+        self._shapes = None
         self._hidden_in_target = {}
 
     def __len__(self):
@@ -132,6 +133,21 @@ class ObservationSet:
         return self._targets[kind]
 
 
+    def contour_shapes(self):
+        """Per view, the mask contour (the ``"contour"`` targets) as a valid shapely geometry
+        (``shapely.make_valid``), ``(v,) object``: made once per mask, shared by every copy of its
+        observation (``Observation.derived``), not per evaluation (a contour of a few hundred
+        vertices costs about as much to make valid as to intersect with a silhouette)."""
+        if self._shapes is None:
+            import shapely
+
+            def valid(o):
+                return lambda: shapely.make_valid(shapely.Polygon(np.asarray(o.contour)))
+
+            self._shapes = np.array([o.derived(("contour_shape",), valid(o)) for o in self.observations],
+                                    dtype=object)
+        return self._shapes
+
     def hidden_in_target(self, kind):
         """Per view, ``(k,) bool``: which of ``Observation.hidden`` lie in the observation polygon."""
         if kind not in self._hidden_in_target:
@@ -149,8 +165,7 @@ class ObservationSet:
                 else:
                     import shapely
 
-                    out.append(shapely.contains_xy(shapely.make_valid(shapely.Polygon(target)), o.hidden[:, 0],
-                                                   o.hidden[:, 1]))
+                    out.append(shapely.contains_xy(self.contour_shapes()[len(out)], o.hidden[:, 0], o.hidden[:, 1]))
             self._hidden_in_target[kind] = out
         return self._hidden_in_target[kind]
 
@@ -353,13 +368,23 @@ def visible_iou(polys, valid, obs, polygon="hull", hidden=None):
     iou : (b, v) float
     """
     targets, convex, planes = obs.targets(polygon)
+    partial = obs.border_views | obs.occluded_views
     kernels = compiled("silhouettes") if convex else None
     if kernels is not None:
         iou = kernels.convex_iou(np.ascontiguousarray(polys, dtype=np.float64), np.ascontiguousarray(valid), targets,
                                  *planes, MIN_EDGE)
-    else:
+    elif convex:
         iou = batch_iou(polys, valid, targets, convex, planes)
-    if not (obs.border_views.any() or obs.occluded_views.any()):
+    else:
+        # shapely: each intersection costs ~0.1 ms, so the partial views (counted again below, on
+        # their visible part) are left out here
+        shapes = obs.contour_shapes()
+        whole = np.flatnonzero(~partial)
+        iou = np.zeros(valid.shape)
+        if len(whole):
+            iou[:, whole] = batch_iou(polys[:, whole], valid[:, whole], [targets[i] for i in whole], False,
+                                      target_shapes=shapes[whole])
+    if not partial.any():
         return iou
     if hidden is None:
         cut, clip, hi, hu = obs.partial_views(polys, polygon)
@@ -378,7 +403,7 @@ def visible_iou(polys, valid, obs, polygon="hull", hidden=None):
         sil = shapely.make_valid(shapely.polygons(polys[:, cut].reshape(b * len(cut), -1, 2)))
         frames = np.tile(shapely.polygons(obs.frames[cut]), b)
         sil = np.where(np.tile(clip, b), shapely.intersection(sil, frames), sil)
-        tgt = np.tile(np.array([shapely.make_valid(shapely.Polygon(targets[i])) for i in cut], dtype=object), b)
+        tgt = np.tile(shapes[cut], b)
         inter = shapely.area(shapely.intersection(sil, tgt))
         union = shapely.area(sil) + shapely.area(tgt) - inter - hu.ravel()
         with np.errstate(divide="ignore", invalid="ignore"):
