@@ -370,6 +370,79 @@ def test_points_in_convex_kernel_agrees():
     assert not points_in_convex(broken, points).any()
 
 
+def test_contour_overlaps_kernel_on_known_overlaps():
+    # silhouettes against a non-convex (L-shaped) contour: exact areas, clipped to the image or not,
+    # either orientation, a zero-length edge; a silhouette that is not convex or not finite is left
+    # to shapely (ok False)
+    k = _silhouette_kernels()
+    ell = np.array([[0.0, 0.0], [4.0, 0.0], [4.0, 1.0], [1.0, 1.0], [1.0, 4.0], [0.0, 4.0]])  # area 7
+    square = np.array([[0.0, 0.0], [2.0, 0.0], [2.0, 2.0], [0.0, 2.0]])
+    frame = np.array([[[0.0, 0.0], [1.5, 0.0], [1.5, 10.0], [0.0, 10.0]]])
+    polys = [square, square[::-1], np.vstack([square[:2], square[1:]]), square + [-1.0, -1.0],
+             np.array([[0.0, 0.0], [2.0, 0.0], [1.0, 0.5], [2.0, 2.0]]),
+             np.array([[0.0, 0.0], [2.0, 0.0], [np.nan, 2.0], [0.0, 2.0]])]
+    # five vertices each: a repeated last vertex (a zero-length edge) where there are four
+    polys = np.ascontiguousarray(np.stack([np.vstack([p, p[-1:]]) if len(p) == 4 else p for p in polys])[:, None])
+    pairs = np.stack([np.arange(len(polys)), np.zeros(len(polys), dtype=np.int64)], axis=1)
+    starts = np.array([0, len(ell)])
+    for clip, inter, area in ((False, [3.0, 3.0, 3.0, 1.0], [4.0, 4.0, 4.0, 4.0]),
+                              (True, [2.5, 2.5, 2.5, 1.0], [3.0, 3.0, 3.0, 1.0])):
+        got_inter, got_area, ok = k.contour_overlaps(polys, pairs, ell, starts, frame, np.array([clip]), 1e-9)
+        assert ok.tolist() == [True, True, True, True, False, False]
+        assert np.allclose(got_inter[:4], inter, atol=1e-12) and np.allclose(got_area[:4], area, atol=1e-12)
+        assert not got_inter[4:].any() and not got_area[4:].any()
+
+
+def test_contour_overlaps_kernel_agrees_with_shapely():
+    import shapely
+
+    k = _silhouette_kernels()
+    rng = np.random.default_rng(8)
+    worst = 0.0
+    for _ in range(200):
+        # a star-shaped, non-convex contour and a superellipse silhouette over part of it
+        angles = np.sort(rng.uniform(0.0, 2.0 * np.pi, rng.integers(8, 200)))
+        contour = 100.0 + rng.uniform(20.0, 60.0, len(angles))[:, None] * np.stack([np.cos(angles), np.sin(angles)], 1)
+        t = np.linspace(0.0, 2.0 * np.pi, 48, endpoint=False)
+        e = rng.uniform(0.2, 1.9)
+        x, y = np.sign(np.cos(t)) * np.abs(np.cos(t)) ** e, np.sign(np.sin(t)) * np.abs(np.sin(t)) ** e
+        sil = rng.uniform(60.0, 140.0, 2) + rng.uniform(10.0, 80.0) * np.stack([x, rng.uniform(0.3, 1.0) * y], 1)
+        if rng.random() < 0.5:
+            sil = sil[::-1]
+        frame = np.array([[0.0, 0.0], [120.0, 0.0], [120.0, 200.0], [0.0, 200.0]])
+        clip = bool(rng.random() < 0.5)
+        inter, area, ok = k.contour_overlaps(np.ascontiguousarray(sil[None, None]), np.zeros((1, 2), dtype=np.int64),
+                                             np.ascontiguousarray(contour), np.array([0, len(contour)]), frame[None],
+                                             np.array([clip]), 1e-9)
+        shape = shapely.Polygon(sil)
+        if clip:
+            shape = shapely.intersection(shape, shapely.Polygon(frame))
+        reference = shapely.area(shapely.intersection(shape, shapely.Polygon(contour)))
+        assert ok[0]
+        worst = max(worst, abs(inter[0] - reference), abs(area[0] - shapely.area(shape)))
+    assert worst < 1e-8
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_contour_r_iou_agrees(kernels, seed):
+    # stage 3T's R-IOU against the mask contours: the compiled overlaps and shapely's, whole views
+    # and views cut by the image border
+    from sqfit.testing import truncated_trial
+
+    trial = truncated_trial(seed, cut_fraction=0.3, cut_views=2)
+    rng = np.random.default_rng(seed)
+    X = np.stack([trial.gt.to_vector() * np.r_[rng.uniform(0.8, 1.2, 5), np.ones(6)]
+                  + np.r_[np.zeros(5), rng.normal(0.0, 0.1, 6)] for _ in range(4)])
+
+    def score():
+        obs = costs.ObservationSet(trial.observations)
+        assert obs.border_views.sum() == 2
+        return costs.visible_iou(*costs.silhouettes(X, obs), obs, "contour")
+
+    iou_k, iou_n = kernels(score)
+    assert np.abs(iou_k - iou_n).max() < 1e-9 and iou_n.max() > 0.3
+
+
 def test_compiled_parts_load_lazily():
     code = ("import sys, sqfit.fitting.backend as b; b.compiled(); print('silhouette_kernels' in str(sys.modules)); "
             "b.compiled('silhouettes'); print('sqfit.fitting.silhouette_kernels' in sys.modules)")

@@ -41,6 +41,7 @@ from .backend import compiled
 from ..geometry.camera import bearings
 from ..views.observation import Observation
 from ..geometry.polygon import MIN_EDGE, batch_iou, convex_iou_jacobian, half_planes
+from .contour_overlap import contour_ious
 from ..geometry.silhouette import (DEFAULT_DIRECTIONS, E_RANGE, MAX_NEWTON, NEWTON_TOL, ZNEAR, batch_silhouettes,
                                    camera_arrays, silhouette_gradient)
 from ..geometry.superquadric import euler_to_matrix, rotation_and_derivatives
@@ -111,7 +112,7 @@ class ObservationSet:
         self.frames = image_rectangles([(o.camera.intrinsics.width, o.camera.intrinsics.height) for o in obs])
         self.occluded_views = np.array([len(o.hidden) > 0 for o in obs], dtype=bool)
         self._targets = {}
-        self._shapes = None
+        self._shapes = self._contour_arrays = None
         self._hidden_in_target = {}
 
     def __len__(self):
@@ -147,6 +148,24 @@ class ObservationSet:
             self._shapes = np.array([o.derived(("contour_shape",), valid(o)) for o in self.observations],
                                     dtype=object)
         return self._shapes
+
+    def contour_arrays(self):
+        """The mask contours for :func:`sqfit.fitting.silhouette_kernels.contour_overlaps`:
+        ``(stacked, starts, simple, areas)``, the contours ``(M, 2)`` one after the other (view ``t``'s
+        at ``starts[t]:starts[t + 1]``), whether each is a simple polygon (valid as it is: its own
+        area is its valid geometry's) and each one's area (of :meth:`contour_shapes`)."""
+        if self._contour_arrays is None:
+            import shapely
+
+            contours = [np.asarray(o.contour, dtype=np.float64) for o in self.observations]
+            starts = np.concatenate([[0], np.cumsum([len(c) for c in contours])]).astype(np.int64)
+            def is_simple(o):
+                return lambda: bool(shapely.is_valid(shapely.Polygon(o.contour)))
+
+            simple = np.array([o.derived(("contour_simple",), is_simple(o)) for o in self.observations], dtype=bool)
+            self._contour_arrays = (np.ascontiguousarray(np.concatenate(contours)), starts, simple,
+                                    shapely.area(self.contour_shapes()))
+        return self._contour_arrays
 
     def hidden_in_target(self, kind):
         """Per view, ``(k,) bool``: which of ``Observation.hidden`` lie in the observation polygon."""
@@ -376,14 +395,9 @@ def visible_iou(polys, valid, obs, polygon="hull", hidden=None):
     elif convex:
         iou = batch_iou(polys, valid, targets, convex, planes)
     else:
-        # shapely: each intersection costs ~0.1 ms, so the partial views (counted again below, on
-        # their visible part) are left out here
-        shapes = obs.contour_shapes()
         whole = np.flatnonzero(~partial)
         iou = np.zeros(valid.shape)
-        if len(whole):
-            iou[:, whole] = batch_iou(polys[:, whole], valid[:, whole], [targets[i] for i in whole], False,
-                                      target_shapes=shapes[whole])
+        iou[:, whole] = contour_ious(polys, valid, obs, whole, np.zeros(len(whole), dtype=bool), 0.0, 0.0)
     if not partial.any():
         return iou
     if hidden is None:
@@ -397,17 +411,7 @@ def visible_iou(polys, valid, obs, polygon="hull", hidden=None):
                                               tuple(p[cut] for p in planes), clip=clip,
                                               hidden_inter=hi, hidden_union=hu)[0]
     else:
-        import shapely
-
-        b = len(polys)
-        sil = shapely.make_valid(shapely.polygons(polys[:, cut].reshape(b * len(cut), -1, 2)))
-        frames = np.tile(shapely.polygons(obs.frames[cut]), b)
-        sil = np.where(np.tile(clip, b), shapely.intersection(sil, frames), sil)
-        tgt = np.tile(shapes[cut], b)
-        inter = shapely.area(shapely.intersection(sil, tgt))
-        union = shapely.area(sil) + shapely.area(tgt) - inter - hu.ravel()
-        with np.errstate(divide="ignore", invalid="ignore"):
-            clipped = np.where(union > 0, np.maximum(inter - hi.ravel(), 0.0) / union, 0.0).reshape(b, len(cut))
+        clipped = contour_ious(polys, valid, obs, cut, clip, hi, hu)
     iou = iou.copy()
     iou[:, cut] = np.where(valid[:, cut] & np.isfinite(clipped), clipped, 0.0)
     return iou

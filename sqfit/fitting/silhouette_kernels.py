@@ -39,7 +39,7 @@ from numba import njit
 
 from .ray_kernels import nan_max, nan_min
 
-__all__ = ["silhouettes", "convex_iou", "convex_hull", "hidden_counts", "points_in_convex"]
+__all__ = ["silhouettes", "convex_iou", "convex_hull", "hidden_counts", "points_in_convex", "contour_overlaps"]
 
 _TINY = 1e-300
 _JIT = dict(cache=True, error_model="numpy", nogil=True)
@@ -358,3 +358,147 @@ def points_in_convex(S, points):
                 break
         inside[j] = ok
     return inside
+
+
+# the silhouettes' overlap with non-convex mask contours (stage 3T's R-IOU, shapely otherwise)
+
+
+@njit(**_JIT)
+def _convex_sign(S, tol):
+    """+1 or -1, the orientation of polygon ``S`` ``(k, 2)`` if it is convex and simple (each
+    non-degenerate edge turns the same way from the one before, within ``tol`` of their lengths'
+    product, and the turns add up to one full turn), else 0 (also for a non-finite vertex or no area)."""
+    k = S.shape[0]
+    area2 = 0.0
+    for i in range(k):
+        j = i + 1 if i + 1 < k else 0
+        if not (np.isfinite(S[i, 0]) and np.isfinite(S[i, 1])):
+            return 0.0
+        area2 += S[i, 0] * S[j, 1] - S[i, 1] * S[j, 0]
+    if not area2 != 0.0:
+        return 0.0
+    sign = 1.0 if area2 > 0 else -1.0
+    px = py = 0.0
+    for i in range(k - 1, -1, -1):  # the last non-degenerate edge comes before the first
+        j = i + 1 if i + 1 < k else 0
+        px, py = S[j, 0] - S[i, 0], S[j, 1] - S[i, 1]
+        if px != 0.0 or py != 0.0:
+            break
+    turned = 0.0
+    for i in range(k):
+        j = i + 1 if i + 1 < k else 0
+        ex, ey = S[j, 0] - S[i, 0], S[j, 1] - S[i, 1]
+        if ex == 0.0 and ey == 0.0:
+            continue
+        cross = sign * (px * ey - py * ex)
+        if cross < -tol * math.sqrt((px * px + py * py) * (ex * ex + ey * ey)):
+            return 0.0
+        turned += math.atan2(cross, px * ex + py * ey)
+        px, py = ex, ey
+    return sign if abs(turned - 2.0 * math.pi) <= 1e-6 else 0.0
+
+
+@njit(**_JIT)
+def _clip_half_plane(src, n, ax, ay, ex, ey, sign, dst):
+    """Sutherland-Hodgman: the part of polygon ``src[:n]`` where ``sign * cross(e, p - a) >= 0`` into
+    ``dst`` (at least ``2 n`` rows); returns its vertex count."""
+    m = 0
+    px, py = src[n - 1, 0], src[n - 1, 1]
+    dp = sign * (ex * (py - ay) - ey * (px - ax))
+    for i in range(n):
+        qx, qy = src[i, 0], src[i, 1]
+        dq = sign * (ex * (qy - ay) - ey * (qx - ax))
+        if dq >= 0.0:
+            if dp < 0.0:
+                t = dp / (dp - dq)
+                dst[m, 0], dst[m, 1] = px + t * (qx - px), py + t * (qy - py)
+                m += 1
+            dst[m, 0], dst[m, 1] = qx, qy
+            m += 1
+        elif dp > 0.0:
+            t = dp / (dp - dq)
+            dst[m, 0], dst[m, 1] = px + t * (qx - px), py + t * (qy - py)
+            m += 1
+        px, py, dp = qx, qy, dq
+    return m
+
+
+@njit(**_JIT)
+def _clip_convex(cur, n, C, sign, other):
+    """``cur[:n]`` clipped by each edge of the convex polygon ``C`` of orientation ``sign``, ping-pong
+    with ``other`` (grown as needed) -> ``(buffer, count, the other buffer)``."""
+    k = C.shape[0]
+    for i in range(k):
+        if n == 0:
+            break
+        j = i + 1 if i + 1 < k else 0
+        ex, ey = C[j, 0] - C[i, 0], C[j, 1] - C[i, 1]
+        if ex == 0.0 and ey == 0.0:
+            continue
+        if other.shape[0] < 2 * n:
+            other = np.empty((4 * n, 2))
+        n = _clip_half_plane(cur, n, C[i, 0], C[i, 1], ex, ey, sign, other)
+        cur, other = other, cur
+    return cur, n, other
+
+
+@njit(**_JIT)
+def _area(P, n):
+    """Absolute shoelace area of ``P[:n]``."""
+    area2 = 0.0
+    for i in range(n):
+        j = i + 1 if i + 1 < n else 0
+        area2 += P[i, 0] * P[j, 1] - P[i, 1] * P[j, 0]
+    return 0.5 * abs(area2)
+
+
+@njit(**_JIT)
+def contour_overlaps(polys, pairs, contours, starts, frames, clip, tol):
+    """Overlap of silhouettes with mask contours, for shapely's ``intersection`` in
+    :func:`sqfit.fitting.costs.visible_iou`'s contour path: ``polys`` ``(b, v, k, 2)``, ``pairs``
+    ``(p, 2)`` ``(batch, view)`` indices, ``contours`` ``(M, 2)`` every view's contour (a simple
+    polygon) stacked, view ``t``'s at ``starts[t]:starts[t + 1]``, ``frames`` ``(v, 4, 2)`` the
+    image rectangles, ``clip`` ``(v,) bool`` (count only the silhouette's part in the image) ->
+    ``(inter, area, ok)``, each ``(p,)``: the area of (silhouette, clipped where asked) ∩ contour,
+    the (clipped) silhouette's area, and whether the silhouette is convex and simple
+    (:func:`_convex_sign` with ``tol``); where not, ``inter`` and ``area`` are 0 and the caller
+    asks shapely. Sutherland-Hodgman clipping of the contour by the silhouette's edges (a convex
+    clip polygon: the clipped polygon's shoelace area is the intersection's, degenerate edges
+    adding none), then by the frame's."""
+    count = pairs.shape[0]
+    inter, area, ok = np.zeros(count), np.zeros(count), np.zeros(count, dtype=np.bool_)
+    longest = 4
+    for t in range(starts.shape[0] - 1):
+        longest = max(longest, starts[t + 1] - starts[t])
+    cur, other = np.empty((4 * longest, 2)), np.empty((4 * longest, 2))
+    for p in range(count):
+        s, t = pairs[p, 0], pairs[p, 1]
+        S = polys[s, t]
+        sign = _convex_sign(S, tol)
+        if sign == 0.0:
+            continue
+        ok[p] = True
+        F = frames[t]
+        f2 = 0.0
+        for i in range(F.shape[0]):
+            j = i + 1 if i + 1 < F.shape[0] else 0
+            f2 += F[i, 0] * F[j, 1] - F[i, 1] * F[j, 0]
+        frame_sign = 1.0 if f2 > 0 else -1.0
+        k = S.shape[0]
+        if clip[t]:
+            if cur.shape[0] < 2 * k:
+                cur, other = np.empty((4 * k, 2)), np.empty((4 * k, 2))
+            for i in range(k):
+                cur[i, 0], cur[i, 1] = S[i, 0], S[i, 1]
+            cur, n, other = _clip_convex(cur, k, F, frame_sign, other)
+            area[p] = _area(cur, n)
+        else:
+            area[p] = _area(S, k)
+        lo, hi = starts[t], starts[t + 1]
+        for i in range(lo, hi):
+            cur[i - lo, 0], cur[i - lo, 1] = contours[i, 0], contours[i, 1]
+        cur, n, other = _clip_convex(cur, hi - lo, S, sign, other)
+        if clip[t] and n:
+            cur, n, other = _clip_convex(cur, n, F, frame_sign, other)
+        inter[p] = _area(cur, n)
+    return inter, area, ok

@@ -296,7 +296,7 @@ def _shapely_iou(p, q):
     return float(inter / union) if union > 0 else 0.0
 
 
-def batch_iou(polys, valid, targets, convex, q_planes=None, target_shapes=None):
+def batch_iou(polys, valid, targets, convex, q_planes=None):
     """IoU of batched silhouettes with one observation polygon per view.
 
     Parameters
@@ -309,8 +309,6 @@ def batch_iou(polys, valid, targets, convex, q_planes=None, target_shapes=None):
         Use the vectorised convex path (hull observations) or shapely (contour observations).
     q_planes : tuple, optional
         ``half_planes(targets)`` if already known (convex path).
-    target_shapes : (v,) object, optional
-        ``shapely.make_valid(shapely.Polygon(t))`` of each target if already known (shapely path).
 
     Returns
     -------
@@ -324,9 +322,8 @@ def batch_iou(polys, valid, targets, convex, q_planes=None, target_shapes=None):
 
         b, v = valid.shape
         sil = shapely.polygons(polys.reshape(b * v, -1, 2))
-        if target_shapes is None:
-            target_shapes = np.array([shapely.make_valid(shapely.Polygon(t)) for t in targets], dtype=object)
-        tgt = np.tile(target_shapes, b)
+        tgt = np.array([shapely.make_valid(shapely.Polygon(t)) for t in targets], dtype=object)
+        tgt = np.tile(tgt, b)
         try:
             inter = shapely.area(shapely.intersection(sil, tgt))
         except shapely.errors.GEOSException:  # a self-intersecting silhouette (far off the image)
