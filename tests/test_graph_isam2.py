@@ -297,6 +297,38 @@ def test_a_batch_from_isam2_far_from_the_odometry_is_solved_again_from_windows(m
     assert starts == ["isam2"]
 
 
+@pytest.mark.parametrize("windows_kept", [True, False])
+def test_the_second_run_starts_as_the_first_runs_kept_solution_did(monkeypatch, seq, windows_kept):
+    # the first run's iSAM2 is far from the odometry and one landmark asks for scaled noise: the
+    # second run starts from windows if the first kept the windows' solution, else from iSAM2 (and
+    # is tested again)
+    starts = []
+    real = solve._batch_from
+
+    def batch_from(problem, options, start, scales=None):
+        starts.append((start, bool(scales)))
+        result, measured, asked = real(problem, options, start, scales)
+        if start == "isam2":
+            measured = 1e3
+            if windows_kept:
+                result.error_final = np.inf
+        else:
+            result.error_final = np.inf if not windows_kept else result.error_final
+        first = not scales
+        return result, measured, ({sorted(result.objects)[0]: 2.0} if first else {})
+
+    monkeypatch.setattr(solve, "_batch_from", batch_from)
+    res = graph.run(seq.intrinsics, seq.odometry_poses, seq.observations, ["graph"], {"floor_z": 0.0})["graph"]
+    assert res.ok
+    if windows_kept:
+        assert starts == [("isam2", False), ("windows", False), ("windows", True)]
+    else:
+        assert starts == [("isam2", False), ("windows", False), ("isam2", True), ("windows", True)]
+    again = [w for w in res.warnings if w.startswith("solved again with the silhouette noise")]
+    assert len(again) == 1 and (", from windows (the first solve: batch from iSAM2 inconsistent" in again[0]) == windows_kept
+    assert ("from isam2 (the first solve:" in again[0]) != windows_kept
+
+
 @pytest.mark.parametrize("batch, landmark", [(False, "0.07"), (True, "0.04")])
 def test_relinearisation_thresholds_cover_every_kind_of_variable(batch, landmark):
     import gtsam
