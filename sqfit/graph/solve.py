@@ -163,19 +163,19 @@ def _batch(problem, options):
     is solved again from windows, and the one with the lower error kept (a warning says so). Where
     landmarks end with a misfit above ``misfit_sigma`` (:mod:`sqfit.graph.weighting`), the whole
     batch runs once more with their silhouette noise scaled from the start, and that is the result
-    (a warning names the scales); that run starts as the kept solution of the first did, from
-    windows where iSAM2 ran off. (Before that rule, household seed 0 sequence 2 fell back to
-    windows in its first run, ATE 0.06 m, and went from iSAM2 again in its second, ending at
-    0.32 m, above the odometry's 0.30 m: iSAM2 is no more consistent with the odometry under scaled
-    noise, but its chi-square then stayed under ``batch_odometry_chi2``.)"""
+    (a warning names the scales, and whether the first run was solved again from windows). That run
+    starts from ``batch_start`` again, whatever the first run kept: starting it from windows where
+    the first run kept the windows' solution was measured and left (household seeds 0-3, 2 runs: it
+    changed the start of 3 sequences of 24, which ended at ATE 0.07, 0.40 and 0.66 m, the other 21
+    at 0.03-0.57 m; docs/slam-history.md, thirteenth pass)."""
     clock = _Clock()
-    result, scales, start, fell_back = _batch_once(problem, options)
+    result, scales, fell_back = _batch_once(problem, options)
     if result.ok and scales:
-        second, _, _, _ = _batch_once(problem, options, scales, start)
+        second, _, _ = _batch_once(problem, options, scales)
         note = ("solved again with the silhouette noise of the landmarks that fit their masks poorly scaled (misfit "
                 f"above {options.misfit_sigma}): " + ", ".join(f"object {oid} x{v:.2f}" for oid, v in sorted(scales.items())))
         if fell_back:
-            note += f", from {start} (the first solve: {fell_back})"
+            note += f" (the first run: {fell_back})"
         if second.ok:
             result = second
         else:
@@ -185,24 +185,23 @@ def _batch(problem, options):
     return result
 
 
-def _batch_once(problem, options, scales=None, start=None):
-    """:func:`_batch` with the landmarks' silhouette noise ``scales`` (``{oid: scale}``, None: all 1)
-    from ``start`` (None: ``batch_start``): ``(result, scales, start, note)``, the second the scales
-    its solution asks for (:func:`noise_scales`; empty when none differs from those given), the
-    third the start of the solution kept, the last the warning of a solve again from windows (None
-    without one)."""
-    start, note = options.batch_start if start is None else start, None
-    result, chi2, estimated = _batch_from(problem, options, start, scales)
-    if result.ok and start == "isam2" and options.floor_z is not None and chi2 > options.batch_odometry_chi2:
+def _batch_once(problem, options, scales=None):
+    """:func:`_batch` with the landmarks' silhouette noise ``scales`` (``{oid: scale}``, None: all 1):
+    ``(result, scales, note)``, the second the scales its solution asks for (:func:`noise_scales`;
+    empty when none differs from those given), the third the warning of a solve again from windows
+    (None without one)."""
+    note = None
+    result, chi2, estimated = _batch_from(problem, options, options.batch_start, scales)
+    if result.ok and options.batch_start == "isam2" and options.floor_z is not None and chi2 > options.batch_odometry_chi2:
         # iSAM2's undamped steps ran off (household sequences with a floor): the windows instead
         fallback, chi2_windows, estimated_windows = _batch_from(problem, options, "windows", scales)
         note = (f"batch from iSAM2 inconsistent with the odometry (mean chi-square {chi2:.1f} per step, above "
                 f"{options.batch_odometry_chi2}); solved again from windows (chi-square {chi2_windows:.1f})")
         if fallback.ok and fallback.error_final < result.error_final:
-            result, estimated, start = fallback, estimated_windows, "windows"
+            result, estimated = fallback, estimated_windows
         note += f", kept the {'windows' if result is fallback else 'iSAM2'} solution"
         result.warnings.append(note)
-    return result, estimated, start, note
+    return result, estimated, note
 
 
 def odometry_chi2(graph, values):
