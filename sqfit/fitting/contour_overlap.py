@@ -39,10 +39,9 @@ def contour_ious(polys, valid, obs, views, clip, hidden_inter, hidden_union):
     b, views = len(polys), np.asarray(views, dtype=np.int64)
     inter, area = np.zeros((b, len(views))), np.zeros((b, len(views)))
     todo = valid[:, views].copy()
-    shapes = obs.contour_shapes()
+    shapes, (stacked, starts, simple, areas) = obs.contour_shapes(), obs.contour_arrays()
     kernels = compiled("silhouettes")
     if kernels is not None and todo.any():
-        stacked, starts, simple, _ = obs.contour_arrays()
         rows, cols = np.nonzero(todo & simple[views])
         clip_all = np.zeros(len(obs), dtype=bool)
         clip_all[views] = clip
@@ -57,7 +56,7 @@ def contour_ious(polys, valid, obs, views, clip, hidden_inter, hidden_union):
         sil = np.where(clip[cols], shapely.intersection(sil, shapely.polygons(obs.frames[views[cols]])), sil)
         inter[rows, cols] = shapely.area(shapely.intersection(sil, shapes[views[cols]]))
         area[rows, cols] = shapely.area(sil)
-    union = area + obs.contour_arrays()[3][views] - inter - hidden_union
+    union = area + areas[views] - inter - hidden_union
     with np.errstate(divide="ignore", invalid="ignore"):
         iou = np.where(union > 0, np.maximum(inter - hidden_inter, 0.0) / union, 0.0)
     return np.where(valid[:, views] & np.isfinite(iou), iou, 0.0)

@@ -173,7 +173,7 @@ class ObservationSet:
             targets, convex, _ = self.targets(kind)
             kernels = compiled("silhouettes") if convex else None
             out = []
-            for o, target in zip(self.observations, targets):
+            for j, (o, target) in enumerate(zip(self.observations, targets)):
                 if not len(o.hidden):
                     out.append(np.zeros(0, dtype=bool))
                 elif kernels is not None:  # the same edge tests, compiled (bit for bit)
@@ -184,7 +184,7 @@ class ObservationSet:
                 else:
                     import shapely
 
-                    out.append(shapely.contains_xy(self.contour_shapes()[len(out)], o.hidden[:, 0], o.hidden[:, 1]))
+                    out.append(shapely.contains_xy(self.contour_shapes()[j], o.hidden[:, 0], o.hidden[:, 1]))
             self._hidden_in_target[kind] = out
         return self._hidden_in_target[kind]
 

@@ -443,13 +443,19 @@ def _clip_convex(cur, n, C, sign, other):
 
 
 @njit(**_JIT)
-def _area(P, n):
-    """Absolute shoelace area of ``P[:n]``."""
+def _shoelace2(P, n):
+    """Twice the signed shoelace area of ``P[:n]``."""
     area2 = 0.0
     for i in range(n):
         j = i + 1 if i + 1 < n else 0
         area2 += P[i, 0] * P[j, 1] - P[i, 1] * P[j, 0]
-    return 0.5 * abs(area2)
+    return area2
+
+
+@njit(**_JIT)
+def _area(P, n):
+    """Absolute shoelace area of ``P[:n]``."""
+    return 0.5 * abs(_shoelace2(P, n))
 
 
 @njit(**_JIT)
@@ -479,13 +485,9 @@ def contour_overlaps(polys, pairs, contours, starts, frames, clip, tol):
             continue
         ok[p] = True
         F = frames[t]
-        f2 = 0.0
-        for i in range(F.shape[0]):
-            j = i + 1 if i + 1 < F.shape[0] else 0
-            f2 += F[i, 0] * F[j, 1] - F[i, 1] * F[j, 0]
-        frame_sign = 1.0 if f2 > 0 else -1.0
         k = S.shape[0]
         if clip[t]:
+            frame_sign = 1.0 if _shoelace2(F, F.shape[0]) > 0 else -1.0
             if cur.shape[0] < 2 * k:
                 cur, other = np.empty((4 * k, 2)), np.empty((4 * k, 2))
             for i in range(k):
