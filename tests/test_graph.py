@@ -440,21 +440,30 @@ def test_an_optimiser_error_is_flagged_in_the_result(monkeypatch):
         np.testing.assert_array_equal(res.poses, poses)
 
 
-def test_a_landmark_left_in_a_poor_minimum_is_refitted(small):
-    from sqfit.graph import problem as gproblem, refit
+def _object_2_in_a_poor_minimum(seq):
+    """The problem of ``seq`` at its true poses, and values with every landmark at the truth but
+    object 2's, in a poor minimum (axes swapped, flat, shifted)."""
+    from sqfit.graph import problem as gproblem
 
-    seq, _ = small
-    options = graph.GraphOptions()
     prob = gproblem.check_inputs(seq.intrinsics, seq.true_poses, seq.observations)
     values = gtsam.Values()
     for i, T in enumerate(seq.true_poses):
         values.insert(X(i), gtsam.Pose3(T))
     for oid, sq in seq.objects.items():
-        if oid == 2:  # a poor minimum: axes swapped, flat, shifted
+        if oid == 2:
             sq = sqfit.Superquadric(np.array(sq.size)[[2, 0, 1]], (1.8, 0.2), np.array(sq.position) + 0.15, sq.rotation)
         T, s = landmark.superquadric_to_landmark(sq)
         values.insert(L(oid), gtsam.Pose3(T))
         values.insert(S(oid), s)
+    return prob, values
+
+
+def test_a_landmark_left_in_a_poor_minimum_is_refitted(small):
+    from sqfit.graph import problem as gproblem, refit
+
+    seq, _ = small
+    options = graph.GraphOptions()
+    prob, values = _object_2_in_a_poor_minimum(seq)
     misfit = refit.object_misfits(prob, values, list(seq.objects), options)
     # evaluated together, as alone
     for oid in seq.objects:
@@ -479,6 +488,36 @@ def test_a_landmark_left_in_a_poor_minimum_is_refitted(small):
     assert refit.object_misfits(prob, values, [2], options)[2] < options.refit_misfit
     assert iou_3d(refitted, seq.objects[2]) > 0.8
     assert not refit.refit_landmarks(prob, values, list(seq.objects), graph.GraphOptions(refit_misfit=0), result)
+
+
+def test_a_refit_that_leaves_the_masks_is_not_kept(small, monkeypatch):
+    # A re-fit with a lower misfit whose silhouettes barely overlap the masks (R-IOU-M below
+    # POOR_FIT_R_IOU_M: 3G's far, huge minimum, whose misfit is low) is no gain: the landmark stays.
+    from sqfit import constants as C
+    from sqfit.graph import refit
+    from sqfit.graph.shapevar import PLAIN
+
+    seq, _ = small
+    options = graph.GraphOptions()
+    prob, values = _object_2_in_a_poor_minimum(seq)
+    before = refit.object_misfits(prob, values, [2], options, most=options.refit_max_frames)[2]
+    assert before > options.refit_misfit
+    real, tried = refit.landmark_overlap, []
+
+    def overlap(v, oid, obs, variable=PLAIN):
+        if v is values:
+            return real(v, oid, obs, variable)
+        tried.append(oid)
+        return C.POOR_FIT_R_IOU_M - 0.01  # the re-fit's silhouettes leave the masks
+
+    monkeypatch.setattr(refit, "landmark_overlap", overlap)
+    result, rejected = graph.SlamResult("graph", seq.true_poses), {}
+    assert not refit.refit_landmarks(prob, values, list(seq.objects), options, result, rejected=rejected)
+    assert tried == [2] and result.warnings == []
+    assert refit.object_misfits(prob, values, [2], options, most=options.refit_max_frames)[2] == before  # it stayed
+    assert rejected[2] == (before, len(prob.frames[2]))  # and is not re-fitted in vain at the next call
+    monkeypatch.setattr(refit, "landmark_overlap", real)
+    assert refit.refit_landmarks(prob, values, list(seq.objects), options, graph.SlamResult("graph", seq.true_poses))
 
 
 def test_the_batch_fits_skip_the_fitters_pose_noise_branch(monkeypatch):

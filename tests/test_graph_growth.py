@@ -54,9 +54,9 @@ def test_without_retries_the_first_fit_starts_the_landmark(monkeypatch, seq):
 
 
 def test_after_its_retries_a_landmark_starts_from_its_best_fit(monkeypatch, seq):
-    # every fit of object 1 poor: after init_retries waits it starts anyway, from the fit that
-    # overlapped most (here the second of four)
-    overlaps = iter([0.3, 0.45, 0.2, 0.1])
+    # every fit of object 1 poor (the first far, huge): after init_retries waits it starts anyway,
+    # from the fit that overlapped most (here the second of four)
+    overlaps = iter([0.05, 0.3, 0.2, 0.1])
     real_initial = growth.initial_fit
     made = []
 
@@ -76,7 +76,7 @@ def test_after_its_retries_a_landmark_starts_from_its_best_fit(monkeypatch, seq)
 
     monkeypatch.setattr(growth, "initial_fit", initial_fit)
     monkeypatch.setattr(growth, "add_landmark", add_landmark)
-    result = solve.run(seq.intrinsics, seq.odometry_poses, seq.observations, ["graph"], {"init_retries": 3, "init_min_overlap": 0.5})["graph"]
+    result = solve.run(seq.intrinsics, seq.odometry_poses, seq.observations, ["graph"], {"init_retries": 3})["graph"]
     assert result.status == "ok"
     mine = [fit for oid, fit in made if oid == 1]
     assert len(mine) == 4  # the first fit and 3 retries
@@ -84,6 +84,38 @@ def test_after_its_retries_a_landmark_starts_from_its_best_fit(monkeypatch, seq)
     best = max(mine, key=lambda fit: fit.overlap)
     assert best is mine[1] and start is best.landmark
     assert any(w.startswith("object 1: initial fit deferred 3 time(s)") for w in result.warnings)
+
+
+def test_a_landmark_still_far_huge_after_its_retries_waits_on(monkeypatch, seq):
+    # every fit of object 1 far, huge (0.01): after its init_retries it is not put in the graph
+    # either, but fitted again each time its frames have doubled, and at its last frame it starts
+    # from the best of its fits
+    from sqfit.graph.problem import check_inputs
+
+    real_initial, calls, reported = growth.initial_fit, [], []
+
+    def initial_fit(problem, oid, frames, poses, options, pose_noise_refit=True):
+        out = real_initial(problem, oid, frames, poses, options, pose_noise_refit)
+        if oid == 1:
+            out = out._replace(overlap=reported[min(len(calls), len(reported) - 1)])
+            calls.append(len(frames))
+        return out
+
+    monkeypatch.setattr(growth, "initial_fit", initial_fit)
+    reported[:] = [0.01]
+    result = solve.run(seq.intrinsics, seq.odometry_poses, seq.observations, ["graph"], {"init_retries": 2})["graph"]
+    assert result.status == "ok" and sorted(result.objects) == sorted(seq.objects)
+    first, last = calls[0], len(check_inputs(seq.intrinsics, seq.odometry_poses, seq.observations).frames[1])
+    assert calls[:3] == [first, first + 1, first + 2]  # the first fit and its two retries
+    for before, after in zip(calls[2:], calls[3:]):  # then only at double the frames, and at the last
+        assert after >= 2 * before or after == last
+    assert calls[-1] == last and len(calls) < last - first + 1
+    assert any(w.startswith(f"object 1: initial fit deferred {len(calls) - 1} time(s)") for w in result.warnings)
+    # far, huge first, then poor but not far, huge (0.3): after its retries it starts from its best
+    calls.clear()
+    reported[:] = [0.01, 0.3]
+    solve.run(seq.intrinsics, seq.odometry_poses, seq.observations, ["graph"], {"init_retries": 2})
+    assert calls == [first, first + 1, first + 2]
 
 
 def test_init_options_are_checked():

@@ -10,7 +10,11 @@ through the cameras) is not put in the graph: the landmark waits for its next fr
 again until a fit is no longer poor (R-IOU-M ``sqfit.constants.POOR_FIT_R_IOU_M`` or more: a fit
 between the two pulls the poses where a far, huge one barely acts), at most
 ``GraphOptions.init_retries`` times, and then (or at its last frame) starts from the best-overlapping
-of its fits (:meth:`Growth.add`).
+of its fits (:meth:`Growth.add`). A landmark whose best fit after those retries is still far, huge
+(below ``init_min_overlap``) is not put in the graph either: it is fitted again each time its frames
+have doubled, and at its last frame starts from the best of its fits. (Household sequence seed 0,
+sequence 2: an object started at R-IOU-M 0.02 after five retries, and its misfit was 22 at the next
+rebuild.)
 """
 
 from __future__ import annotations
@@ -208,6 +212,8 @@ class Growth:
         self.rejected = {}
         # landmarks whose initial fit was put off (module docstring): how often, and the best fit so far
         self.tries, self.deferred = {}, {}
+        # landmarks past their retries whose best fit is still far, huge: the frame count of their next try
+        self.next_try = {}
         self.batch, self.rays = SilhouetteFactors(shape_variable(options)), {}
         # each landmark's silhouette noise scale, where not 1 (sqfit.graph.weighting)
         self.scales = {oid: float(v) for oid, v in (scales or {}).items() if v != 1.0}
@@ -237,20 +243,26 @@ class Growth:
         frames = self.pending.setdefault(oid, [])
         frames.append(i)
         last = i == self.problem.n_frames - 1
+        final = last or i == self.problem.frames[oid][-1]
         if not (ready_to_initialise(self.problem, oid, frames, self.current, self.options) or (last and len(frames) >= 2)):
             return
+        if len(frames) < self.next_try.get(oid, 0) and not final:
+            return  # its retries spent in the far, huge minimum: fitted again once its frames have doubled
         fit = initial_fit(self.problem, oid, frames, self.current, self.options, self.pose_noise_refit)
         earlier = self.deferred.get(oid)
-        final = last or i == self.problem.frames[oid][-1]
         # a landmark put off once waits until a fit is no longer poor (the fitter's own flag)
         wanted = C.POOR_FIT_R_IOU_M if oid in self.tries else self.options.init_min_overlap
         if fit.landmark is not None and fit.overlap < wanted and not final:
-            tries = self.tries.get(oid, 0)
-            if tries < self.options.init_retries:
-                # 3G's far, huge minimum (module docstring): wait for the next frame
+            tries, retries = self.tries.get(oid, 0), self.options.init_retries
+            best = max(fit.overlap, -1.0 if earlier is None else earlier.overlap)
+            # 3G's far, huge minimum (module docstring): wait for the next frame; once the retries
+            # are spent, a landmark whose best fit is still that far, huge one waits on
+            if tries < retries or (retries > 0 and best < self.options.init_min_overlap):
                 self.tries[oid] = tries + 1
                 if earlier is None or fit.overlap > earlier.overlap:
                     self.deferred[oid] = fit
+                if tries >= retries:
+                    self.next_try[oid] = 2 * len(frames)
                 return
         if earlier is not None and (fit.landmark is None or earlier.overlap > fit.overlap):
             fit = earlier

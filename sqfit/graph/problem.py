@@ -100,7 +100,9 @@ class GraphOptions(Options):
         (3G's far, huge minimum) is not put in the graph: the landmark waits for its next frame and
         is fitted again until a fit is no longer poor (``sqfit.constants.POOR_FIT_R_IOU_M``), at most
         ``init_retries`` times (>= 0), then starts from the best of its fits
-        (:mod:`sqfit.graph.growth`); 0: it starts from its first fit, however poor. Default 0.1:
+        (:mod:`sqfit.graph.growth`), unless that is still below ``init_min_overlap``: it is then
+        fitted again each time its frames have doubled (at its last frame it starts from the best);
+        0: it starts from its first fit, however poor. Default 0.1:
         the far, huge fits on the evaluation scenes overlap 0.001-0.05, while the first fits of
         objects no superquadric follows (tables, chairs) overlap 0.3-0.6 and gain nothing from
         waiting (household sequences, seeds 0 / 1, graph median IoU over two 1e-9 perturbations:
