@@ -133,7 +133,6 @@ class ObservationSet:
                 self._targets[kind] = ([np.asarray(o.contour) for o in self.observations], False, None)
         return self._targets[kind]
 
-
     def contour_shapes(self):
         """Per view, the mask contour (the ``"contour"`` targets) as a valid shapely geometry
         (``shapely.make_valid``), ``(v,) object``: made once per mask, shared by every copy of its
@@ -159,6 +158,7 @@ class ObservationSet:
 
             contours = [np.asarray(o.contour, dtype=np.float64) for o in self.observations]
             starts = np.concatenate([[0], np.cumsum([len(c) for c in contours])]).astype(np.int64)
+
             def is_simple(o):
                 return lambda: bool(shapely.is_valid(shapely.Polygon(o.contour)))
 

@@ -369,12 +369,10 @@ def _convex_sign(S, tol):
     non-degenerate edge turns the same way from the one before, within ``tol`` of their lengths'
     product, and the turns add up to one full turn), else 0 (also for a non-finite vertex or no area)."""
     k = S.shape[0]
-    area2 = 0.0
     for i in range(k):
-        j = i + 1 if i + 1 < k else 0
         if not (np.isfinite(S[i, 0]) and np.isfinite(S[i, 1])):
             return 0.0
-        area2 += S[i, 0] * S[j, 1] - S[i, 1] * S[j, 0]
+    area2 = _shoelace2(S, k)
     if not area2 != 0.0:
         return 0.0
     sign = 1.0 if area2 > 0 else -1.0
