@@ -297,6 +297,58 @@ def test_a_batch_from_isam2_far_from_the_odometry_is_solved_again_from_windows(m
     assert starts == ["isam2"]
 
 
+class _FailingISAM2:
+    """A gtsam.ISAM2 whose update after frame ``fail_at`` raises GTSAM's indeterminate-system error,
+    as iSAM2's undamped step did where a landmark had drifted into 3G's far, huge minimum."""
+
+    real, fail_at = None, 3
+
+    def __init__(self, params):
+        self._isam, self._updates = type(self).real(params), 0
+
+    def update(self, *args):
+        self._updates += 1
+        if self._updates > self.fail_at:
+            raise RuntimeError("\nIndeterminate linear system detected while working near variable\n42 (Symbol: s1).")
+        return self._isam.update(*args)
+
+    def __getattr__(self, name):
+        return getattr(self._isam, name)
+
+
+@pytest.mark.parametrize("windows_fail", [False, True])
+def test_a_batch_whose_isam2_start_fails_is_solved_again_from_windows(monkeypatch, seq, windows_fail):
+    starts, real = [], solve._batch_from
+
+    def batch_from(problem, options, start, scales=None):
+        starts.append(start)
+        result, chi2, asked = real(problem, options, start, scales)
+        if start == "windows" and windows_fail:
+            result.fail("Levenberg-Marquardt", RuntimeError("also indeterminate"))
+        return result, chi2, asked
+
+    monkeypatch.setattr(_FailingISAM2, "real", gtsam.ISAM2)
+    monkeypatch.setattr(solve.gtsam, "ISAM2", _FailingISAM2)
+    monkeypatch.setattr(solve, "_batch_from", batch_from)
+    res = graph.run(seq.intrinsics, seq.odometry_poses, seq.observations, ["graph"])["graph"]
+    assert starts[:2] == ["isam2", "windows"]
+    notes = [w for w in res.warnings if w.startswith("batch from iSAM2 failed")]
+    assert len(notes) == 1 and "(iSAM2 update at frame 3: RuntimeError: Indeterminate linear system" in notes[0]
+    if windows_fail:
+        assert not res.ok and notes[0].endswith("which failed too (Levenberg-Marquardt: RuntimeError: also indeterminate)")
+    else:
+        assert res.ok and notes[0].endswith("solved again from windows")
+        monkeypatch.setattr(solve, "_batch_from", real)
+        windows = graph.run(seq.intrinsics, seq.odometry_poses, seq.observations, ["graph"],
+                            {"batch_start": "windows"})["graph"]
+        np.testing.assert_array_equal(res.poses, windows.poses)
+        assert all(np.array_equal(res.objects[k].to_vector(), windows.objects[k].to_vector()) for k in windows.objects)
+    # the graph-isam2 method has no fallback: its failure is flagged
+    monkeypatch.setattr(solve, "_batch_from", real)
+    incremental = graph.run(seq.intrinsics, seq.odometry_poses, seq.observations, ["graph-isam2"])["graph-isam2"]
+    assert not incremental.ok and "iSAM2 update at frame 3" in incremental.message
+
+
 @pytest.mark.parametrize("windows_kept", [True, False])
 def test_the_second_run_starts_from_isam2_and_names_the_first_runs_fallback(monkeypatch, seq, windows_kept):
     # the first run's iSAM2 is far from the odometry and one landmark asks for scaled noise: the

@@ -150,7 +150,8 @@ class GraphOptions(Options):
         ``batch_free_frames``, ``batch_past_views``, ``window_relative_tolerance``). Measured on the
         evaluation scenes (docs/slam-history.md "Issue 23, fifth pass"): the windows' result hinged on rounding
         in their first solves; from iSAM2 the spread between runs 1e-9 apart fell fourfold. With a
-        floor, ``batch_odometry_chi2`` guards against iSAM2 running off.
+        floor, ``batch_odometry_chi2`` guards against iSAM2 running off; a start from iSAM2 that
+        fails (a solver error) is solved again from windows.
     batch_odometry_chi2 : float
         With a floor (``floor_z``), a batch from iSAM2 whose solution disagrees with the odometry
         beyond this mean chi-square per step (:func:`sqfit.graph.solve.odometry_chi2`; about 6, its

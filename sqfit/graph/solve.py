@@ -158,7 +158,9 @@ def _batch(problem, options):
     """The whole graph from iSAM2 frame by frame (``batch_start = "isam2"``, :func:`_incremental`)
     or from Levenberg-Marquardt over growing windows (``"windows"``, :func:`_windows`); then the
     re-fit of landmarks in poor minima (:func:`refit_landmarks`) and one solve of the whole graph to
-    ``final_relative_tolerance`` (GraphOptions). With a floor (``floor_z``), a solution from iSAM2
+    ``final_relative_tolerance`` (GraphOptions). A batch from iSAM2 that fails (a solver error, e.g.
+    GTSAM's indeterminate system in an undamped step) is solved again from windows (a warning names
+    the error). With a floor (``floor_z``), a solution from iSAM2
     whose odometry factors' mean chi-square (:func:`odometry_chi2`) exceeds ``batch_odometry_chi2``
     is solved again from windows, and the one with the lower error kept (a warning says so). Where
     landmarks end with a misfit above ``misfit_sigma`` (:mod:`sqfit.graph.weighting`), the whole
@@ -192,7 +194,18 @@ def _batch_once(problem, options, scales=None):
     (None without one)."""
     note = None
     result, chi2, estimated = _batch_from(problem, options, options.batch_start, scales)
-    if result.ok and options.batch_start == "isam2" and options.floor_z is not None and chi2 > options.batch_odometry_chi2:
+    if not result.ok and options.batch_start == "isam2":
+        # iSAM2's undamped Gauss-Newton step met a system it cannot solve (a landmark drifted into
+        # 3G's far, huge minimum leaves its variables nearly unconstrained: "Indeterminate linear
+        # system"); the windows' Levenberg-Marquardt is damped
+        fallback, _, estimated_windows = _batch_from(problem, options, "windows", scales)
+        note = f"batch from iSAM2 failed ({result.message}); solved again from windows"
+        if fallback.ok:
+            result, estimated = fallback, estimated_windows
+        else:
+            note += f", which failed too ({fallback.message})"
+        result.warnings.append(note)
+    elif result.ok and options.batch_start == "isam2" and options.floor_z is not None and chi2 > options.batch_odometry_chi2:
         # iSAM2's undamped steps ran off (household sequences with a floor): the windows instead
         fallback, chi2_windows, estimated_windows = _batch_from(problem, options, "windows", scales)
         note = (f"batch from iSAM2 inconsistent with the odometry (mean chi-square {chi2:.1f} per step, above "
