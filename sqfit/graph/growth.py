@@ -304,6 +304,16 @@ class Growth:
                 out.add(graph.at(k))
         return out
 
+    def undamped_new(self, graph):
+        """``graph`` (the last one add() returned) without its damping priors, which are forgotten:
+        iSAM2 is started again without them (:mod:`sqfit.graph.solve`)."""
+        drop, out = {position for position, _ in self._damping_new}, gtsam.NonlinearFactorGraph()
+        self._damping_new = []
+        for k in range(graph.size()):
+            if k not in drop:
+                out.add(graph.at(k))
+        return out
+
     def resampled(self, graph, n_contour):
         """``(graph', evaluator)``: ``graph`` with the silhouette factors of this growth's evaluator
         made again by a new :class:`SilhouetteFactors`, which it returns, those of the landmarks

@@ -364,9 +364,11 @@ def _incremental(growth, options, result, batch=False):
     """iSAM2 over the sequence, one update per frame, rebuilt (:func:`_isam2_rescaled`) when
     :class:`sqfit.graph.schedule.RebuildSchedule` says; ``(isam, estimate, rebuilt)``, the last
     whether it was rebuilt after the last frame. ``batch``: the batch's start (its relinearisation
-    thresholds, :func:`relinearize_thresholds`). Each frame's wall and CPU time goes to
-    ``result.frame_seconds`` and ``result.frame_cpu_seconds`` when those are arrays. A solver error
-    is raised with the attribute ``where`` naming the frame."""
+    thresholds, :func:`relinearize_thresholds`). An update that fails with a solver error is
+    replaced by a restart (:func:`_restarted`, a warning names the error); a solver error there, or
+    at the first frame, is raised with the attribute ``where`` naming the frame. Each frame's wall
+    and CPU time goes to ``result.frame_seconds`` and ``result.frame_cpu_seconds`` when those are
+    arrays."""
     params = gtsam.ISAM2Params()
     if options.isam2_dogleg:
         params.setOptimizationParams(gtsam.ISAM2DoglegParams())
@@ -375,14 +377,24 @@ def _incremental(growth, options, result, batch=False):
     isam = gtsam.ISAM2(params)
     schedule, rebuilt = RebuildSchedule(growth.problem, options), False
     growth.damping_sigma = options.batch_landmark_damping_sigma if batch else 0.0
+    # iSAM2's factors as given to it, in its order (its indices): a failed update leaves iSAM2's own
+    # copy in an unknown state
+    factors = gtsam.NonlinearFactorGraph()
     for i in range(growth.problem.n_frames):
         step = _Clock()
         try:
-            growth.placed(isam.update(*growth.add([i])))
-            estimate = isam.calculateEstimate()
+            new = growth.add([i])
+            try:
+                growth.placed(isam.update(*new))
+                estimate = isam.calculateEstimate()
+                factors.push_back(new[0])
+            except _SOLVER_ERRORS as exc:
+                if i == 0:
+                    raise
+                isam, estimate, factors = _restarted(factors, estimate, new, params, i + 1, growth, options, result, exc)
             rebuilt = schedule.due(estimate, i) and bool(growth.added)
             if rebuilt:
-                isam, estimate = _isam2_rescaled(isam, estimate, params, i + 1, growth, options, result)
+                isam, estimate, factors = _isam2_rescaled(isam, factors, estimate, params, i + 1, growth, options, result)
         except _SOLVER_ERRORS as exc:
             exc.where = f"iSAM2 update at frame {i}"
             raise
@@ -390,6 +402,31 @@ def _incremental(growth, options, result, batch=False):
         if result.frame_seconds is not None:
             result.frame_seconds[i], result.frame_cpu_seconds[i] = step.elapsed()
     return isam, estimate, rebuilt
+
+
+def _restarted(factors, estimate, new, params, n, growth, options, result, exc):
+    """iSAM2 started again after its update with frame ``n - 1``'s factors and variables ``new``
+    failed with ``exc`` (GTSAM's indeterminate system: an undamped Gauss-Newton step where a
+    landmark has drifted into 3G's far, huge minimum, its variables then barely constrained): the
+    graph so far (``factors``, iSAM2's before the update, and ``new``, less the damping priors) from
+    the last ``estimate`` and the new variables, its landmarks that barely overlap their masks
+    re-fitted (:func:`refit_landmarks`, overlap test only), solved by Levenberg-Marquardt (damped),
+    and a new iSAM2 linearised there. ``(isam, estimate, factors)``; a warning names the error."""
+    first = next((line.strip() for line in str(exc).splitlines() if line.strip()), "")
+    result.warnings.append(f"iSAM2 update at frame {n - 1} failed ({type(exc).__name__}: {first}); started again from "
+                           "Levenberg-Marquardt on the graph so far")
+    graph = gtsam.NonlinearFactorGraph()
+    graph.push_back(growth.undamped(factors))
+    graph.push_back(growth.undamped_new(new[0]))
+    growth.damping.clear()
+    values = gtsam.Values(estimate)
+    values.insert(new[1])
+    refit_landmarks(growth.problem, values, growth.added, options, result, growth.rays, overlap_only=True,
+                    bounded=growth.bounded, n=n, pose_noise_refit=growth.pose_noise_refit)
+    values, _ = _lm(graph, values, options)
+    fresh = gtsam.ISAM2(params)
+    fresh.update(graph, values)
+    return fresh, fresh.calculateEstimate(), graph
 
 
 def relinearize_thresholds(options, batch=False):
@@ -406,7 +443,7 @@ def relinearize_thresholds(options, batch=False):
     return thresholds
 
 
-def _isam2_rescaled(isam, estimate, params, n, growth, options, result):
+def _isam2_rescaled(isam, factors, estimate, params, n, growth, options, result):
     """iSAM2 moved to the best scale (:func:`_rescale`): iSAM2 relinearises only variables whose
     update exceeds its threshold, one Gauss-Newton step per update, so the scale the first landmarks
     took from the first frames' odometry is never corrected by the later odometry (the whole map
@@ -416,18 +453,18 @@ def _isam2_rescaled(isam, estimate, params, n, growth, options, result):
     far off (misfit 7.7), and their silhouettes then pulled the trajectory away. A new
     iSAM2 on the same factors, less the damping priors of the landmarks added since the last rebuild
     (``batch_landmark_damping_sigma``), linearised at the result; the old one is kept when nothing
-    moved."""
-    graph = growth.undamped(isam.getFactorsUnsafe())
+    moved. ``factors``: iSAM2's factors, in its order. ``(isam, estimate, factors)``."""
+    graph = growth.undamped(factors)
     moved = _rescale(graph, estimate, n, growth.added, growth.batch)
     refitted = options.isam2_refit and refit_landmarks(growth.problem, moved, growth.added, options, result, growth.rays,
                                               bounded=growth.bounded, n=n, pose_noise_refit=growth.pose_noise_refit,
                                               rejected=growth.rejected)
     if not refitted and abs(moved.atPose3(X(n - 1)).translation() - estimate.atPose3(X(n - 1)).translation()).max() < 1e-6:
-        return isam, estimate
+        return isam, estimate, factors
     fresh = gtsam.ISAM2(params)
     fresh.update(graph, moved)
     growth.damping.clear()
-    return fresh, fresh.calculateEstimate()
+    return fresh, fresh.calculateEstimate(), graph
 
 
 def quadric_graph(intrinsics, odometry_poses, observations, options=None):
