@@ -68,7 +68,7 @@ OVERLAP_FRAMES = 4
 
 
 def refit_landmarks(problem, values, oids, options, result, rays_cache=None, overlap_only=False, bounded=frozenset(), n=None,
-                    pose_noise_refit=None, rejected=None):
+                    pose_noise_refit=None, rejected=None, misfit_cap=np.inf):
     """Re-initialise the landmarks left in a poor minimum by :func:`sqfit.fit` on all their frames at
     the solved poses: those whose silhouettes disagree (misfit above ``refit_misfit``; a refit is
     kept if its misfit is lower and its R-IOU-M not below ``sqfit.constants.POOR_FIT_R_IOU_M``) and
@@ -85,7 +85,9 @@ def refit_landmarks(problem, values, oids, options, result, rays_cache=None, ove
     such a landmark is not re-fitted for its misfit again until it has grown by
     :data:`RETRY_MISFIT` or its frames by :data:`RETRY_FRAMES` (a converged landmark a little above
     ``refit_misfit`` was otherwise re-fitted, in vain, at every call: 13 of 23 fits on an
-    evaluation sequence)."""
+    evaluation sequence). ``misfit_cap``: a landmark whose misfit is above it is not re-fitted
+    for its misfit (its outline taken for the model's, not a poor minimum's; the batch's last check
+    passes ``misfit_sigma``, :mod:`sqfit.graph.weighting`), only for its overlap."""
     if options.refit_misfit <= 0:
         return False
     poses = pose_matrices(values, problem.n_frames if n is None else n)
@@ -104,7 +106,7 @@ def refit_landmarks(problem, values, oids, options, result, rays_cache=None, ove
         if oid not in misfits:
             misfits.update(object_misfits(problem, values, [oid], options, rays_cache, bounded, n, most))
         before = misfits[oid]
-        if before <= options.refit_misfit and not disjoint:
+        if (before <= options.refit_misfit or before > misfit_cap) and not disjoint:
             continue
         last = None if rejected is None or disjoint else rejected.get(oid)
         if last is not None and before < RETRY_MISFIT * last[0] and len(seen) < RETRY_FRAMES * last[1]:

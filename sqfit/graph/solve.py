@@ -21,9 +21,10 @@ Methods (every one returns a :class:`sqfit.graph.problem.SlamResult`):
   ``batch_window`` frames, each solve from the previous solution and the new frames chained by the
   odometry); then the re-fit of landmarks in poor minima, the move to the best scale
   (:mod:`sqfit.graph.scale`) and a last solve to ``final_relative_tolerance``, its floor factors at
-  ``final_floor_sigma_m`` for the landmarks that fit their masks (``final_floor_misfit``); with a
-  floor, a solution from iSAM2 far from the odometry
-  (``batch_odometry_chi2``) is solved again from windows;
+  ``final_floor_sigma_m`` for the landmarks that fit their masks (``final_floor_misfit``), after
+  which the landmarks are tested again (misfit up to ``misfit_sigma``, and overlap) and, where one
+  is re-fitted, the graph solved once more; with a floor, a solution from iSAM2 far from the
+  odometry (``batch_odometry_chi2``) is solved again from windows;
 - ``graph-isam2``: the same graph grown frame by frame with iSAM2 (one update per frame; a landmark
   joins once its first frames are enough for its initial fit (``init_frames``, ``init_parallax_deg``),
   or at the last frame if they never are); once both ``isam2_rescale_every`` frames and
@@ -258,10 +259,14 @@ def _batch_from(problem, options, start, scales=None):
         if options.final_n_contour and options.final_n_contour != options.n_contour:
             graph, silhouettes = growth.resampled(graph, options.final_n_contour)
         for check in (False, True):
-            # the last solve moves far along the scale valley: a landmark it drops into 3G's far,
-            # huge minimum is re-fitted (overlap test only) and the graph solved once more
-            if check and not refit_landmarks(problem, values, growth.added, options, result, growth.rays, overlap_only=True,
-                                             bounded=growth.bounded):
+            # the last solve moves the poses and far along the scale valley: its landmarks are tested
+            # again as at the rebuilds, at poses no earlier test saw, so without the memory of re-fits
+            # not kept; one it dropped into 3G's far, huge minimum, or that sits in a poorer minimum
+            # than a re-fit finds (misfit above refit_misfit, up to misfit_sigma: above, the outline
+            # is not a superquadric's, and a lower misfit is no better map), is re-fitted and the
+            # graph solved once more
+            if check and not refit_landmarks(problem, values, growth.added, options, result, growth.rays,
+                                             bounded=growth.bounded, misfit_cap=options.misfit_sigma):
                 break
             if options.rescale:
                 values = _rescale(graph, values, n, growth.added, silhouettes)
