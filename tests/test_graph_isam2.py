@@ -300,7 +300,8 @@ def test_a_batch_from_isam2_far_from_the_odometry_is_solved_again_from_windows(m
     assert starts == ["isam2"]
 
 
-def test_the_batch_tests_its_landmarks_again_after_its_last_solve(monkeypatch, seq):
+@pytest.mark.parametrize("misfit_sigma, cap", [(1.5, 1.5), (0.0, np.inf)])
+def test_the_batch_tests_its_landmarks_again_after_its_last_solve(monkeypatch, seq, misfit_sigma, cap):
     # the check after the last solve re-fits by misfit (up to misfit_sigma) and by overlap, without
     # the memory of the re-fits not kept at iSAM2's rebuilds (the last solve moved the poses)
     calls, real = [], solve.refit_landmarks
@@ -310,12 +311,12 @@ def test_the_batch_tests_its_landmarks_again_after_its_last_solve(monkeypatch, s
         return real(*args, **kw)
 
     monkeypatch.setattr(solve, "refit_landmarks", refit_landmarks)
-    options = graph.GraphOptions(misfit_sigma=1.5)
+    options = graph.GraphOptions(misfit_sigma=misfit_sigma)
     res = graph.run(seq.intrinsics, seq.odometry_poses, seq.observations, ["graph"], options)["graph"]
     assert res.ok
     last = calls[-1]
     assert not last.get("overlap_only") and last.get("rejected") is None and last.get("n") is None
-    assert last["misfit_cap"] == 1.5
+    assert last["misfit_cap"] == cap  # misfit_sigma 0: no landmark's outline is taken for the model's
     # at the rebuilds, the memory and no cap
     assert all(kw.get("rejected") is not None and "misfit_cap" not in kw for kw in calls if kw.get("n") is not None)
 

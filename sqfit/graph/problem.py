@@ -308,7 +308,9 @@ class GraphOptions(Options):
         superquadric follows counts by the spread its rays show). Batch only: the misfits are
         measured at the batch's solution and, where any landmark's scale is needed, the whole batch
         runs again with the scales from the first frame (a warning names them); the incremental
-        method keeps ``silhouette_sigma``. 0: every landmark keeps ``silhouette_sigma``.
+        method keeps ``silhouette_sigma``. 0: every landmark keeps ``silhouette_sigma``. Above it,
+        the batch's check after its last solve re-fits a landmark for its overlap only, not for its
+        misfit (:func:`sqfit.graph.refit.refit_landmarks`, ``misfit_cap``; none with 0).
     max_iterations : int
         Levenberg-Marquardt iterations of the batch solves.
     relative_tolerance : float

@@ -265,8 +265,9 @@ def _batch_from(problem, options, start, scales=None):
             # than a re-fit finds (misfit above refit_misfit, up to misfit_sigma: above, the outline
             # is not a superquadric's, and a lower misfit is no better map), is re-fitted and the
             # graph solved once more
+            cap = options.misfit_sigma if options.misfit_sigma > 0 else np.inf  # 0: no outline is the model's
             if check and not refit_landmarks(problem, values, growth.added, options, result, growth.rays,
-                                             bounded=growth.bounded, misfit_cap=options.misfit_sigma):
+                                             bounded=growth.bounded, misfit_cap=cap):
                 break
             if options.rescale:
                 values = _rescale(graph, values, n, growth.added, silhouettes)
