@@ -190,6 +190,15 @@ def landmark_keys(oid, options):
     return (L(oid), S(oid)) + (() if offset is None else (offset,))
 
 
+def _without(graph, drop):
+    """A new graph of ``graph``'s factors but those at the positions ``drop``."""
+    out = gtsam.NonlinearFactorGraph()
+    for k in range(graph.size()):
+        if k not in drop:
+            out.add(graph.at(k))
+    return out
+
+
 class Growth:
     """Grows the graph frame by frame (shared by the batch windows and iSAM2): each new frame's pose,
     chained from the current estimate of the previous one by the odometry step, its odometry factor,
@@ -298,21 +307,14 @@ class Growth:
         """``graph`` (iSAM2's factors) without the damping priors still in it."""
         if not self.damping:
             return graph
-        drop, out = set(self.damping.values()), gtsam.NonlinearFactorGraph()
-        for k in range(graph.size()):
-            if k not in drop:
-                out.add(graph.at(k))
-        return out
+        return _without(graph, set(self.damping.values()))
 
     def undamped_new(self, graph):
         """``graph`` (the last one add() returned) without its damping priors, which are forgotten:
         iSAM2 is started again without them (:mod:`sqfit.graph.solve`)."""
-        drop, out = {position for position, _ in self._damping_new}, gtsam.NonlinearFactorGraph()
+        drop = {position for position, _ in self._damping_new}
         self._damping_new = []
-        for k in range(graph.size()):
-            if k not in drop:
-                out.add(graph.at(k))
-        return out
+        return _without(graph, drop)
 
     def resampled(self, graph, n_contour):
         """``(graph', evaluator)``: ``graph`` with the silhouette factors of this growth's evaluator

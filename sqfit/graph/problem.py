@@ -33,7 +33,7 @@ from ..views.observation import Observation
 from .shapevar import KINDS as SHAPE_VARIABLES
 
 __all__ = ["INIT_CHAIN", "BATCH_STARTS", "GraphOptions", "SlamResult", "Problem", "check_inputs", "observations_from_instances",
-           "observation_at"]
+           "observation_at", "error_line"]
 
 #: The landmarks' fitting chain: the fitter's default without its stage 3R
 #: (:mod:`sqfit.fitting.trimmed`; why 3R's gate lets odometry-pose misfits through was not
@@ -398,6 +398,12 @@ class GraphOptions(Options):
                 raise ValueError(f"{name} must be True or False, got {getattr(self, name)!r}")
 
 
+def error_line(exc):
+    """The first non-blank line of an optimiser error's message, stripped ("" if none): GTSAM's
+    messages start with a blank line and go on with paragraphs of advice."""
+    return next((line.strip() for line in str(exc).splitlines() if line.strip()), "")
+
+
 @dataclass
 class SlamResult:
     """What one method made of a sequence.
@@ -452,8 +458,7 @@ class SlamResult:
 
     def fail(self, where, exc):
         """Flag the result as failed by ``exc`` (an optimiser error) at ``where``."""
-        first = next((line for line in str(exc).splitlines() if line.strip()), type(exc).__name__)
-        self.status, self.message = "failed", f"{where}: {type(exc).__name__}: {first.strip()}"
+        self.status, self.message = "failed", f"{where}: {type(exc).__name__}: {error_line(exc) or type(exc).__name__}"
         self.objects = {}
         self.warnings.append(self.message)
 

@@ -51,7 +51,7 @@ from .fixedlag import condition_on_past
 from .growth import (Growth, initial_fit, landmark_keys, noise_models, pose_factors, pose_matrices, robust_noise,
                      skip_object)
 from .landmark import N_SHAPE, landmark_to_superquadric
-from .problem import GraphOptions, SlamResult, check_inputs
+from .problem import GraphOptions, SlamResult, check_inputs, error_line
 from .quadric import initialise_quadric, observation_box, quadric_to_superquadric
 from .refit import object_misfits, refit_landmarks
 from .scale import best_scale, rescaled, scale_dependent_factors
@@ -258,14 +258,14 @@ def _batch_from(problem, options, start, scales=None):
         silhouettes = growth.batch
         if options.final_n_contour and options.final_n_contour != options.n_contour:
             graph, silhouettes = growth.resampled(graph, options.final_n_contour)
+        cap = options.misfit_sigma if options.misfit_sigma > 0 else np.inf  # 0: no outline is the model's
         for check in (False, True):
             # the last solve moves the poses and far along the scale valley: its landmarks are tested
             # again as at the rebuilds, at poses no earlier test saw, so without the memory of re-fits
             # not kept; one it dropped into 3G's far, huge minimum, or that sits in a poorer minimum
-            # than a re-fit finds (misfit above refit_misfit, up to misfit_sigma: above, the outline
-            # is not a superquadric's, and a lower misfit is no better map), is re-fitted and the
-            # graph solved once more
-            cap = options.misfit_sigma if options.misfit_sigma > 0 else np.inf  # 0: no outline is the model's
+            # than a re-fit finds (misfit above refit_misfit, up to misfit_sigma (cap): above, the
+            # outline is not a superquadric's, and a lower misfit is no better map), is re-fitted and
+            # the graph solved once more
             if check and not refit_landmarks(problem, values, growth.added, options, result, growth.rays,
                                              bounded=growth.bounded, misfit_cap=cap):
                 break
@@ -418,8 +418,7 @@ def _restarted(factors, estimate, new, params, n, growth, options, result, exc):
     the last ``estimate`` and the new variables, its landmarks that barely overlap their masks
     re-fitted (:func:`refit_landmarks`, overlap test only), solved by Levenberg-Marquardt (damped),
     and a new iSAM2 linearised there. ``(isam, estimate, factors)``; a warning names the error."""
-    first = next((line.strip() for line in str(exc).splitlines() if line.strip()), "")
-    result.warnings.append(f"iSAM2 update at frame {n - 1} failed ({type(exc).__name__}: {first}); started again from "
+    result.warnings.append(f"iSAM2 update at frame {n - 1} failed ({type(exc).__name__}: {error_line(exc)}); started again from "
                            "Levenberg-Marquardt on the graph so far")
     graph = gtsam.NonlinearFactorGraph()
     graph.push_back(growth.undamped(factors))
