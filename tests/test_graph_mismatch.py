@@ -8,7 +8,7 @@ gtsam = pytest.importorskip("gtsam")
 
 import sqfit  # noqa: E402
 from sqfit.fitting.pipeline import FitResult, StageRecord  # noqa: E402
-from sqfit.graph import factors, growth, landmark, solve  # noqa: E402
+from sqfit.graph import factors, growth, landmark, refit, solve  # noqa: E402
 from sqfit.graph.testing import synthetic_sequence  # noqa: E402
 from sqfit.testing import polygon_mask  # noqa: E402
 from _numeric import central_difference  # noqa: E402
@@ -116,3 +116,64 @@ def test_landmarks_whose_fit_left_grazing_get_bounded_factors(monkeypatch, k, bo
 def test_mismatch_ray_k_is_checked():
     with pytest.raises(ValueError, match="mismatch_ray_k"):
         solve.GraphOptions(mismatch_ray_k=-1.0)
+
+
+def _grown(options, monkeypatch=None):
+    # the initial fits all leave the grazing cost with a monkeypatch: every landmark bounded
+    seq = synthetic_sequence(0, n_frames=6, n_objects=2)
+    problem = solve.check_inputs(seq.intrinsics, seq.odometry_poses, seq.observations)
+    if monkeypatch is not None:
+        monkeypatch.setattr(growth, "left_grazing", lambda res: True)
+    grown = growth.Growth(problem, solve.GraphOptions.coerce(options), solve.SlamResult("graph", problem.odometry_poses.copy()))
+    g, values = grown.add(list(range(problem.n_frames)))
+    return grown, g, values
+
+
+def _floors(g):
+    return sorted(gtsam.Symbol(g.at(k).keys()[0]).index() for k in range(g.size())
+                  if len(g.at(k).keys()) == 2 and gtsam.Symbol(g.at(k).keys()[0]).chr() == ord("l")
+                  and gtsam.Symbol(g.at(k).keys()[1]).chr() == ord("s"))
+
+
+def _rows(grown, g, values, oid):
+    # the landmark made poor, so that a bound acts on its rays
+    moved = gtsam.Values(values)
+    moved.update(S(oid), values.atVector(S(oid)) * np.array([1.6, 0.6, 1.4, 1.0, 1.0]))
+    return [g.at(k).unwhitenedError(moved) for k in range(g.size())
+            if grown.batch.holds(g.at(k)) and gtsam.Symbol(g.at(k).keys()[1]).index() == oid]
+
+
+def test_a_bounded_landmark_refitted_to_graze_is_unbounded_and_floored(monkeypatch):
+    options = {"floor_z": 0.0, "mismatch_ray_k": 0.5}
+    plain, g_plain, values_plain = _grown(options)
+    oid, other = sorted(plain.added)
+    assert _floors(g_plain) == [oid, other] and not plain.bounded
+    grown, g, values = _grown(options, monkeypatch)
+    assert grown.bounded == {oid, other} and _floors(g) == [] and g.size() == g_plain.size() - 2
+    bound = 0.5 * grown.options.silhouette_sigma  # mismatch_ray_k whitened, per ray of a view
+    rows = _rows(grown, g, values, oid)
+    assert all(np.abs(r).max() <= bound / np.sqrt(len(r)) for r in rows)
+    expected = _rows(plain, g_plain, values_plain, oid)
+    assert any(np.abs(r).max() > bound / np.sqrt(len(r)) for r in expected)  # the bound acts
+    # a re-fit that left the grazing cost, and one of a landmark not bounded: nothing changes
+    assert grown.refitted(g, {other: True}) is g and grown.bounded == {oid, other}
+    out = grown.refitted(g, {oid: False})
+    assert grown.bounded == {other} and _floors(out) == [oid] and out.size() == g.size() + 1
+    assert grown.refitted(out, {oid: False}) is out
+    # its factors, the same objects, now give the rows of a landmark never bounded
+    for r, e in zip(_rows(grown, g, values, oid), expected):
+        np.testing.assert_array_equal(r, e)
+    assert all(np.abs(r).max() <= bound / np.sqrt(len(r)) for r in _rows(grown, g, values, other))
+
+
+def test_refit_landmarks_says_which_refits_left_grazing(monkeypatch):
+    grown, g, values = _grown({})
+    oid = sorted(grown.added)[0]
+    far = gtsam.Values(values)  # moved far off its masks: re-fitted for its overlap
+    far.update(L(oid), gtsam.Pose3(gtsam.Rot3(), values.atPose3(L(oid)).translation() + np.array([0.0, 0.0, 40.0])))
+    for left in (True, False):
+        monkeypatch.setattr(growth, "left_grazing", lambda res, left=left: left)
+        moved = gtsam.Values(far)
+        out = refit.refit_landmarks(grown.problem, moved, grown.added, grown.options, grown.result, overlap_only=True)
+        assert out == {oid: left}
+    assert refit.refit_landmarks(grown.problem, values, grown.added, grown.options, grown.result, overlap_only=True) == {}

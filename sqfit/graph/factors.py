@@ -80,6 +80,19 @@ class SilhouetteFactors:
         keys = tuple(factor.keys())
         return len(keys) >= 3 and keys in self._key_set
 
+    def unbound(self, pose_key):
+        """Lift the ray bound of every factor of the landmark ``pose_key`` (:func:`silhouette_factor`'s
+        ``ray_bound``); they are evaluated afresh when next asked. GTSAM's factors stay as they
+        are (the bound is read here at each evaluation), so a linearisation made before, iSAM2's,
+        is stale until it is made again."""
+        with self._lock:
+            for i, keys in enumerate(self._keys):
+                if keys[1] == pose_key:
+                    self._bounds[i] = np.inf
+                    self._last[i] = None
+                    if i < len(self._sig):
+                        self._sig[i] = -2  # no variable's number: stale
+
     def factor(self, noise, camera_key, pose_key, shape_key, rays, offset_key=None, offset_unit_px=1.0,
                ray_bound=np.inf):
         """A new silhouette factor of this graph (arguments: :func:`silhouette_factor`)."""

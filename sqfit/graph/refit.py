@@ -76,8 +76,10 @@ def refit_landmarks(problem, values, oids, options, result, rays_cache=None, ove
     ``sqfit.constants.POOR_FIT_R_IOU_M``, 3G's "far, huge" minimum, whose misfit is low; a refit is
     kept if it overlaps more). The overlap uses at most :data:`OVERLAP_FRAMES` of the
     landmark's frames, the misfit and the fit at most ``refit_max_frames`` (evenly spread,
-    :func:`sqfit.graph.fixedlag.evenly_spread`), so a call's cost does not grow with the sequence. ``overlap_only``: only the second kind. Returns whether
-    a landmark changed. ``rays_cache``: :func:`view_factor`; ``bounded``: the landmarks whose
+    :func:`sqfit.graph.fixedlag.evenly_spread`), so a call's cost does not grow with the sequence. ``overlap_only``: only the second kind. Returns the
+    landmarks re-initialised, ``{oid: whether the re-fit left the grazing cost}``
+    (:func:`sqfit.graph.growth.landmark_fit`; empty, so false, when none was:
+    :meth:`sqfit.graph.growth.Growth.refitted` takes them into the graph). ``rays_cache``: :func:`view_factor`; ``bounded``: the landmarks whose
     silhouette factors are bounded (their misfits measured so, :func:`object_misfits`). ``n``: only
     frames ``0 .. n-1`` are in ``values`` (iSAM2, mid-sequence; None: all). ``pose_noise_refit``:
     :func:`landmark_fit`'s (None: ``batch_pose_noise_refit``). ``rejected``: a dict kept between
@@ -89,13 +91,13 @@ def refit_landmarks(problem, values, oids, options, result, rays_cache=None, ove
     for its misfit (its outline taken for the model's, not a poor minimum's; the batch's last check
     passes ``misfit_sigma``, :mod:`sqfit.graph.weighting`), only for its overlap."""
     if options.refit_misfit <= 0:
-        return False
+        return {}
     poses = pose_matrices(values, problem.n_frames if n is None else n)
     if pose_noise_refit is None:
         pose_noise_refit = options.batch_pose_noise_refit
     most, variable = options.refit_max_frames, shape_variable(options)
     misfits = {} if overlap_only else object_misfits(problem, values, oids, options, rays_cache, bounded, n, most)
-    changed = False
+    changed = {}
     for oid in oids:
         seen = frames_before(problem, oid, n)
         tested = observation_set(problem, oid, poses, evenly_spread(seen, OVERLAP_FRAMES))
@@ -112,8 +114,9 @@ def refit_landmarks(problem, values, oids, options, result, rays_cache=None, ove
         if last is not None and before < RETRY_MISFIT * last[0] and len(seen) < RETRY_FRAMES * last[1]:
             continue
         frames = evenly_spread(seen, most)
-        landmark = landmark_fit(observation_set(problem, oid, poses, frames), options, pose_noise_refit,
-                                f"frames {list(frames)}").landmark
+        fit = landmark_fit(observation_set(problem, oid, poses, frames), options, pose_noise_refit,
+                           f"frames {list(frames)}")
+        landmark = fit.landmark
         if landmark is None:
             continue
         trial = gtsam.Values(values)
@@ -137,5 +140,5 @@ def refit_landmarks(problem, values, oids, options, result, rays_cache=None, ove
                                    f"{'' if n is None else f'(at frame {n}) '}"
                                    f"(misfit {before:.2f} -> {after:.2f}, R-IOU-M {overlap:.2f} -> "
                                    f"{overlap_after:.2f})")
-            changed = True
+            changed[oid] = fit.mismatched
     return changed

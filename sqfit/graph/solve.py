@@ -244,8 +244,8 @@ def _batch_from(problem, options, start, scales=None):
             graph, values = _windows(growth, options, result)
             refit = True
         if refit:
-            refit_landmarks(problem, values, growth.added, options, result, growth.rays, bounded=growth.bounded,
-                            rejected=growth.rejected)
+            graph = growth.refitted(graph, refit_landmarks(problem, values, growth.added, options, result, growth.rays,
+                                                           bounded=growth.bounded, rejected=growth.rejected))
         final = replace(options, relative_tolerance=options.final_relative_tolerance)
         floored = growth.floored()
         if options.final_floor_sigma_m is not None and floored:
@@ -426,8 +426,9 @@ def _restarted(factors, estimate, new, params, n, growth, options, result, exc):
     growth.damping.clear()
     values = gtsam.Values(estimate)
     values.insert(new[1])
-    refit_landmarks(growth.problem, values, growth.added, options, result, growth.rays, overlap_only=True,
-                    bounded=growth.bounded, n=n, pose_noise_refit=growth.pose_noise_refit)
+    graph = growth.refitted(graph, refit_landmarks(growth.problem, values, growth.added, options, result, growth.rays,
+                                                   overlap_only=True, bounded=growth.bounded, n=n,
+                                                   pose_noise_refit=growth.pose_noise_refit))
     values, _ = _lm(graph, values, options)
     fresh = gtsam.ISAM2(params)
     fresh.update(graph, values)
@@ -464,6 +465,8 @@ def _isam2_rescaled(isam, factors, estimate, params, n, growth, options, result)
     refitted = options.isam2_refit and refit_landmarks(growth.problem, moved, growth.added, options, result, growth.rays,
                                               bounded=growth.bounded, n=n, pose_noise_refit=growth.pose_noise_refit,
                                               rejected=growth.rejected)
+    if refitted:
+        graph = growth.refitted(graph, refitted)
     if not refitted and abs(moved.atPose3(X(n - 1)).translation() - estimate.atPose3(X(n - 1)).translation()).max() < 1e-6:
         return isam, estimate, factors
     fresh = gtsam.ISAM2(params)
