@@ -216,7 +216,7 @@ class Growth:
             for f in frames:
                 self.by_frame.setdefault(f, []).append(oid)
         self.pending, self.added, self.failed, self.current = {}, [], set(), {}
-        self.bounded = set()  # landmarks whose silhouette factors are bounded (landmark_fit)
+        self.bounded = set()  # landmarks whose silhouette factors are bounded (landmark_fit; until refitted)
         # landmarks whose last re-fit was not kept: (misfit, frames) then (sqfit.graph.refit)
         self.rejected = {}
         # landmarks whose initial fit was put off (module docstring): how often, and the best fit so far

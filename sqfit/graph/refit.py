@@ -76,10 +76,11 @@ def refit_landmarks(problem, values, oids, options, result, rays_cache=None, ove
     ``sqfit.constants.POOR_FIT_R_IOU_M``, 3G's "far, huge" minimum, whose misfit is low; a refit is
     kept if it overlaps more). The overlap uses at most :data:`OVERLAP_FRAMES` of the
     landmark's frames, the misfit and the fit at most ``refit_max_frames`` (evenly spread,
-    :func:`sqfit.graph.fixedlag.evenly_spread`), so a call's cost does not grow with the sequence. ``overlap_only``: only the second kind. Returns the
-    landmarks re-initialised, ``{oid: whether the re-fit left the grazing cost}``
-    (:func:`sqfit.graph.growth.landmark_fit`; empty, so false, when none was:
-    :meth:`sqfit.graph.growth.Growth.refitted` takes them into the graph). ``rays_cache``: :func:`view_factor`; ``bounded``: the landmarks whose
+    :func:`sqfit.graph.fixedlag.evenly_spread`), so a call's cost does not grow with the sequence.
+    ``overlap_only``: only the second kind. Returns the landmarks re-initialised, ``{oid: whether
+    the re-fit left the grazing cost}`` (:func:`sqfit.graph.growth.landmark_fit`; empty, so false,
+    when none was; :meth:`sqfit.graph.growth.Growth.refitted` takes them into the graph).
+    ``rays_cache``: :func:`view_factor`; ``bounded``: the landmarks whose
     silhouette factors are bounded (their misfits measured so, :func:`object_misfits`). ``n``: only
     frames ``0 .. n-1`` are in ``values`` (iSAM2, mid-sequence; None: all). ``pose_noise_refit``:
     :func:`landmark_fit`'s (None: ``batch_pose_noise_refit``). ``rejected``: a dict kept between
