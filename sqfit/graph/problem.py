@@ -115,8 +115,7 @@ class GraphOptions(Options):
         :func:`sqfit.graph.landmark.left_grazing`; tables, lamps, monitors) gets silhouette factors
         whose every ray's whitened residual is bounded by this
         (:func:`sqfit.graph.landmark.bounded_residuals`), so the rays along its legs or stand do
-        not drag it back to the fit that grazes them, until a re-fit grazes its outline
-        (:meth:`sqfit.graph.growth.Growth.refitted`); 0: not bounded.
+        not drag it back to the fit that grazes them (until a re-fit grazes: ``Growth.refitted``); 0: none.
     batch_pose_noise_refit : bool
         :attr:`sqfit.FitOptions.pose_noise_refit` of the batch's landmark fits (initial and
         re-fit; iSAM2's initial fits and the ``fixed`` baseline keep the fitter's default, True).
