@@ -161,7 +161,9 @@ def test_a_bounded_landmark_refitted_to_graze_is_unbounded_and_floored(monkeypat
     assert grown.bounded == {other} and _floors(out) == [oid] and out.size() == g.size() + 1
     assert grown.refitted(out, {oid: False}) is out
     # its factors, the same objects, now give the rows of a landmark never bounded
-    for r, e in zip(_rows(grown, g, values, oid), expected):
+    rows = _rows(grown, g, values, oid)
+    assert len(rows) == len(expected) > 0
+    for r, e in zip(rows, expected):
         np.testing.assert_array_equal(r, e)
     assert all(np.abs(r).max() <= bound / np.sqrt(len(r)) for r in _rows(grown, g, values, other))
 
