@@ -206,3 +206,29 @@ def test_no_floor_under_a_landmark_whose_fit_left_the_grazing_cost(monkeypatch):
     grazing = graph.run(seq.intrinsics, seq.odometry_poses, seq.observations, ["graph"],
                         {"odometry_sigma_m": 0.03, "floor_z": 0.0})["graph"]
     assert np.abs(grazing.poses - runs[1].poses).max() > 1e-6  # with grazing fits the floor acts
+
+
+def test_isam2_keeps_the_last_solves_floor_throughout(monkeypatch):
+    # graph-isam2 has no last solve: its floor factors are final_floor_sigma_m's from the first
+    # frame (None: floor_sigma_m); the batch's iSAM2 start keeps floor_sigma_m
+    from sqfit.graph import solve
+
+    seq = synthetic_sequence(0, n_frames=8, n_objects=2)
+    graphs = []
+    real = solve._isam2_rescaled
+
+    def rebuilt(isam, factors, *args, **kwargs):
+        graphs.append(factors)
+        return real(isam, factors, *args, **kwargs)
+
+    monkeypatch.setattr(solve, "_isam2_rescaled", rebuilt)
+    base = {"odometry_sigma_m": 0.03, "floor_z": 0.0, "floor_sigma_m": 0.02, "isam2_rescale_every": 4,
+            "isam2_rescale_parallax_deg": 0.0}
+    for method, final, expected in (("graph-isam2", 0.004, 0.004), ("graph-isam2", None, 0.02), ("graph", 0.004, 0.02)):
+        graphs.clear()
+        r = graph.run(seq.intrinsics, seq.odometry_poses, seq.observations, [method],
+                      {**base, "final_floor_sigma_m": final})[method]
+        assert r.ok and len(r.objects) == 2 and graphs, method
+        sigmas = _floor_sigmas(graphs[-1], sorted(r.objects))
+        assert sorted(sigmas) == sorted(r.objects)
+        assert all(v == pytest.approx(expected) for v in sigmas.values()), (method, final, sigmas)

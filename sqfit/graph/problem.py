@@ -284,16 +284,16 @@ class GraphOptions(Options):
     floor_sigma_m : float
         Standard deviation of a landmark's lowest point about the floor, metres, > 0.
     final_floor_sigma_m : float or None
-        The floor factors' standard deviation in the batch's last solves (after the re-fit), > 0;
-        None: ``floor_sigma_m``. Only with ``floor_z``. The landmarks then sit near their minima,
-        and the floor, the one metric cue besides the odometry, fixes the map's scale: at 10 mm the
-        odometry still pulled it 0.1-0.3 % off, the landmarks' lowest points up to 3 mm under the
-        floor. Measured on the evaluation scenes (36 runs of seeds 0-1 / 36 of seeds 2-3, docs/slam-history.md
-        "Issue 23, fifth pass"): runs with ATE <= 0.015 m 28 / 31 at 10 mm, 32 / 33 at 2 mm, 31 / 33
-        at 1 mm; largest spread of a sequence's ATE over 3 runs 1e-9 apart 0.021 / 0.010, 0.009 /
-        0.009, 0.005 / 0.005 m. A 3 mm floor throughout (iSAM2 too) was worse: 20 / 31 runs.
+        The floor factors' standard deviation in the batch's last solves (after the re-fit) and
+        throughout the ``graph-isam2`` method, which has no last solve, > 0; None: ``floor_sigma_m``.
+        The floor, the one metric cue besides the odometry, fixes the map's scale: at 10 mm the
+        odometry still pulled it 0.1-0.3 % off. Batch, evaluation scenes (36 runs of seeds 0-1 / 2-3,
+        docs/slam-history.md "Issue 23, fifth pass"): runs with ATE <= 0.015 m 28 / 31 at 10 mm, 31 / 33
+        at 1 mm; largest ATE spread over 3 runs 1e-9 apart 0.021 / 0.010 and 0.005 / 0.005 m (a 3 mm
+        floor throughout the batch was worse). ``graph-isam2`` (sixteenth pass): sequences beyond a
+        stability limit 1 / 3 of 12 at 10 mm, 0 / 1 at 1 mm.
     final_floor_misfit : float
-        Only the landmarks whose silhouettes fit their masks get that tighter floor: misfit (RMS
+        In the batch only the landmarks that fit their masks get that tighter floor: misfit (RMS
         whitened ray residual, :func:`sqfit.graph.refit.object_misfits`) at most this before the
         last solves; the others keep ``floor_sigma_m``. A superquadric that does not follow its
         object (a chair, a plush toy) has no reliable lowest point, and a 1 mm floor under it pulled

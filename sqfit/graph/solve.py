@@ -347,6 +347,9 @@ def _window_solve(graph, by_key, values, growth, end, options):
 
 
 def _isam2(problem, options):
+    if options.floor_z is not None and options.final_floor_sigma_m is not None:
+        # no last solve follows: the floor is the last solves' from the first frame (GraphOptions)
+        options = replace(options, floor_sigma_m=options.final_floor_sigma_m)
     clock, n = _Clock(), problem.n_frames
     result = SlamResult("graph-isam2", problem.odometry_poses.copy(), skipped=dict(problem.skipped),
                         warnings=list(problem.warnings), frame_seconds=np.zeros(n), frame_cpu_seconds=np.zeros(n))
