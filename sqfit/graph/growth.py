@@ -29,7 +29,7 @@ from gtsam.symbol_shorthand import L, O, S, X
 from .. import constants as C
 from ..fitting import pipeline
 from ..fitting.grazing import OFFSET_UNIT_PX
-from .factors import SilhouetteFactors, bounds_factor, floor_factor, silhouette_factor
+from .factors import SilhouetteFactors, bounds_factor, floor_factor, silhouette_factor, with_floor_factors
 from .landmark import camera_rays, left_grazing, superquadric_to_landmark
 from .parallax import ready_to_initialise
 from .problem import observation_at
@@ -338,12 +338,9 @@ class Growth:
             self.batch.unbound(L(oid))
         if not grazing or self.options.floor_z is None:
             return graph
-        out = gtsam.NonlinearFactorGraph()
-        out.push_back(graph)
-        noise = robust_noise(1, self.options.floor_sigma_m, self.options.huber_k)
-        for oid in grazing:  # a bounded landmark has none (add_landmark)
-            out.add(floor_factor(noise, L(oid), S(oid), self.options.floor_z, self.batch.variable))
-        return out
+        # a bounded landmark has no floor factor (add_landmark): each gets add_landmark's
+        return with_floor_factors(graph, grazing, robust_noise(1, self.options.floor_sigma_m, self.options.huber_k),
+                                  self.options.floor_z, self.batch.variable)
 
     def resampled(self, graph, n_contour):
         """``(graph', evaluator)``: ``graph`` with the silhouette factors of this growth's evaluator

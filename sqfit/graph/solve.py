@@ -465,11 +465,12 @@ def _isam2_rescaled(isam, factors, estimate, params, n, growth, options, result)
     moved. ``factors``: iSAM2's factors, in its order. ``(isam, estimate, factors)``."""
     graph = growth.undamped(factors)
     moved = _rescale(graph, estimate, n, growth.added, growth.batch)
-    refitted = options.isam2_refit and refit_landmarks(growth.problem, moved, growth.added, options, result, growth.rays,
-                                              bounded=growth.bounded, n=n, pose_noise_refit=growth.pose_noise_refit,
-                                              rejected=growth.rejected)
-    if refitted:
-        graph = growth.refitted(graph, refitted)
+    refitted = {}
+    if options.isam2_refit:
+        refitted = refit_landmarks(growth.problem, moved, growth.added, options, result, growth.rays,
+                                   bounded=growth.bounded, n=n, pose_noise_refit=growth.pose_noise_refit,
+                                   rejected=growth.rejected)
+    graph = growth.refitted(graph, refitted)
     if not refitted and abs(moved.atPose3(X(n - 1)).translation() - estimate.atPose3(X(n - 1)).translation()).max() < 1e-6:
         return isam, estimate, factors
     fresh = gtsam.ISAM2(params)
