@@ -31,7 +31,8 @@ import numpy as np  # noqa: E402
 from sqfit import graph  # noqa: E402
 from sqfit.fitting import pipeline  # noqa: E402
 from sqfit.geometry.superquadric import Superquadric, matrix_to_euler  # noqa: E402
-from sqfit.graph.problem import GraphOptions, observation_at  # noqa: E402
+from sqfit.graph.options import GraphOptions  # noqa: E402
+from sqfit.graph.problem import observation_at  # noqa: E402
 from sqfit.graph.testing import trajectory_scale  # noqa: E402
 from sqfit.metrics import iou_3d  # noqa: E402
 from sqfit.views.visibility import INSTANCE  # noqa: E402

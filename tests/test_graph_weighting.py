@@ -8,7 +8,8 @@ pytest.importorskip("gtsam")
 
 from sqfit import graph  # noqa: E402
 from sqfit.graph import growth, weighting  # noqa: E402
-from sqfit.graph.problem import GraphOptions, check_inputs  # noqa: E402
+from sqfit.graph.options import GraphOptions  # noqa: E402
+from sqfit.graph.problem import check_inputs  # noqa: E402
 from sqfit.graph.testing import synthetic_sequence  # noqa: E402
 
 

@@ -51,7 +51,8 @@ from .fixedlag import condition_on_past
 from .growth import (Growth, initial_fit, landmark_keys, noise_models, pose_factors, pose_matrices, robust_noise,
                      skip_object)
 from .landmark import N_SHAPE, landmark_to_superquadric
-from .problem import GraphOptions, SlamResult, check_inputs, error_line
+from .options import GraphOptions
+from .problem import SlamResult, check_inputs, error_line
 from .quadric import initialise_quadric, observation_box, quadric_to_superquadric
 from .refit import object_misfits, refit_landmarks
 from .scale import best_scale, rescaled, scale_dependent_factors
