@@ -485,8 +485,14 @@ def test_a_landmark_left_in_a_poor_minimum_is_refitted(small):
     # for the model's, not a poor minimum's)
     assert not refit.refit_landmarks(prob, values, list(seq.objects), options, result, overlap_only=True)
     assert not refit.refit_landmarks(prob, values, list(seq.objects), options, result, misfit_cap=0.99 * misfit[2])
+    # nor below a misfit threshold of its own (the batch's iSAM2 rebuilds: batch_rebuild_refit_misfit),
+    # nor with re-fits off, whatever the threshold
+    assert not refit.refit_landmarks(prob, values, list(seq.objects), options, result, misfit_threshold=1.01 * misfit[2])
+    assert not refit.refit_landmarks(prob, values, list(seq.objects), graph.GraphOptions(refit_misfit=0), result,
+                                     misfit_threshold=0.5 * misfit[2])
     assert not result.warnings
-    assert refit.refit_landmarks(prob, values, list(seq.objects), options, result, misfit_cap=1.01 * misfit[2])
+    assert refit.refit_landmarks(prob, values, list(seq.objects), options, result, misfit_cap=1.01 * misfit[2],
+                                 misfit_threshold=0.99 * misfit[2])
     assert [w.split(":")[0] for w in result.warnings] == ["object 2"]
     refitted = landmark.landmark_to_superquadric(values.atPose3(L(2)).matrix(), values.atVector(S(2)))
     assert refit.object_misfits(prob, values, [2], options)[2] < options.refit_misfit

@@ -321,6 +321,33 @@ def test_the_batch_tests_its_landmarks_again_after_its_last_solve(monkeypatch, s
     assert all(kw.get("rejected") is not None and "misfit_cap" not in kw for kw in calls if kw.get("n") is not None)
 
 
+@pytest.mark.parametrize("value, expected", [(None, 0.75), (0.0, None), (0.6, 0.6)])
+def test_the_batch_rebuilds_refit_above_their_own_misfit_threshold(monkeypatch, seq, value, expected):
+    # the batch's iSAM2 start tests the misfit against batch_rebuild_refit_misfit at its rebuilds
+    # (0: refit_misfit); its check after the last solve, and the graph-isam2 method's rebuilds,
+    # against refit_misfit
+    calls, real = [], solve.refit_landmarks
+
+    def refit_landmarks(*args, **kw):
+        calls.append((method, kw.get("n"), kw.get("misfit_threshold")))
+        return real(*args, **kw)
+
+    monkeypatch.setattr(solve, "refit_landmarks", refit_landmarks)
+    options = {"isam2_rescale_every": 5, "isam2_rescale_parallax_deg": 0}
+    if value is not None:
+        options["batch_rebuild_refit_misfit"] = value
+    for method in ("graph", "graph-isam2"):
+        assert graph.run(seq.intrinsics, seq.odometry_poses, seq.observations, [method], options)[method].ok
+    assert [(m, n, t) for m, n, t in calls if n is not None] == \
+        [("graph", n, expected) for n in (5, 10, 15)] + [("graph-isam2", n, None) for n in (5, 10, 15)]
+    assert all(t is None for m, n, t in calls if n is None)
+
+
+def test_batch_rebuild_refit_misfit_is_checked():
+    with pytest.raises(ValueError, match="batch_rebuild_refit_misfit"):
+        graph.GraphOptions(batch_rebuild_refit_misfit=-0.1)
+
+
 class _FailingISAM2:
     """A gtsam.ISAM2 whose updates (counted over every instance) raise GTSAM's indeterminate-system
     error from the ``fail_at``-th on (only that one with ``once``), as iSAM2's undamped step did

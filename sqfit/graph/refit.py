@@ -68,7 +68,7 @@ OVERLAP_FRAMES = 4
 
 
 def refit_landmarks(problem, values, oids, options, result, rays_cache=None, overlap_only=False, bounded=frozenset(), n=None,
-                    pose_noise_refit=None, rejected=None, misfit_cap=np.inf):
+                    pose_noise_refit=None, rejected=None, misfit_cap=np.inf, misfit_threshold=None):
     """Re-initialise the landmarks left in a poor minimum by :func:`sqfit.fit` on all their frames at
     the solved poses: those whose silhouettes disagree (misfit above ``refit_misfit``; a refit is
     kept if its misfit is lower and its R-IOU-M not below ``sqfit.constants.POOR_FIT_R_IOU_M``) and
@@ -90,9 +90,12 @@ def refit_landmarks(problem, values, oids, options, result, rays_cache=None, ove
     ``refit_misfit`` was otherwise re-fitted, in vain, at every call: 13 of 23 fits on an
     evaluation sequence). ``misfit_cap``: a landmark whose misfit is above it is not re-fitted
     for its misfit (its outline taken for the model's, not a poor minimum's; the batch's last check
-    passes ``misfit_sigma``, :mod:`sqfit.graph.weighting`), only for its overlap."""
+    passes ``misfit_sigma``, :mod:`sqfit.graph.weighting`), only for its overlap.
+    ``misfit_threshold``: the misfit above which a landmark is re-fitted (None: ``refit_misfit``;
+    the batch's iSAM2 rebuilds pass ``batch_rebuild_refit_misfit``); with ``refit_misfit`` 0 none is."""
     if options.refit_misfit <= 0:
         return {}
+    threshold = options.refit_misfit if misfit_threshold is None else misfit_threshold
     poses = pose_matrices(values, problem.n_frames if n is None else n)
     if pose_noise_refit is None:
         pose_noise_refit = options.batch_pose_noise_refit
@@ -109,7 +112,7 @@ def refit_landmarks(problem, values, oids, options, result, rays_cache=None, ove
         if oid not in misfits:
             misfits.update(object_misfits(problem, values, [oid], options, rays_cache, bounded, n, most))
         before = misfits[oid]
-        if (before <= options.refit_misfit or before > misfit_cap) and not disjoint:
+        if (before <= threshold or before > misfit_cap) and not disjoint:
             continue
         last = None if rejected is None or disjoint else rejected.get(oid)
         if last is not None and before < RETRY_MISFIT * last[0] and len(seen) < RETRY_FRAMES * last[1]:

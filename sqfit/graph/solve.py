@@ -404,7 +404,8 @@ def _incremental(growth, options, result, batch=False):
                 isam, estimate, factors = _restarted(factors, estimate, new, params, i + 1, growth, options, result, exc)
             rebuilt = schedule.due(estimate, i) and bool(growth.added)
             if rebuilt:
-                isam, estimate, factors = _isam2_rescaled(isam, factors, estimate, params, i + 1, growth, options, result)
+                isam, estimate, factors = _isam2_rescaled(isam, factors, estimate, params, i + 1, growth, options, result,
+                                                          batch)
         except _SOLVER_ERRORS as exc:
             exc.where = f"iSAM2 update at frame {i}"
             raise
@@ -453,7 +454,7 @@ def relinearize_thresholds(options, batch=False):
     return thresholds
 
 
-def _isam2_rescaled(isam, factors, estimate, params, n, growth, options, result):
+def _isam2_rescaled(isam, factors, estimate, params, n, growth, options, result, batch=False):
     """iSAM2 moved to the best scale (:func:`_rescale`): iSAM2 relinearises only variables whose
     update exceeds its threshold, one Gauss-Newton step per update, so the scale the first landmarks
     took from the first frames' odometry is never corrected by the later odometry (the whole map
@@ -463,14 +464,17 @@ def _isam2_rescaled(isam, factors, estimate, params, n, growth, options, result)
     far off (misfit 7.7), and their silhouettes then pulled the trajectory away. A new
     iSAM2 on the same factors, less the damping priors of the landmarks added since the last rebuild
     (``batch_landmark_damping_sigma``), linearised at the result; the old one is kept when nothing
-    moved. ``factors``: iSAM2's factors, in its order. ``(isam, estimate, factors)``."""
+    moved. ``factors``: iSAM2's factors, in its order. ``batch``: the batch's start, whose re-fits
+    here test the misfit against ``batch_rebuild_refit_misfit`` (GraphOptions). ``(isam, estimate,
+    factors)``."""
     graph = growth.undamped(factors)
     moved = _rescale(graph, estimate, n, growth.added, growth.batch)
     refitted = {}
     if options.isam2_refit:
+        threshold = options.batch_rebuild_refit_misfit if batch and options.batch_rebuild_refit_misfit > 0 else None
         refitted = refit_landmarks(growth.problem, moved, growth.added, options, result, growth.rays,
                                    bounded=growth.bounded, n=n, pose_noise_refit=growth.pose_noise_refit,
-                                   rejected=growth.rejected)
+                                   rejected=growth.rejected, misfit_threshold=threshold)
     graph = growth.refitted(graph, refitted)
     if not refitted and abs(moved.atPose3(X(n - 1)).translation() - estimate.atPose3(X(n - 1)).translation()).max() < 1e-6:
         return isam, estimate, factors
