@@ -195,20 +195,21 @@ class GraphOptions(Options):
         In the batch's iSAM2 start, iSAM2's rebuilds (``isam2_refit``) re-fit a landmark for its
         misfit only above this (for its overlap as always); the batch's re-fit after the start (none
         when the last rebuild came at the last frame) and its check after the last solve keep
-        ``refit_misfit``, and so does the ``graph-isam2`` method, which re-fits at its rebuilds only. 0: ``refit_misfit``. Those rebuilds come
-        mid-sequence, at poses that are still moving, and there a misfit of 0.5-0.75 is mostly the
-        poses' error: on 10 evaluation sequences (seeds 0-1) 13 of 93 such re-fits after the first
-        rebuild and in the check were kept, most for a few percent of misfit, each costing a fit of
-        ~35 ms. Default 0.75 (docs/slam-history.md "Issue 23, seventeenth pass"; evaluation scenes,
-        3 runs per sequence, against 0.5): seeds 0-3 (72 runs) object IoU median / 10th percentile
-        0.988 / 0.970 either way, ATE median 0.0059 against 0.0058 m, largest 0.0097 against 0.0104
-        m; unseen seeds 4-7 (72 runs) 0.987 / 0.965 against 0.989 / 0.968, ATE median 0.0063
-        against 0.0058 m, largest 0.0111 against 0.0107 m; every sequence within the stability
-        limits in both; CPU per run x0.84-0.87 (median of paired runs, one process). Measured and
-        left: ``refit_misfit`` 0.75 everywhere (CPU x0.82, but object IoU 10th percentile 0.953 and
-        the largest ATE 0.0136 m on seeds 0-3) and only in the check (unseen orbit 4/1 back at
-        0.0187 m in two of three runs: the check's misfit re-fit is what holds it at 0.009 m);
-        1.0 at the rebuilds saved no more than 0.75.
+        ``refit_misfit``, and so does the ``graph-isam2`` method, which re-fits at its rebuilds
+        only. 0: ``refit_misfit``. Those rebuilds come mid-sequence, at poses that are still moving,
+        where a misfit of 0.5-0.75 is largely the poses' error: on 10 evaluation sequences (seeds
+        0-1, one run each) the rebuilds re-fitted 80 landmarks at such misfits (~35 ms a fit, ~0.33
+        s per sequence) and kept 22, 9 of them for less than 5 % of misfit. Default 0.75
+        (docs/slam-history.md "Issue 23, seventeenth pass"; evaluation scenes, 3 runs per sequence,
+        against 0.5): seeds 0-3 (72 runs) object IoU median / 10th percentile 0.988 / 0.970 either
+        way, ATE median 0.0059 against 0.0058 m, largest 0.0097 against 0.0104 m; unseen seeds 4-7
+        (72 runs) 0.987 / 0.965 against 0.989 / 0.968, ATE median 0.0063 against 0.0058 m, largest
+        0.0111 against 0.0107 m; every sequence within the stability limits in both; CPU per run
+        x0.84-0.87 (median of paired runs, one process). Measured and left: ``refit_misfit`` 0.75
+        everywhere (CPU x0.82, but object IoU 10th percentile 0.953 and the largest ATE 0.0136 m on
+        seeds 0-3) and only in the check (unseen orbit 4/1 back at 0.0187 m in two of three runs:
+        the check's misfit re-fit is what holds it at 0.009 m); 1.0 at the rebuilds saved no more
+        than 0.75.
     rescale : bool
         Before the batch's last solve, move the solution along the scale direction to the best
         scale (:mod:`sqfit.graph.scale`: the silhouettes are scale-free, so the error along it comes
