@@ -204,7 +204,9 @@ class GraphOptions(Options):
         against 0.5): seeds 0-3 (72 runs) object IoU median / 10th percentile 0.988 / 0.970 either
         way, ATE median 0.0059 against 0.0058 m, largest 0.0097 against 0.0104 m; unseen seeds 4-7
         (72 runs) 0.987 / 0.965 against 0.989 / 0.968, ATE median 0.0063 against 0.0058 m, largest
-        0.0111 against 0.0107 m; every sequence within the stability limits in both; CPU per run
+        0.0111 against 0.0107 m; every sequence within the stability limits in both; the growth
+        scene (``scenes/sequence.toml``, seeds 0-4 at 40 / 80 / 160 frames) a little worse, ATE
+        median 0.3-0.4 mm higher and the object IoU's 10th percentile 0.006-0.013 lower; CPU per run
         x0.84-0.91 (the median per-run ratio, the two settings alternating on each sequence in one
         process: x0.91 alone on the machine, x0.84 / x0.87 with a second such process beside it).
         Measured and left: ``refit_misfit`` 0.75 everywhere (CPU x0.82, but object IoU 10th
