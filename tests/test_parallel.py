@@ -54,3 +54,87 @@ def test_cluster_slots_follow_workers_joining(monkeypatch):
     monkeypatch.setattr(parallel, "RESIZE_INTERVAL_S", 3600.0)
     client.threads = {}
     assert slots() == 3  # not polled again within the interval
+
+
+def _run_script(script, timeout=60):
+    """Run ``script`` in a fresh interpreter of its own process group; kill the group afterwards
+    (a hung run must not leave workers behind). Returns (returncode, stdout, stderr)."""
+    import os
+    import signal
+    import subprocess
+    import sys
+
+    # Python's own SIGINT handler in the child, whatever this process inherited (test_dataset.py)
+    inherited = signal.signal(signal.SIGINT, signal.default_int_handler)
+    try:
+        proc = subprocess.Popen([sys.executable, "-c", script], stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                                text=True, start_new_session=True)
+    finally:
+        signal.signal(signal.SIGINT, inherited)
+    try:
+        out, err = proc.communicate(timeout=timeout)
+    except subprocess.TimeoutExpired:
+        out, err = None, None
+    finally:
+        try:
+            os.killpg(proc.pid, signal.SIGKILL)
+        except ProcessLookupError:
+            pass
+        proc.wait()
+    assert out is not None, f"the run did not end within {timeout} s of its Ctrl-C"
+    return proc.returncode, out, err
+
+
+def test_ctrl_c_inside_the_executors_own_locking_still_stops():
+    # The interrupt lands half-way through concurrent.futures.wait acquiring its futures' locks,
+    # with the first held. Raised there, KeyboardInterrupt left that lock held, the executor's
+    # manager thread blocked on it and the shutdown waited forever (a silent CI hang).
+    script = """
+import concurrent.futures._base as base, signal, time
+from sqsim.runs.parallel import map_unordered
+
+enter, calls = base._AcquireFutures.__enter__, [0]
+
+def interrupted_enter(self):
+    calls[0] += 1
+    if calls[0] != 3:
+        return enter(self)
+    for i, future in enumerate(self.futures):
+        future._condition.acquire()
+        if i == 0:
+            signal.raise_signal(signal.SIGINT)
+
+base._AcquireFutures.__enter__ = interrupted_enter
+try:
+    for _ in map_unordered(time.sleep, ((0.01,) for _ in range(10 ** 6)), workers=2):
+        pass
+except KeyboardInterrupt:
+    print("interrupted", calls[0] >= 3, signal.getsignal(signal.SIGINT) is signal.default_int_handler)
+"""
+    code, out, err = _run_script(script)
+    assert code == 0 and out.split() == ["interrupted", "True", "True"], err
+
+
+def test_ctrl_c_handler_is_held_only_while_mapping():
+    script = """
+import signal, time
+from sqsim.runs.parallel import map_unordered
+
+assert sorted(map_unordered(abs, [(-1,), (-2,)], workers=2)) == [1, 2]
+print(signal.getsignal(signal.SIGINT) is signal.default_int_handler)
+# a Ctrl-C while the caller handles a result is raised when it asks for the next one
+results = map_unordered(time.sleep, ((0.01,) for _ in range(10 ** 6)), workers=2)
+next(results)
+signal.raise_signal(signal.SIGINT)
+print("handled")
+try:
+    next(results)
+except KeyboardInterrupt:
+    print("raised", signal.getsignal(signal.SIGINT) is signal.default_int_handler)
+# a process that ignores SIGINT (a background job) keeps ignoring it
+signal.signal(signal.SIGINT, signal.SIG_IGN)
+assert list(map_unordered(abs, [(-3,)], workers=2)) == [3]
+print(signal.getsignal(signal.SIGINT) is signal.SIG_IGN)
+"""
+    code, out, err = _run_script(script)
+    assert code == 0 and out.split() == ["True", "handled", "raised", "True", "True"], err

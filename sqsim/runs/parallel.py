@@ -11,10 +11,21 @@ One place for the executor choice shared by ``sqsim experiment`` and ``sqsim gen
 At most ``in_flight`` tasks are submitted at any time (default ``IN_FLIGHT_PER_WORKER`` per worker
 slot), so a run of 100 000 trials holds a few futures, not 100 000, and Ctrl-C stops promptly:
 the queued tasks are cancelled and only those already running finish.
+
+Ctrl-C is taken at a point of this module's choosing, never inside the executor. Python raises
+``KeyboardInterrupt`` wherever the main thread happens to be, and inside ``concurrent.futures`` that
+can be half-way through ``wait``'s acquisition of its futures' locks: the locks stay held, the
+executor's manager thread blocks on the first of them as it completes that future, and the shutdown
+waits for it forever (one CI run in a few dozen hung so, silent; ``tests/test_parallel.py`` makes the
+interrupt land exactly there). So while :func:`map_unordered` runs, Python's default SIGINT handler is
+replaced by one that only records the signal; the loop looks every ``POLL_S`` and raises
+``KeyboardInterrupt`` itself, outside the executor's code.
 """
 
 from __future__ import annotations
 
+import signal
+import threading
 from concurrent.futures import FIRST_COMPLETED, wait
 
 __all__ = ["map_unordered", "IN_FLIGHT_PER_WORKER"]
@@ -28,6 +39,40 @@ IN_FLIGHT_PER_WORKER = 2
 
 #: Seconds between two looks at a Dask cluster's size (workers may join or leave during a run).
 RESIZE_INTERVAL_S = 2.0
+
+#: Seconds between two looks for a recorded Ctrl-C while waiting for results.
+POLL_S = 0.1
+
+
+class _Interrupts:
+    """Ctrl-C recorded by a signal handler and raised by :meth:`check`.
+
+    Installed only from the main thread and only over Python's own handler
+    (``signal.default_int_handler``): a process that ignores SIGINT (a background job) or handles it
+    itself keeps its handler.
+    """
+
+    def __init__(self):
+        self.pending = False
+        self.previous = None
+
+    def install(self):
+        if (threading.current_thread() is threading.main_thread()
+                and signal.getsignal(signal.SIGINT) is signal.default_int_handler):
+            self.previous = signal.signal(signal.SIGINT, self._record)
+
+    def _record(self, signum, frame):
+        self.pending = True
+
+    def check(self):
+        if self.pending:
+            self.pending = False
+            raise KeyboardInterrupt
+
+    def restore(self):
+        if self.previous is not None:
+            signal.signal(signal.SIGINT, self.previous)
+            self.previous = None
 
 
 def _cluster_slots(client):
@@ -108,18 +153,29 @@ def map_unordered(fn, args, *, workers=1, scheduler=None, initializer=None, in_f
                 return
             futures.add(executor.submit(fn, *a))
 
+    interrupts = _Interrupts()
+    interrupts.install()
+    failed = True
     try:
         refill()
         while futures:
-            finished, futures = wait(futures, return_when=FIRST_COMPLETED)
+            finished, futures = wait(futures, timeout=POLL_S, return_when=FIRST_COMPLETED)
+            interrupts.check()
             for future in finished:
                 result = future.result()
                 refill()
                 yield result
+                interrupts.check()
+        failed = False
     finally:
-        for future in futures:
-            future.cancel()
-        if client is None:
-            executor.shutdown(wait=wait_on_exit, cancel_futures=True)
-        else:
-            client.close()
+        try:
+            for future in futures:
+                future.cancel()
+            if client is None:
+                executor.shutdown(wait=wait_on_exit, cancel_futures=True)
+            else:
+                client.close()
+        finally:
+            interrupts.restore()
+        if not failed:  # a Ctrl-C during the shutdown of a finished run
+            interrupts.check()
