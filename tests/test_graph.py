@@ -333,6 +333,24 @@ def test_results_are_complete_and_serialisable(small):
     assert isam.frame_seconds.shape == (len(seq.true_poses),) and np.all(isam.frame_cpu_seconds >= 0)
 
 
+def test_an_estimate_off_the_odometry_is_flagged(small):
+    seq, res = small
+    limit = graph.GraphOptions().batch_odometry_chi2
+    for m in ("graph", "graph-isam2"):
+        # about 6 (the degrees of freedom of a step) where the odometry noise model holds
+        assert 1.0 < res[m].odometry_chi2 < limit, (m, res[m].odometry_chi2)
+        assert not [w for w in res[m].warnings if "disagrees with the odometry" in w]
+        assert res[m].to_dict()["odometry_chi2"] == res[m].odometry_chi2
+    assert all(res[m].odometry_chi2 is None for m in ("odometry", "fixed", "quadric"))
+    # the same odometry under a noise model ten times tighter than its own noise
+    for incremental in (False, True):
+        tight = graph.superquadric_graph(seq.intrinsics, seq.odometry_poses, seq.observations,
+                                         {"odometry_sigma_m": 0.0005, "odometry_sigma_deg": 0.05}, incremental)
+        assert tight.ok and tight.odometry_chi2 > limit
+        flags = [w for w in tight.warnings if "disagrees with the odometry" in w]
+        assert len(flags) == 1 and f"{tight.odometry_chi2:.1f} per step, above {limit}" in flags[0]
+
+
 def test_robust_loss_limits_a_wrong_mask(small):
     seq, _ = small
     obs = dict(seq.observations)

@@ -12,6 +12,7 @@ from sqfit.metrics import iou_3d  # noqa: E402
 from sqfit.views.sequence import Sequence  # noqa: E402
 from sqfit.geometry.superquadric import Superquadric  # noqa: E402
 from sqsim.cli import main  # noqa: E402
+from sqfit.graph import GraphOptions  # noqa: E402
 from sqsim.world.scene import parse_scene  # noqa: E402
 from sqsim.imaging.sequence import simulate_sequence  # noqa: E402
 from sqsim.runs.slam import evaluate_sequence, run_slam, scene_graph_options, trajectory_errors  # noqa: E402
@@ -98,10 +99,26 @@ def test_slam_summary_is_consistent_with_the_records(run_dir):
             true = Superquadric.from_vector(objects["true"][oid]["params"])
             assert row["iou"][oid] == pytest.approx(iou_3d(Superquadric.from_vector(params), true), abs=1e-9)
         assert 0.0 <= row["iou_median"] <= 1.0 and row["cpu_seconds"] >= 0.0
+        assert record["methods"]["quadric"]["odometry_chi2"] is None  # graph methods only (test_graph.py)
         assert objects["methods"]["odometry"] == {} and record["methods"]["odometry"]["iou"] == {}
     ious = [v for k in range(2) for v in json.loads((run_dir / "sequences" / f"{k:06d}" / "record.json")
                                                    .read_text())["methods"]["quadric"]["iou"].values()]
     assert quad["iou"]["median"] == pytest.approx(np.median(ious)) and quad["iou"]["objects"] == len(ious)
+
+
+def test_slam_summary_counts_the_runs_off_the_odometry(run_dir):
+    from sqsim.reports.slam import summarize, table_markdown
+
+    records = [json.loads((run_dir / "sequences" / f"{k:06d}" / "record.json").read_text()) for k in range(2)]
+    options = json.loads((run_dir / "summary.json").read_text())["options"]
+    assert all(summarize(records, METHODS, "tiny", 0, options)["methods"][m]["off_odometry"] == 0 for m in METHODS)
+    # a graph method's record carries its estimate's chi-square (None elsewhere); one above the limit counts
+    limit = GraphOptions.coerce(options).batch_odometry_chi2
+    records[0]["methods"]["quadric"]["odometry_chi2"] = 0.5 * limit
+    records[1]["methods"]["quadric"]["odometry_chi2"] = 2.0 * limit
+    summary = summarize(records, METHODS, "tiny", 0, options)
+    assert summary["methods"]["quadric"]["off_odometry"] == 1 and summary["methods"]["odometry"]["off_odometry"] == 0
+    assert "failed / off the odometry / missing objects" in table_markdown(summary)
 
 
 def test_slam_resumes_without_recomputing(run_dir, tmp_path):

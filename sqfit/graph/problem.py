@@ -72,6 +72,13 @@ class SlamResult:
     outline_offsets : dict of int -> float
         Graph methods with ``GraphOptions.outline_offset_sigma_px > 0``: each object's estimated
         outline offset, px (> 0: its masks are too big).
+    odometry_chi2 : float or None
+        Graph methods: the mean chi-square per odometry step of the returned estimate
+        (:func:`sqfit.graph.solve.odometry_chi2`; about 6, its degrees of freedom, when the estimate
+        agrees with the odometry within its noise model). Above
+        ``GraphOptions.batch_odometry_chi2`` a warning flags the result: the trajectory and map
+        have run off, or the odometry noise model is tighter than the odometry. None for the other
+        methods and for a failed result.
     """
 
     method: str
@@ -89,6 +96,7 @@ class SlamResult:
     status: str = "ok"
     message: str = ""
     outline_offsets: dict = field(default_factory=dict)
+    odometry_chi2: float | None = None
 
     @property
     def ok(self):

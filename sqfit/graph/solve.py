@@ -185,8 +185,19 @@ def _batch(problem, options):
         else:
             note += f"; that solve failed ({second.message}), kept the first"
         result.warnings.append(note)
+    _flag_odometry(result, options)
     result.seconds, result.cpu_seconds = clock.elapsed()
     return result
+
+
+def _flag_odometry(result, options):
+    """Warn when ``result``'s estimate disagrees with the odometry beyond ``batch_odometry_chi2``
+    (``SlamResult.odometry_chi2``): no later step of either method corrects it."""
+    if result.ok and result.odometry_chi2 is not None and result.odometry_chi2 > options.batch_odometry_chi2:
+        result.warnings.append(
+            f"the estimate disagrees with the odometry (mean chi-square {result.odometry_chi2:.1f} per step, above "
+            f"{options.batch_odometry_chi2}): the trajectory and the map have run off, or the odometry noise model "
+            "(odometry_sigma_m, odometry_sigma_deg) is tighter than the odometry")
 
 
 def _batch_once(problem, options, scales=None):
@@ -284,6 +295,7 @@ def _batch_from(problem, options, start, scales=None):
         estimated = noise_scales(problem, values, growth.added, options, growth.scales, growth.rays, growth.bounded)
         result.poses, result.objects = pose_matrices(values, n), _objects(values, growth.added, growth.batch.variable)
         result.outline_offsets = _offsets(values, growth.added, options)
+        result.odometry_chi2 = chi2
     result.seconds, result.cpu_seconds = clock.elapsed()
     return result, chi2, estimated
 
@@ -364,6 +376,8 @@ def _isam2(problem, options):
     growth.finish()
     result.iterations = n
     result.error_final = isam.getFactorsUnsafe().error(estimate)
+    result.odometry_chi2 = odometry_chi2(isam.getFactorsUnsafe(), estimate)
+    _flag_odometry(result, options)
     result.poses, result.objects = pose_matrices(estimate, n), _objects(estimate, sorted(growth.added), growth.batch.variable)
     result.outline_offsets = _offsets(estimate, sorted(growth.added), options)
     result.seconds, result.cpu_seconds = clock.elapsed()

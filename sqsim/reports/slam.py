@@ -11,7 +11,9 @@
                            "iou_median_per_sequence": [..],
                            "cpu_seconds": {..}, "seconds": {..},
                            "frame_cpu_ms_median": {..},       # iSAM2 only
-                           "failed": k, "missing_objects": k, "skipped": {"NNNNNN": {id: reason}}}},
+                           "failed": k, "missing_objects": k, "skipped": {"NNNNNN": {id: reason}},
+                           "off_odometry": k}},  # runs whose estimate disagrees with the odometry:
+                                                  # SlamResult.odometry_chi2 > batch_odometry_chi2
      "warnings": {"NNNNNN": [...]}}
 """
 
@@ -40,7 +42,10 @@ def _stats(values):
 
 def summarize(records, methods, name, seed, options):
     """The ``summary.json`` content from the per-sequence records (module docstring)."""
+    from sqfit.graph import GraphOptions
+
     records = sorted(records, key=lambda r: r["index"])
+    chi2_limit = GraphOptions.coerce(options).batch_odometry_chi2
     out = {"scene": name, "seed": seed, "sequences": [r["index"] for r in records], "options": options,
            "alignment": ALIGNMENT, "methods": {},
            "observations": [r["observations"] for r in records],
@@ -61,6 +66,9 @@ def summarize(records, methods, name, seed, options):
             s["frame_cpu_ms_median"] = _stats([row["frame_cpu_ms_median"] for row in rows])
             s["frame_ms_median"] = _stats([row["frame_ms_median"] for row in rows])
         s["failed"] = sum(row["status"] != "ok" for row in rows)
+        # runs whose estimate disagrees with the odometry (sqfit SlamResult.odometry_chi2; flagged by a warning)
+        s["off_odometry"] = sum(row.get("odometry_chi2") is not None and row["odometry_chi2"] > chi2_limit
+                                for row in rows)
         s["missing_objects"] = sum(len(row["missing"]) for row in rows)
         s["skipped"] = {f"{r['index']:06d}": row["skipped"] for r, row in zip(records, rows) if row["skipped"]}
         out["methods"][m] = s
@@ -77,7 +85,7 @@ def table_markdown(summary):
     lines = [f"{summary['scene']}, seed {summary['seed']}, {n} sequence(s); ATE/RPE: evo, alignment: "
              f"{summary['alignment']}. Medians over sequences (IoU: over all objects of all sequences).", "",
              "| method | ATE [m] | ATE vs odometry | ATE SE(3)-aligned [m] | RPE [m / deg] | object IoU median "
-             "(mean) | CPU [s] | wall [s] | iSAM2 update, CPU [ms] | failed / missing objects |",
+             "(mean) | CPU [s] | wall [s] | iSAM2 update, CPU [ms] | failed / off the odometry / missing objects |",
              "|---|---|---|---|---|---|---|---|---|---|"]
     for m, s in summary["methods"].items():
         change = s["ate_change_vs_odometry"]["median"]
@@ -88,7 +96,8 @@ def table_markdown(summary):
             f"{'–' if change is None else format(100 * change, '+.0f') + ' %'} | {_f(s['ate_se3_m']['median'])} | "
             f"{_f(s['rpe_m']['median'], '.4f')} / {_f(s['rpe_deg']['median'], '.2f')} | "
             f"{_f(iou['median'])} ({_f(iou['mean'])}) | {_f(s['cpu_seconds']['median'], '.2f')} | "
-            f"{_f(s['seconds']['median'], '.2f')} | {_f(frame, '.0f')} | {s['failed']} / {s['missing_objects']} |")
+            f"{_f(s['seconds']['median'], '.2f')} | {_f(frame, '.0f')} | {s['failed']} / {s.get('off_odometry', 0)} / "
+            f"{s['missing_objects']} |")
     if summary["warnings"]:
         lines += ["", "Warnings (first 3 per sequence; all in summary.json):"]
         for k, ws in summary["warnings"].items():

@@ -409,7 +409,8 @@ def _score(method, res, seq, truth):
            "skipped": {str(k): v for k, v in res.skipped.items()}, "warnings": list(res.warnings),
            "seconds": float(res.seconds), "cpu_seconds": float(res.cpu_seconds), "iterations": int(res.iterations),
            "frame_ms_median": None, "frame_cpu_ms_median": None, "frame_cpu_ms_max": None,
-           "outline_offsets": {str(k): float(v) for k, v in res.outline_offsets.items()}}
+           "outline_offsets": {str(k): float(v) for k, v in res.outline_offsets.items()},
+           "odometry_chi2": None if res.odometry_chi2 is None else float(res.odometry_chi2)}
     if res.frame_seconds is not None:
         row.update(frame_ms_median=1e3 * float(np.median(res.frame_seconds)),
                    frame_cpu_ms_median=1e3 * float(np.median(res.frame_cpu_seconds)),
