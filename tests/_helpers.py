@@ -1,5 +1,7 @@
 """Small helpers shared by several test modules: command lines and a camera with box masks."""
 
+import os
+import signal
 import subprocess
 import sys
 
@@ -22,6 +24,28 @@ def rect_mask(r0=10, r1=20, c0=5, c1=30, shape=(48, 64)):
 def run_command(program, *args):
     """Run ``python -m PROGRAM.cli ARGS`` (``program``: ``"sqsim"`` or ``"sqfit"``); text output captured."""
     return subprocess.run([sys.executable, "-m", f"{program}.cli", *map(str, args)], capture_output=True, text=True)
+
+
+def popen_interruptible(cmd, **kwargs):
+    """``subprocess.Popen(cmd, start_new_session=True, **kwargs)`` with the child's SIGINT at Python's
+    default, as from a terminal, whatever this process inherited: a shell starts background jobs
+    (``.ci/run > log &``) with SIGINT ignored, a process started so keeps ignoring it, and a test of
+    Ctrl-C would then hang. A handled signal is reset to its default by exec."""
+    inherited = signal.signal(signal.SIGINT, signal.default_int_handler)
+    try:
+        return subprocess.Popen(cmd, start_new_session=True, **kwargs)
+    finally:
+        signal.signal(signal.SIGINT, inherited)
+
+
+def kill_group(proc):
+    """SIGKILL the process group of ``proc`` (started by :func:`popen_interruptible`) and reap it:
+    whatever a test asserted, no worker of the group keeps running."""
+    try:
+        os.killpg(proc.pid, signal.SIGKILL)
+    except ProcessLookupError:
+        pass
+    proc.wait()
 
 
 def assert_bad_file(path, text, reader, match, error=ValueError):

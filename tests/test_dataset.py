@@ -15,6 +15,7 @@ from sqsim.runs.generate import generate
 from sqsim.world.scene import load_scene
 
 from _datasets import files, kill_generate_midway, small_scene  # noqa: E402
+from _helpers import kill_group, popen_interruptible  # noqa: E402
 
 SCENE = small_scene(5, 4, {"erosion_px": 1, "pose_rotation_deg": 0.5})
 
@@ -237,16 +238,10 @@ def test_ctrl_c_with_workers_stops_cleanly(scene_file, tmp_path):
     out = tmp_path / "d"
     cmd = [sys.executable, "-m", "sqsim.cli", "generate", str(scene_file), "-o", str(out), "--workers", "2",
            "--no-progress"]
-    # The run must start with SIGINT at its default, as from a terminal. A shell starts background
-    # jobs (`.ci/run > log &`) with SIGINT ignored, and a process started so keeps ignoring it:
-    # Python then installs no KeyboardInterrupt and the run rightly goes on, which made this test
-    # hang whenever the suite itself ran in the background. A handled signal is reset to its default
-    # by exec, so the child starts with Python's own handler whatever this process inherited.
-    inherited = signal.signal(signal.SIGINT, signal.default_int_handler)
-    try:
-        proc = subprocess.Popen(cmd, stderr=subprocess.PIPE, text=True, start_new_session=True)
-    finally:
-        signal.signal(signal.SIGINT, inherited)
+    # The run must start with SIGINT at its default, as from a terminal (popen_interruptible): a
+    # run started with SIGINT ignored rightly goes on, which made this test hang whenever the suite
+    # itself ran in the background.
+    proc = popen_interruptible(cmd, stderr=subprocess.PIPE, text=True)
     try:
         deadline = time.time() + 120
         while time.time() < deadline and proc.poll() is None and not list((out / "trials").glob("0*")):
@@ -260,11 +255,7 @@ def test_ctrl_c_with_workers_stops_cleanly(scene_file, tmp_path):
     finally:
         # whatever failed above, leave no worker of the group running (a failed run once left two
         # workers rendering a million trials for the rest of the session)
-        try:
-            os.killpg(proc.pid, signal.SIGKILL)
-        except ProcessLookupError:
-            pass
-        proc.wait()
+        kill_group(proc)
     assert stopped < 20, f"took {stopped:.1f} s to stop"
     assert proc.returncode == 130 and "interrupted" in err
     names = [p.name for p in (out / "trials").iterdir()]

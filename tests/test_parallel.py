@@ -1,5 +1,9 @@
+import subprocess
+import sys
+
 import pytest
 
+from _helpers import kill_group, popen_interruptible
 from sqsim.runs.parallel import map_unordered
 
 
@@ -57,30 +61,17 @@ def test_cluster_slots_follow_workers_joining(monkeypatch):
 
 
 def _run_script(script, timeout=60):
-    """Run ``script`` in a fresh interpreter of its own process group; kill the group afterwards
-    (a hung run must not leave workers behind). Returns (returncode, stdout, stderr)."""
-    import os
-    import signal
-    import subprocess
-    import sys
-
-    # Python's own SIGINT handler in the child, whatever this process inherited (test_dataset.py)
-    inherited = signal.signal(signal.SIGINT, signal.default_int_handler)
-    try:
-        proc = subprocess.Popen([sys.executable, "-c", script], stdout=subprocess.PIPE, stderr=subprocess.PIPE,
-                                text=True, start_new_session=True)
-    finally:
-        signal.signal(signal.SIGINT, inherited)
+    """Run ``script`` in a fresh interpreter of its own process group, with Python's SIGINT handler;
+    kill the group afterwards (a hung run must not leave workers behind). Returns (returncode,
+    stdout, stderr)."""
+    proc = popen_interruptible([sys.executable, "-c", script], stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                               text=True)
     try:
         out, err = proc.communicate(timeout=timeout)
     except subprocess.TimeoutExpired:
         out, err = None, None
     finally:
-        try:
-            os.killpg(proc.pid, signal.SIGKILL)
-        except ProcessLookupError:
-            pass
-        proc.wait()
+        kill_group(proc)
     assert out is not None, f"the run did not end within {timeout} s of its Ctrl-C"
     return proc.returncode, out, err
 
