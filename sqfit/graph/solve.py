@@ -192,7 +192,8 @@ def _batch(problem, options):
 
 def _flag_odometry(result, options):
     """Warn when ``result``'s estimate disagrees with the odometry beyond ``batch_odometry_chi2``
-    (``SlamResult.odometry_chi2``): no later step of either method corrects it."""
+    (``SlamResult.odometry_chi2``): the last word of both graph methods on their estimate, after
+    the batch's own fallbacks (a solve again from windows, a run with scaled silhouette noise)."""
     if result.ok and result.odometry_chi2 is not None and result.odometry_chi2 > options.batch_odometry_chi2:
         result.warnings.append(
             f"the estimate disagrees with the odometry (mean chi-square {result.odometry_chi2:.1f} per step, above "
