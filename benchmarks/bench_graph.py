@@ -70,7 +70,8 @@ def _row(method, result, seq):
            "ious_odometry_scale": list(odometry_scale_ious(seq.odometry_poses, seq.true_poses, seq.objects).values()),
            "iou_median": float(np.median(ious)) if ious else float("nan"),
            "objects_failed": int(sum(v < 0.05 for v in ious)),
-           "seconds": result.seconds, "cpu_seconds": result.cpu_seconds, "skipped": len(result.skipped)}
+           "seconds": result.seconds, "cpu_seconds": result.cpu_seconds, "skipped": len(result.skipped),
+           "odometry_chi2": result.odometry_chi2}
     if result.frame_seconds is not None:
         row.update(frame_ms_median=1e3 * float(np.median(result.frame_seconds)),
                    frame_ms_max=1e3 * float(np.max(result.frame_seconds)),
