@@ -207,23 +207,25 @@ def _batch_once(problem, options, scales=None):
     empty when none differs from those given), the third the warning of a solve again from windows
     (None without one)."""
     note = None
-    result, chi2, estimated = _batch_from(problem, options, options.batch_start, scales)
+    result, estimated = _batch_from(problem, options, options.batch_start, scales)
     if not result.ok and options.batch_start == "isam2":
         # iSAM2's undamped Gauss-Newton step met a system it cannot solve (a landmark drifted into
         # 3G's far, huge minimum leaves its variables nearly unconstrained: "Indeterminate linear
         # system"); the windows' Levenberg-Marquardt is damped
-        fallback, _, estimated_windows = _batch_from(problem, options, "windows", scales)
+        fallback, estimated_windows = _batch_from(problem, options, "windows", scales)
         note = f"batch from iSAM2 failed ({result.message}); solved again from windows"
         if fallback.ok:
             result, estimated = fallback, estimated_windows
         else:
             note += f", which failed too ({fallback.message})"
         result.warnings.append(note)
-    elif result.ok and options.batch_start == "isam2" and options.floor_z is not None and chi2 > options.batch_odometry_chi2:
+    elif (result.ok and options.batch_start == "isam2" and options.floor_z is not None
+          and result.odometry_chi2 > options.batch_odometry_chi2):
         # iSAM2's undamped steps ran off (household sequences with a floor): the windows instead
-        fallback, chi2_windows, estimated_windows = _batch_from(problem, options, "windows", scales)
-        note = (f"batch from iSAM2 inconsistent with the odometry (mean chi-square {chi2:.1f} per step, above "
-                f"{options.batch_odometry_chi2}); solved again from windows (chi-square {chi2_windows:.1f})")
+        fallback, estimated_windows = _batch_from(problem, options, "windows", scales)
+        chi2_windows = fallback.odometry_chi2 if fallback.ok else 0.0
+        note = (f"batch from iSAM2 inconsistent with the odometry (mean chi-square {result.odometry_chi2:.1f} per step, "
+                f"above {options.batch_odometry_chi2}); solved again from windows (chi-square {chi2_windows:.1f})")
         if fallback.ok and fallback.error_final < result.error_final:
             result, estimated = fallback, estimated_windows
         note += f", kept the {'windows' if result is fallback else 'iSAM2'} solution"
@@ -241,12 +243,13 @@ def odometry_chi2(graph, values):
 
 def _batch_from(problem, options, start, scales=None):
     """:func:`_batch` from ``start`` (``GraphOptions.batch_start``) with the silhouette noise
-    ``scales``; ``(result, odometry_chi2, scales asked for)`` (:func:`_batch_once`)."""
+    ``scales``; ``(result, scales asked for)`` (:func:`_batch_once`); an ``ok`` result carries its
+    ``odometry_chi2``."""
     clock, n = _Clock(), problem.n_frames
     result = SlamResult("graph", problem.odometry_poses.copy(), skipped=dict(problem.skipped),
                         warnings=list(problem.warnings))
     growth = Growth(problem, options, result, options.batch_pose_noise_refit, scales)
-    chi2, estimated = 0.0, {}
+    estimated = {}
     try:
         if start == "isam2":
             isam, values, rebuilt = _incremental(growth, options, result, batch=True)
@@ -292,13 +295,12 @@ def _batch_from(problem, options, start, scales=None):
     else:
         growth.finish()
         result.error_final = graph.error(values)
-        chi2 = odometry_chi2(graph, values)
         estimated = noise_scales(problem, values, growth.added, options, growth.scales, growth.rays, growth.bounded)
         result.poses, result.objects = pose_matrices(values, n), _objects(values, growth.added, growth.batch.variable)
         result.outline_offsets = _offsets(values, growth.added, options)
-        result.odometry_chi2 = chi2
+        result.odometry_chi2 = odometry_chi2(graph, values)
     result.seconds, result.cpu_seconds = clock.elapsed()
-    return result, chi2, estimated
+    return result, estimated
 
 
 def _windows(growth, options, result):
@@ -376,8 +378,9 @@ def _isam2(problem, options):
         return result
     growth.finish()
     result.iterations = n
-    result.error_final = isam.getFactorsUnsafe().error(estimate)
-    result.odometry_chi2 = odometry_chi2(isam.getFactorsUnsafe(), estimate)
+    factors = isam.getFactorsUnsafe()
+    result.error_final = factors.error(estimate)
+    result.odometry_chi2 = odometry_chi2(factors, estimate)
     _flag_odometry(result, options)
     result.poses, result.objects = pose_matrices(estimate, n), _objects(estimate, sorted(growth.added), growth.batch.variable)
     result.outline_offsets = _offsets(estimate, sorted(growth.added), options)

@@ -96,7 +96,7 @@ def table_markdown(summary):
             f"{'–' if change is None else format(100 * change, '+.0f') + ' %'} | {_f(s['ate_se3_m']['median'])} | "
             f"{_f(s['rpe_m']['median'], '.4f')} / {_f(s['rpe_deg']['median'], '.2f')} | "
             f"{_f(iou['median'])} ({_f(iou['mean'])}) | {_f(s['cpu_seconds']['median'], '.2f')} | "
-            f"{_f(s['seconds']['median'], '.2f')} | {_f(frame, '.0f')} | {s['failed']} / {s.get('off_odometry', 0)} / "
+            f"{_f(s['seconds']['median'], '.2f')} | {_f(frame, '.0f')} | {s['failed']} / {s['off_odometry']} / "
             f"{s['missing_objects']} |")
     if summary["warnings"]:
         lines += ["", "Warnings (first 3 per sequence; all in summary.json):"]

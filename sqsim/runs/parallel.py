@@ -155,7 +155,7 @@ def map_unordered(fn, args, *, workers=1, scheduler=None, initializer=None, in_f
 
     interrupts = _Interrupts()
     interrupts.install()
-    failed = True
+    finished = False
     try:
         refill()
         while futures:
@@ -166,7 +166,7 @@ def map_unordered(fn, args, *, workers=1, scheduler=None, initializer=None, in_f
                 refill()
                 yield result
                 interrupts.check()
-        failed = False
+        finished = True
     finally:
         try:
             for future in futures:
@@ -177,5 +177,5 @@ def map_unordered(fn, args, *, workers=1, scheduler=None, initializer=None, in_f
                 client.close()
         finally:
             interrupts.restore()
-        if not failed:  # a Ctrl-C during the shutdown of a finished run
+        if finished:  # a Ctrl-C during the shutdown of a run that ended on its own
             interrupts.check()
