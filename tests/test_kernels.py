@@ -114,6 +114,41 @@ def test_ray_minima_agree(kernels, shape, warm, start):
         assert _close(m_k, m_g, 1e-9) and _close(d_k, d_g, 1e-6)
 
 
+#: A slab 20:1:7, e = (0.05, 0.2) (a candidate of 3H's screen on ``paper_trial(3)``): Newton's first
+#: step from the nearest point lands on a coordinate plane of the superquadric, where ``k_z = u_z /
+#: q_z`` is huge; written as ``k_z + wA (K1 - k_z)`` the slope there lost every digit to cancellation
+#: (0 or noise), the bracket was cut on its sign and 12 of the 48 rays stopped far above their minimum.
+SLAB = [9.308153150586058, 0.4654076575293029, 3.306392722792937, 0.05, 0.2, -0.7566926242216431,
+        0.3626094901621303, -3.7140414984906704, 2.9372248604591054, 1.2717452041459227, 0.3900517922112328]
+
+
+@pytest.mark.parametrize("start", line_gauge.STARTS)
+def test_ray_minima_of_a_slab_whose_newton_steps_hit_its_planes(kernels, start):
+    xi = np.array(SLAB)
+    rays = contour_rays(paper_trial(3).observations, 16)
+    (d_k, m_k), (d_n, m_n) = kernels(lambda: line_gauge.ray_minima(xi, rays.origins, rays.directions, None, start))
+    assert _close(m_k, m_n, 1e-12)
+    fine = _fine_minima(xi, rays.origins, rays.directions, far=40.0, points=40001)
+    assert np.all(m_k <= fine + 1e-6) and np.all(m_n <= fine + 1e-6)
+
+
+def test_line_slope_on_a_coordinate_plane():
+    # at q_z = 0 (and q_y = 0) the slope of log g is the other coordinates' alone, not NaN or 0
+    q0 = np.array([[0.7, 0.7, 0.7], [0.2, 0.0, 0.2], [0.0, 0.3, 1e-17]])  # (3, n): x, y, z rows
+    u = np.array([[1.0, 1.0, 1.0], [0.5, 0.5, 0.5], [0.3, 0.3, 0.3]])
+    e1, e2 = 0.1, 0.4
+    _, lg1, lg2 = line_gauge._line_log_gauge(q0.copy(), u, np.zeros(3), e1, e2)
+    assert np.all(np.isfinite(lg1)) and np.all(np.isfinite(lg2))
+    h = 1e-6  # central differences of log g, away from the plane on both sides
+    up = line_gauge._line_log_gauge(q0.copy(), u, np.full(3, h), e1, e2)[0]
+    down = line_gauge._line_log_gauge(q0.copy(), u, np.full(3, -h), e1, e2)[0]
+    np.testing.assert_allclose(lg1, (up - down) / (2 * h), rtol=1e-4, atol=1e-6)
+    from sqfit.fitting import ray_kernels
+    for i in range(3):
+        k1, k2 = ray_kernels._line_slope(*q0[:, i], *u[:, i], 0.0, e1, e2)
+        assert np.isclose(k1, lg1[i], rtol=1e-9, atol=1e-12) and np.isclose(k2, lg2[i], rtol=1e-9, atol=1e-12)
+
+
 def test_ray_minima_reject_an_unknown_start():
     with pytest.raises(ValueError, match="start must be one of"):
         line_gauge.ray_minima(_xi(SHAPES[0], np.random.default_rng(0)), np.zeros((1, 3)), np.ones((1, 3)), None, "middle")

@@ -51,20 +51,33 @@ def _line_log_gauge(q0, u, d, e1, e2):
     s = np.log(np.abs(q))
     k = u / q
     dx = p2 * (s[0] - s[1])
-    # softmax weight of x in the x-y log-sum-exp, and that log-sum-exp, without overflow
-    wx = 0.5 * (1.0 + np.tanh(0.5 * dx))
-    XY = p2 * np.maximum(s[0], s[1]) + np.log1p(np.exp(-np.abs(dx)))
+    # softmax weights of x and y in the x-y log-sum-exp, and that log-sum-exp, without overflow
+    t = np.exp(-np.abs(dx))
+    wx, wy = _weights(dx, t)
+    XY = p2 * np.maximum(s[0], s[1]) + np.log1p(t)
     A, Bz = (p1 / p2) * XY, p1 * s[2]
     dA = A - Bz
-    wA = 0.5 * (1.0 + np.tanh(0.5 * dA))
-    L = np.maximum(A, Bz) + np.log1p(np.exp(-np.abs(dA)))
-    wB = 1.0 - wA
+    t = np.exp(-np.abs(dA))
+    wA, wB = _weights(dA, t)
+    L = np.maximum(A, Bz) + np.log1p(t)
     kx, ky, kz = k
-    K1 = ky + wx * (kx - ky)
-    K2 = ky * ky + wx * (kx * kx - ky * ky)
-    lg1 = kz + wA * (K1 - kz)
-    lg2 = wA * ((p2 - 1.0) * K2 - p2 * K1 * K1) - wB * kz * kz + p1 * wA * wB * (K1 - kz) ** 2
+    # each k_j times its weight, never as k_y + w_x (k_x - k_y): near a coordinate plane (q_j -> 0,
+    # where Newton's step on a term log|q_j| lands) k_j is huge while its weight vanishes, and that
+    # form cancelled every digit of the slope, whose sign then cut the ray's bracket
+    cx, cy, cz = wx * kx, wy * ky, wB * kz
+    K1 = cx + cy
+    K2 = cx * kx + cy * ky
+    lg1 = wA * K1 + cz
+    lg2 = wA * ((p2 - 1.0) * K2 - p2 * K1 * K1) - cz * kz + p1 * wA * (wB * K1 - cz) * (K1 - kz)
     return L / p1, lg1, lg2
+
+
+def _weights(x, t):
+    """The two weights ``1 / (1 + exp(-x))`` and ``1 / (1 + exp(x))`` of a two-term softmax, with ``t =
+    exp(-|x|)``: each computed on its own (not one as ``1 -`` the other), so the smaller keeps its
+    digits where it is tiny."""
+    big, small = 1.0 / (1.0 + t), t / (1.0 + t)
+    return np.where(x >= 0, big, small), np.where(x >= 0, small, big)
 
 
 def ray_minima(xi, origins, directions, d0=None, start="grid"):

@@ -87,22 +87,24 @@ def _line_value(q0x, q0y, q0z, ux, uy, uz, d, e1, e2):
 @njit(**_JIT)
 def _line_slope(q0x, q0y, q0z, ux, uy, uz, d, e1, e2):
     """First and second derivative in ``d`` of ``log g`` along a line (``sqfit.fitting.line_gauge._line_log_gauge``;
-    its softmax weights ``0.5 (1 + tanh(x / 2))`` written as ``1 / (1 + exp(-x))``, sharing the
-    exponential with the log-sum-exp)."""
+    its softmax weights and their complements each as ``1 / (1 + t)`` or ``t / (1 + t)``, sharing the
+    exponential ``t`` with the log-sum-exp, and each term as weight times ``k``: see there)."""
     sx, sy, sz, kx, ky, kz = _logs(q0x, q0y, q0z, ux, uy, uz, d)
     p1, p2 = 2.0 / e1, 2.0 / e2
     dx = p2 * (sx - sy)
     t = math.exp(-abs(dx))
-    wx = 1.0 / (1.0 + t) if dx >= 0 else t / (1.0 + t)
+    big, small = 1.0 / (1.0 + t), t / (1.0 + t)
+    wx, wy = (big, small) if dx >= 0 else (small, big)
     XY = p2 * nan_max(sx, sy) + math.log1p(t)
     dA = (p1 / p2) * XY - p1 * sz
     t = math.exp(-abs(dA))
-    wA = 1.0 / (1.0 + t) if dA >= 0 else t / (1.0 + t)
-    wB = 1.0 - wA
-    K1 = ky + wx * (kx - ky)
-    K2 = ky * ky + wx * (kx * kx - ky * ky)
-    lg1 = kz + wA * (K1 - kz)
-    lg2 = wA * ((p2 - 1.0) * K2 - p2 * K1 * K1) - wB * kz * kz + p1 * wA * wB * (K1 - kz) ** 2
+    big, small = 1.0 / (1.0 + t), t / (1.0 + t)
+    wA, wB = (big, small) if dA >= 0 else (small, big)
+    cx, cy, cz = wx * kx, wy * ky, wB * kz
+    K1 = cx + cy
+    K2 = cx * kx + cy * ky
+    lg1 = wA * K1 + cz
+    lg2 = wA * ((p2 - 1.0) * K2 - p2 * K1 * K1) - cz * kz + p1 * wA * (wB * K1 - cz) * (K1 - kz)
     return lg1, lg2
 
 
