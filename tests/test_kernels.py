@@ -132,23 +132,6 @@ def test_ray_minima_of_a_slab_whose_newton_steps_hit_its_planes(kernels, start):
     assert np.all(m_k <= fine + 1e-6) and np.all(m_n <= fine + 1e-6)
 
 
-def test_line_slope_on_a_coordinate_plane():
-    # at q_z = 0 (and q_y = 0) the slope of log g is the other coordinates' alone, not NaN or 0
-    q0 = np.array([[0.7, 0.7, 0.7], [0.2, 0.0, 0.2], [0.0, 0.3, 1e-17]])  # (3, n): x, y, z rows
-    u = np.array([[1.0, 1.0, 1.0], [0.5, 0.5, 0.5], [0.3, 0.3, 0.3]])
-    e1, e2 = 0.1, 0.4
-    _, lg1, lg2 = line_gauge._line_log_gauge(q0.copy(), u, np.zeros(3), e1, e2)
-    assert np.all(np.isfinite(lg1)) and np.all(np.isfinite(lg2))
-    h = 1e-6  # central differences of log g, away from the plane on both sides
-    up = line_gauge._line_log_gauge(q0.copy(), u, np.full(3, h), e1, e2)[0]
-    down = line_gauge._line_log_gauge(q0.copy(), u, np.full(3, -h), e1, e2)[0]
-    np.testing.assert_allclose(lg1, (up - down) / (2 * h), rtol=1e-4, atol=1e-6)
-    from sqfit.fitting import ray_kernels
-    for i in range(3):
-        k1, k2 = ray_kernels._line_slope(*q0[:, i], *u[:, i], 0.0, e1, e2)
-        assert np.isclose(k1, lg1[i], rtol=1e-9, atol=1e-12) and np.isclose(k2, lg2[i], rtol=1e-9, atol=1e-12)
-
-
 def test_ray_minima_reject_an_unknown_start():
     with pytest.raises(ValueError, match="start must be one of"):
         line_gauge.ray_minima(_xi(SHAPES[0], np.random.default_rng(0)), np.zeros((1, 3)), np.ones((1, 3)), None, "middle")
