@@ -129,3 +129,26 @@ print(signal.getsignal(signal.SIGINT) is signal.SIG_IGN)
 """
     code, out, err = _run_script(script)
     assert code == 0 and out.split() == ["True", "handled", "raised", "True", "True"], err
+
+
+def test_a_pending_ctrl_c_does_not_replace_the_callers_error_when_the_map_is_closed():
+    # Ctrl-C recorded while the caller handles a result, then the caller fails and the map is closed
+    # on the way out: the caller's error is what propagates (a pending Ctrl-C is raised after the
+    # shutdown only of a run that ended on its own), and Python's handler is back
+    script = """
+import signal, time
+from sqsim.runs.parallel import map_unordered
+
+results = map_unordered(time.sleep, ((0.01,) for _ in range(10 ** 6)), workers=2)
+next(results)
+signal.raise_signal(signal.SIGINT)
+try:
+    try:
+        raise ValueError("the caller's error")
+    finally:
+        results.close()
+except BaseException as exc:
+    print(type(exc).__name__, signal.getsignal(signal.SIGINT) is signal.default_int_handler)
+"""
+    code, out, err = _run_script(script)
+    assert code == 0 and out.split() == ["ValueError", "True"], (out, err)

@@ -159,9 +159,9 @@ def map_unordered(fn, args, *, workers=1, scheduler=None, initializer=None, in_f
     try:
         refill()
         while futures:
-            finished, futures = wait(futures, timeout=POLL_S, return_when=FIRST_COMPLETED)
+            done, futures = wait(futures, timeout=POLL_S, return_when=FIRST_COMPLETED)
             interrupts.check()
-            for future in finished:
+            for future in done:
                 result = future.result()
                 refill()
                 yield result
