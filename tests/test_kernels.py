@@ -293,6 +293,32 @@ def test_r_iou_m_agrees(kernels, seed):
     assert np.abs(iou_k - iou_n).max() < 1e-9 and iou_n.max() > 0.3
 
 
+@pytest.mark.parametrize("seed", range(4))
+def test_r_iou_m_of_partly_seen_views_agrees(kernels, seed):
+    # views cut by the image border (the silhouette clipped to the image) and a view with occluding
+    # pixels (left out of intersection and union): the compiled clipping and numpy's
+    from dataclasses import replace
+
+    from sqfit.testing import truncated_trial
+
+    trial = truncated_trial(seed, cut_fraction=0.3, cut_views=2)
+    rng = np.random.default_rng(seed)
+    X = np.stack([trial.gt.to_vector() * np.r_[rng.uniform(0.8, 1.2, 5), np.ones(6)]
+                  + np.r_[np.zeros(5), rng.normal(0.0, 0.1, 6)] for _ in range(4)])
+    view = trial.observations[2]
+    grid = np.stack(np.meshgrid(np.arange(-20.0, 21.0, 2.0), np.arange(-20.0, 21.0, 2.0)), -1).reshape(-1, 2)
+    hidden = grid + np.floor(view.samples.mean(axis=0)) + 0.5  # pixel centres about the mask
+    observations = list(trial.observations[:2]) + [replace(view, hidden=hidden)]
+
+    def score():
+        obs = costs.ObservationSet(observations)
+        assert obs.border_views[:2].all() and obs.occluded_views[2] and not obs.border_views[2]
+        return costs.visible_iou(*costs.silhouettes(X, obs), obs)
+
+    iou_k, iou_n = kernels(score)
+    assert np.abs(iou_k - iou_n).max() < 1e-9 and iou_n.min() > 0.1
+
+
 def _silhouette_kernels():
     """The compiled R-IOU-M kernels, or skip the test (numba not selected)."""
     from sqfit.fitting.backend import compiled
@@ -322,6 +348,30 @@ def test_convex_iou_kernel_on_known_overlaps():
     around = np.array([[-1.0, -1.0], [3.0, -1.0], [3.0, 3.0], [-1.0, 3.0], [-1.0, 3.0]])
     assert np.allclose(iou(np.stack([np.vstack([square, square[:1]]), inner, around])), [1.0, 0.125, 0.25],
                        atol=1e-12)
+
+
+def test_clipped_iou_kernel_on_known_overlaps():
+    # clipped to a 4 x 4 image or not, with hidden pixels, and an invalid silhouette
+    from sqfit.geometry.polygon import MIN_EDGE, half_planes
+    from sqfit.geometry.visible_iou import image_rectangles
+
+    k = _silhouette_kernels()
+    square = np.array([[0.0, 0.0], [2.0, 0.0], [2.0, 2.0], [0.0, 2.0]])
+    half = np.array([[0.0, 0.0], [1.0, 0.0], [1.0, 2.0], [0.0, 2.0]])  # inside the image, area 2
+    targets = np.stack([half, half, square, square])
+    frames = image_rectangles(np.full((4, 2), 4.0))
+    nr, cross_r, _ = half_planes(frames)
+    S = np.stack([square - [1.0, 0.0], square - [1.0, 0.0], square, square])[None]  # the first two half outside
+
+    def iou(clip, hidden_inter, hidden_union, valid=(True, True, True, False)):
+        return k.clipped_iou(np.ascontiguousarray(S), np.array([valid]), targets, *half_planes(targets), frames, nr,
+                             cross_r, np.array(clip), np.array([hidden_inter], dtype=float),
+                             np.array([hidden_union], dtype=float), MIN_EDGE)[0]
+
+    # clipped: S n R is the target (1); not clipped: 2 / 4; hidden 1 px in both: 3 / 3; in the
+    # intersection only: 3 / 4; not valid: 0
+    assert np.allclose(iou([True, False, False, False], [0, 0, 1, 0], [0, 0, 1, 0]), [1.0, 0.5, 1.0, 0.0], atol=1e-12)
+    assert np.allclose(iou([True, False, False, False], [0, 0, 1, 0], [0, 0, 0, 0]), [1.0, 0.5, 0.75, 0.0], atol=1e-12)
 
 
 def test_convex_hull_kernel():

@@ -82,6 +82,8 @@ class ObservationSet:
         Views whose outline has ``border`` labels (the R-IOU there counts only the image).
     frames : (v, 4, 2) float
         Image rectangle of each view (:func:`sqfit.geometry.visible_iou.image_rectangles`).
+    frame_planes : tuple
+        Their :func:`sqfit.geometry.polygon.half_planes`.
     occluded_views : (v,) bool
         Views with pixels that may hide the object (``Observation.hidden`` not empty).
     """
@@ -95,6 +97,7 @@ class ObservationSet:
     origins: np.ndarray = field(init=False)
     border_views: np.ndarray = field(init=False)
     frames: np.ndarray = field(init=False)
+    frame_planes: tuple = field(init=False)
     occluded_views: np.ndarray = field(init=False)
 
     def __post_init__(self):
@@ -110,6 +113,7 @@ class ObservationSet:
         self.origins = self.centers[self.view_of_sample]
         self.border_views = np.array([bool(np.any(o.contour_labels == BORDER)) for o in obs], dtype=bool)
         self.frames = image_rectangles([(o.camera.intrinsics.width, o.camera.intrinsics.height) for o in obs])
+        self.frame_planes = half_planes(self.frames)
         self.occluded_views = np.array([len(o.hidden) > 0 for o in obs], dtype=bool)
         self._targets = {}
         self._shapes = self._contour_arrays = None
@@ -406,13 +410,23 @@ def visible_iou(polys, valid, obs, polygon="hull", hidden=None):
         cut = np.flatnonzero(obs.border_views | obs.occluded_views)
         clip = obs.border_views[cut]
         hi, hu = (np.broadcast_to(h, (len(polys), len(cut))) for h in hidden)
+    iou = iou.copy()
+    if kernels is not None:  # the same clipping, compiled
+        f64 = np.float64
+        nr, cross_r, _ = obs.frame_planes
+        iou[:, cut] = kernels.clipped_iou(
+            np.ascontiguousarray(polys[:, cut], dtype=f64), np.ascontiguousarray(valid[:, cut]),
+            np.ascontiguousarray(targets[cut], dtype=f64), *(np.ascontiguousarray(p[cut], dtype=f64) for p in planes),
+            np.ascontiguousarray(obs.frames[cut]), np.ascontiguousarray(nr[cut]), np.ascontiguousarray(cross_r[cut]),
+            np.ascontiguousarray(clip), np.ascontiguousarray(hi, dtype=f64), np.ascontiguousarray(hu, dtype=f64),
+            MIN_EDGE)
+        return iou
     if convex:
         clipped = clipped_convex_iou_jacobian(polys[:, cut], targets[None, cut], obs.frames[None, cut],
                                               tuple(p[cut] for p in planes), clip=clip,
                                               hidden_inter=hi, hidden_union=hu)[0]
     else:
         clipped = contour_ious(polys, valid, obs, cut, clip, hi, hu)
-    iou = iou.copy()
     iou[:, cut] = np.where(valid[:, cut] & np.isfinite(clipped), clipped, 0.0)
     return iou
 

@@ -13,6 +13,9 @@ compute the same numbers per view and per vertex:
   tolerance (1e-7 px; tested to 1e-6 px) and a score no longer depends on the batch it is in;
 - :func:`convex_iou` is :func:`~sqfit.geometry.polygon.convex_overlap`'s IoU (Cyrus-Beck clipping of
   both boundaries, Green's theorem), with the same tie rules for shared and degenerate edges;
+- :func:`clipped_iou` is :func:`sqfit.geometry.visible_iou.clipped_convex_iou_jacobian`'s IoU (the
+  views cut by the image border or with occluding pixels: the silhouette clipped to the image,
+  the hidden pixels left out), from the same clipping;
 - :func:`convex_hull` is Andrew's monotone chain, counter-clockwise without collinear vertices: the
   polygon qhull returns for ``sqfit.fitting.costs``' hull observations, maybe from another first vertex;
 - :func:`hidden_counts` is :func:`sqfit.geometry.visible_iou.hidden_counts` (the occluding pixels
@@ -39,7 +42,7 @@ from numba import njit
 
 from .ray_kernels import nan_max, nan_min
 
-__all__ = ["silhouettes", "convex_iou", "convex_hull", "hidden_counts", "points_in_convex", "contour_overlaps"]
+__all__ = ["silhouettes", "convex_iou", "clipped_iou", "convex_hull", "hidden_counts", "points_in_convex", "contour_overlaps"]
 
 _TINY = 1e-300
 _JIT = dict(cache=True, error_model="numpy", nogil=True)
@@ -219,6 +222,16 @@ def silhouettes(xi, R_sq, rotations, centers, intrinsics, k, tol, max_newton, zn
 def _overlap(S, Q, nq, cross_q, area_q, min_edge, lo_q, hi_q):
     """IoU of one convex CCW polygon ``S`` ``(k, 2)`` with ``Q`` ``(m, 2)`` (half-planes ``nq``,
     shoelace terms ``cross_q``, area ``area_q``); ``lo_q``, ``hi_q`` ``(m,)`` are scratch."""
+    inter, area2_s = _overlap_area(S, Q, nq, cross_q, min_edge, lo_q, hi_q)
+    union = 0.5 * area2_s + area_q - inter
+    iou = inter / union if union > 0 else 0.0
+    return nan_min(nan_max(iou, 0.0), 1.0) if np.isfinite(iou) else 0.0
+
+
+@njit(**_JIT)
+def _overlap_area(S, Q, nq, cross_q, min_edge, lo_q, hi_q):
+    """``(area of S n Q, twice the area of S)`` of one convex CCW polygon ``S`` ``(k, 2)`` and ``Q``
+    ``(m, 2)`` (:func:`_overlap`'s arguments)."""
     k, m = S.shape[0], Q.shape[0]
     for j in range(m):
         lo_q[j], hi_q[j] = 0.0, 1.0
@@ -252,10 +265,7 @@ def _overlap(S, Q, nq, cross_q, area_q, min_edge, lo_q, hi_q):
     inter_q = 0.0
     for j in range(m):
         inter_q += nan_max(hi_q[j] - lo_q[j], 0.0) * cross_q[j]
-    inter = 0.5 * (inter_s + inter_q)
-    union = 0.5 * area2_s + area_q - inter
-    iou = inter / union if union > 0 else 0.0
-    return nan_min(nan_max(iou, 0.0), 1.0) if np.isfinite(iou) else 0.0
+    return 0.5 * (inter_s + inter_q), area2_s
 
 
 @njit(**_JIT)
@@ -270,6 +280,35 @@ def convex_iou(polys, valid, targets, nq, cross_q, area_q, min_edge):
         for t in range(v):
             if valid[s, t]:
                 out[s, t] = _overlap(polys[s, t], targets[t], nq[t], cross_q[t], area_q[t], min_edge, lo_q, hi_q)
+    return out
+
+
+@njit(**_JIT)
+def clipped_iou(polys, valid, targets, nq, cross_q, area_q, frames, nr, cross_r, clip, hidden_inter, hidden_union,
+                min_edge):
+    """:func:`sqfit.geometry.visible_iou.clipped_convex_iou_jacobian`'s IoU of the views a fit sees
+    only in part: ``polys`` ``(b, p, k, 2)``, ``valid`` ``(b, p)``, ``targets`` ``(p, m, 2)`` with
+    their half-planes, ``frames`` ``(p, 4, 2)`` the image rectangles with theirs (``nr``,
+    ``cross_r``), ``clip`` ``(p,)`` (clip the silhouette to the image), ``hidden_inter``,
+    ``hidden_union`` ``(b, p)`` -> IoU ``(b, p)``, 0 where not valid or not finite (as
+    :func:`sqfit.fitting.costs.visible_iou` sets it)."""
+    b, p, m = polys.shape[0], polys.shape[1], targets.shape[1]
+    out = np.zeros((b, p))
+    lo_q, hi_q = np.empty(m), np.empty(m)
+    lo_r, hi_r = np.empty(4), np.empty(4)
+    for s in range(b):
+        for t in range(p):
+            if not valid[s, t]:
+                continue
+            inter, area2_s = _overlap_area(polys[s, t], targets[t], nq[t], cross_q[t], min_edge, lo_q, hi_q)
+            if clip[t]:
+                seen, _ = _overlap_area(polys[s, t], frames[t], nr[t], cross_r[t], min_edge, lo_r, hi_r)
+            else:
+                seen = 0.5 * area2_s
+            num = nan_max(inter - hidden_inter[s, t], 0.0)
+            union = seen + area_q[t] - inter - hidden_union[s, t]
+            iou = num / union if union > 0 else 0.0
+            out[s, t] = nan_min(nan_max(iou, 0.0), 1.0) if np.isfinite(iou) else 0.0
     return out
 
 
