@@ -34,6 +34,18 @@ def test_every_paper_chain_runs(trial, chain):
     json.dumps(result.to_dict())
 
 
+def test_score_stages_false_scores_the_result_only():
+    trial = paper_trial(1)
+    full = fit(trial.observations)
+    quick = fit(trial.observations, options={"score_stages": False})
+    assert [s.r_iou_m for s in quick.stages[:-1]] == [None] * (len(quick.stages) - 1)
+    assert all(s.r_iou_m is not None for s in full.stages)
+    assert quick.r_iou_m == quick.stages[-1].r_iou_m == full.r_iou_m
+    assert np.array_equal(quick.superquadric.to_vector(), full.superquadric.to_vector())
+    with pytest.raises(ValueError, match="score_stages"):
+        fit(trial.observations, options={"score_stages": "no"})
+
+
 #: A block of consecutive seeds (not picked to pass): the accuracy tests run over all of them.
 SEEDS = range(10)
 
