@@ -260,6 +260,17 @@ def _perturbed_starts(seed, count=4):
     return trial, X
 
 
+def _truncated_starts(seed, count=4):
+    """A truncated trial (two views cut by the image border) and ``count`` superquadrics near its truth."""
+    from sqfit.testing import truncated_trial
+
+    trial = truncated_trial(seed, cut_fraction=0.3, cut_views=2)
+    rng = np.random.default_rng(seed)
+    X = np.stack([trial.gt.to_vector() * np.r_[rng.uniform(0.8, 1.2, 5), np.ones(6)]
+                  + np.r_[np.zeros(5), rng.normal(0.0, 0.1, 6)] for _ in range(count)])
+    return trial, X
+
+
 @pytest.mark.parametrize("seed", range(6))
 def test_silhouettes_agree(kernels, seed):
     from sqfit.geometry.silhouette import batch_silhouettes
@@ -299,12 +310,7 @@ def test_r_iou_m_of_partly_seen_views_agrees(kernels, seed):
     # pixels (left out of intersection and union): the compiled clipping and numpy's
     from dataclasses import replace
 
-    from sqfit.testing import truncated_trial
-
-    trial = truncated_trial(seed, cut_fraction=0.3, cut_views=2)
-    rng = np.random.default_rng(seed)
-    X = np.stack([trial.gt.to_vector() * np.r_[rng.uniform(0.8, 1.2, 5), np.ones(6)]
-                  + np.r_[np.zeros(5), rng.normal(0.0, 0.1, 6)] for _ in range(4)])
+    trial, X = _truncated_starts(seed)
     view = trial.observations[2]
     grid = np.stack(np.meshgrid(np.arange(-20.0, 21.0, 2.0), np.arange(-20.0, 21.0, 2.0)), -1).reshape(-1, 2)
     hidden = grid + np.floor(view.samples.mean(axis=0)) + 0.5  # pixel centres about the mask
@@ -495,12 +501,7 @@ def test_contour_overlaps_kernel_agrees_with_shapely():
 def test_contour_r_iou_agrees(kernels, seed):
     # stage 3T's R-IOU against the mask contours: the compiled overlaps and shapely's, whole views
     # and views cut by the image border
-    from sqfit.testing import truncated_trial
-
-    trial = truncated_trial(seed, cut_fraction=0.3, cut_views=2)
-    rng = np.random.default_rng(seed)
-    X = np.stack([trial.gt.to_vector() * np.r_[rng.uniform(0.8, 1.2, 5), np.ones(6)]
-                  + np.r_[np.zeros(5), rng.normal(0.0, 0.1, 6)] for _ in range(4)])
+    trial, X = _truncated_starts(seed)
 
     def score():
         obs = costs.ObservationSet(trial.observations)
