@@ -393,9 +393,9 @@ def visible_iou(polys, valid, obs, polygon="hull", hidden=None):
     targets, convex, planes = obs.targets(polygon)
     partial = obs.border_views | obs.occluded_views
     kernels = compiled("silhouettes") if convex else None
-    if kernels is not None:
-        iou = kernels.convex_iou(np.ascontiguousarray(polys, dtype=np.float64), np.ascontiguousarray(valid), targets,
-                                 *planes, MIN_EDGE)
+    if kernels is not None:  # the views seen in part are scored by clipped_iou below, not twice
+        iou = kernels.convex_iou(np.ascontiguousarray(polys, dtype=np.float64), np.ascontiguousarray(valid & ~partial),
+                                 targets, *planes, MIN_EDGE)
     elif convex:
         iou = batch_iou(polys, valid, targets, convex, planes)
     else:
@@ -410,7 +410,6 @@ def visible_iou(polys, valid, obs, polygon="hull", hidden=None):
         cut = np.flatnonzero(obs.border_views | obs.occluded_views)
         clip = obs.border_views[cut]
         hi, hu = (np.broadcast_to(h, (len(polys), len(cut))) for h in hidden)
-    iou = iou.copy()
     if kernels is not None:  # the same clipping, compiled
         f64 = np.float64
         nr, cross_r, _ = obs.frame_planes
@@ -421,6 +420,7 @@ def visible_iou(polys, valid, obs, polygon="hull", hidden=None):
             np.ascontiguousarray(clip), np.ascontiguousarray(hi, dtype=f64), np.ascontiguousarray(hu, dtype=f64),
             MIN_EDGE)
         return iou
+    iou = iou.copy()
     if convex:
         clipped = clipped_convex_iou_jacobian(polys[:, cut], targets[None, cut], obs.frames[None, cut],
                                               tuple(p[cut] for p in planes), clip=clip,
