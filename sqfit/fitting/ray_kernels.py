@@ -85,6 +85,13 @@ def _line_value(q0x, q0y, q0z, ux, uy, uz, d, e1, e2):
 
 
 @njit(**_JIT)
+def _weights(x, t):
+    """``sqfit.fitting.line_gauge._weights`` for one ``x`` (``t = exp(-|x|)``)."""
+    big, small = 1.0 / (1.0 + t), t / (1.0 + t)
+    return (big, small) if x >= 0 else (small, big)
+
+
+@njit(**_JIT)
 def _line_slope(q0x, q0y, q0z, ux, uy, uz, d, e1, e2):
     """First and second derivative in ``d`` of ``log g`` along a line (``sqfit.fitting.line_gauge._line_log_gauge``;
     its softmax weights and their complements each as ``1 / (1 + t)`` or ``t / (1 + t)``, sharing the
@@ -93,13 +100,11 @@ def _line_slope(q0x, q0y, q0z, ux, uy, uz, d, e1, e2):
     p1, p2 = 2.0 / e1, 2.0 / e2
     dx = p2 * (sx - sy)
     t = math.exp(-abs(dx))
-    big, small = 1.0 / (1.0 + t), t / (1.0 + t)
-    wx, wy = (big, small) if dx >= 0 else (small, big)
+    wx, wy = _weights(dx, t)
     XY = p2 * nan_max(sx, sy) + math.log1p(t)
     dA = (p1 / p2) * XY - p1 * sz
     t = math.exp(-abs(dA))
-    big, small = 1.0 / (1.0 + t), t / (1.0 + t)
-    wA, wB = (big, small) if dA >= 0 else (small, big)
+    wA, wB = _weights(dA, t)
     cx, cy, cz = wx * kx, wy * ky, wB * kz
     K1 = cx + cy
     K2 = cx * kx + cy * ky
