@@ -14,7 +14,8 @@ Choice, first match wins:
 3. ``"auto"``: numba when it imports, numpy otherwise.
 
 numba is imported lazily, at the first evaluation that needs it, never by ``import sqfit``; its
-kernels are cached on disk (``cache=True``) so only a process on an empty cache compiles them.
+kernels are cached on disk (``cache=True``) so only a process on an empty cache, or the first after
+a kernel source changed (:mod:`sqfit.fitting.kernel_cache`), compiles them.
 """
 
 from __future__ import annotations

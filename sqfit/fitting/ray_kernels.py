@@ -10,7 +10,9 @@ numpy code does not sum through BLAS, so the two agree to rounding (tests: resid
 Jacobians to 1e-12). No ``fastmath``: it would reorder them.
 
 Importing this module imports numba; :mod:`sqfit.fitting.backend` does that lazily. Every kernel is
-compiled on first use and cached next to this file (``cache=True``). Arrays in are C-contiguous
+compiled on first use and cached next to this file (``cache=True``); the cache of every kernel module
+is cleared when any kernel source changed (:mod:`sqfit.fitting.kernel_cache`: numba's own check sees
+only the file that defines a kernel). Arrays in are C-contiguous
 float64 (``int64`` / ``bool`` where noted), so each kernel compiles one specialisation.
 Constants of the numpy code (bounds, tolerances) are passed in as arguments, never copied here.
 """
@@ -21,6 +23,8 @@ import math
 
 import numpy as np
 from numba import njit
+
+from .kernel_cache import refresh_for
 
 __all__ = ["nan_max", "nan_min", "solve_ray", "gauge_minima", "rotation", "log_gauge_point", "ray_rows", "posed_rows",
            "radial_rows", "g5_rows", "log_gauge_rows", "screen_lm"]
@@ -583,3 +587,8 @@ def screen_lm(X0, origins, directions, weights, kind, iterations, rtol, max_newt
         if not any_active:
             break
     return X, cost
+
+
+# Before any kernel here or in the modules that import from here runs: compiled kernels that call
+# another file's kernels are compiled again when any kernel source changed (sqfit.fitting.kernel_cache).
+refresh_for(nan_max)
