@@ -26,7 +26,7 @@ from numba import njit
 
 from .kernel_cache import refresh_for
 
-__all__ = ["nan_max", "nan_min", "solve_ray", "gauge_minima", "rotation", "log_gauge_point", "ray_rows", "posed_rows",
+__all__ = ["nan_max", "nan_min", "ray_minimiser", "solve_ray", "gauge_minima", "rotation", "log_gauge_point", "ray_rows", "posed_rows",
            "radial_rows", "g5_rows", "log_gauge_rows", "screen_lm"]
 
 _TINY = 1e-300
@@ -118,9 +118,13 @@ def _line_slope(q0x, q0y, q0z, ux, uy, uz, d, e1, e2):
 
 
 @njit(**_JIT)
-def solve_ray(q0x, q0y, q0z, ux, uy, uz, r0x, r0y, r0z, lx, ly, lz, ratio, e1, e2, d0, warm, rtol, max_newton,
-               max_warm, grid, znear, warm_bracket, newton_power):
-    """Minimiser ``d`` and ``log g`` there of one ray; see :func:`sqfit.fitting.line_gauge.ray_minima`."""
+def ray_minimiser(q0x, q0y, q0z, ux, uy, uz, r0x, r0y, r0z, lx, ly, lz, ratio, e1, e2, d0, warm, rtol, max_newton,
+                  max_warm, grid, znear, warm_bracket, newton_power):
+    """Minimiser ``d`` of ``log g`` along one ray; see :func:`sqfit.fitting.line_gauge.ray_minima`.
+
+    The residual kernels (:func:`ray_rows`, :func:`posed_rows`, ``view_kernels.silhouette_rows``)
+    evaluate the gauge at ``d`` themselves, with its derivatives: :func:`solve_ray`'s value there
+    would cost them a seventh of each ray's logarithms and exponentials for nothing."""
     bb = lx * lx + ly * ly + lz * lz
     dc = -(r0x * lx + r0y * ly + r0z * lz) / bb
     cx, cy, cz = r0x + dc * lx, r0y + dc * ly, r0z + dc * lz
@@ -178,6 +182,15 @@ def solve_ray(q0x, q0y, q0z, ux, uy, uz, r0x, r0y, r0z, lx, ly, lz, ratio, e1, e
         if not (dx > tol and hi - lo > tol and budget > it):
             break
         dd = new
+    return d
+
+
+@njit(**_JIT)
+def solve_ray(q0x, q0y, q0z, ux, uy, uz, r0x, r0y, r0z, lx, ly, lz, ratio, e1, e2, d0, warm, rtol, max_newton,
+              max_warm, grid, znear, warm_bracket, newton_power):
+    """Minimiser ``d`` and ``log g`` there of one ray (:func:`ray_minimiser`, then the value)."""
+    d = ray_minimiser(q0x, q0y, q0z, ux, uy, uz, r0x, r0y, r0z, lx, ly, lz, ratio, e1, e2, d0, warm, rtol, max_newton,
+                      max_warm, grid, znear, warm_bracket, newton_power)
     return d, _line_value(q0x, q0y, q0z, ux, uy, uz, d, e1, e2)
 
 
@@ -389,8 +402,8 @@ def _ray_block(xi, origins, directions, weights, kind, d0, warm, rtol, max_newto
         lx = bx * R[0, 0] + by * R[1, 0] + bz * R[2, 0]
         ly = bx * R[0, 1] + by * R[1, 1] + bz * R[2, 1]
         lz = bx * R[0, 2] + by * R[1, 2] + bz * R[2, 2]
-        di, _ = solve_ray(r0x / ax, r0y / ay, r0z / az, lx / ax, ly / ay, lz / az, r0x, r0y, r0z, lx, ly, lz, ratio,
-                           xi[3], xi[4], d0[i] if warm else 0.0, warm, rtol, max_newton, max_warm, grid, znear,
+        di = ray_minimiser(r0x / ax, r0y / ay, r0z / az, lx / ax, ly / ay, lz / az, r0x, r0y, r0z, lx, ly, lz,
+                           ratio, xi[3], xi[4], d0[i] if warm else 0.0, warm, rtol, max_newton, max_warm, grid, znear,
                            warm_bracket, newton_power)
         d[i] = di
         log_m = log_gauge_point(xi, log_a, R, dR, origins[i, 0] + di * bx, origins[i, 1] + di * by,

@@ -4,7 +4,7 @@
 outline offset: for ``k`` factors (a camera pose, a landmark pose and a size/shape vector each) and
 ``n`` camera-frame rays per factor, the 3G ray residuals and their Jacobians with respect to the
 camera pose, the landmark pose and the size/shape vector, each ray solved by
-:func:`sqfit.fitting.ray_kernels.solve_ray` and its gauge differentiated by
+:func:`sqfit.fitting.ray_kernels.ray_minimiser` and its gauge differentiated by
 :func:`sqfit.fitting.ray_kernels.log_gauge_point`, in one loop. The numpy code evaluates the same
 formulas through a dozen vectorised calls (einsums, stackings, a Jacobian call per distinct shape),
 whose overhead on a graph's few thousand rays was two thirds of an evaluation; here one call. The
@@ -22,7 +22,7 @@ import math
 import numpy as np
 from numba import njit
 
-from .ray_kernels import log_gauge_point, nan_max, nan_min, rotation, solve_ray
+from .ray_kernels import log_gauge_point, nan_max, nan_min, ray_minimiser, rotation
 
 __all__ = ["silhouette_rows"]
 
@@ -78,9 +78,9 @@ def silhouette_rows(T_world_camera, T_world_sq, shape, directions, weights, hing
             lx = R_sc[0, 0] * bx + R_sc[0, 1] * by + R_sc[0, 2] * bz
             ly = R_sc[1, 0] * bx + R_sc[1, 1] * by + R_sc[1, 2] * bz
             lz = R_sc[2, 0] * bx + R_sc[2, 1] * by + R_sc[2, 2] * bz
-            di, _ = solve_ray(t_sc[0] / ax, t_sc[1] / ay, t_sc[2] / az, lx / ax, ly / ay, lz / az, t_sc[0], t_sc[1],
-                              t_sc[2], lx, ly, lz, ratio, e1, e2, 0.0, False, rtol, max_newton, max_warm, grid, znear,
-                              warm_bracket, newton_power)
+            di = ray_minimiser(t_sc[0] / ax, t_sc[1] / ay, t_sc[2] / az, lx / ax, ly / ay, lz / az, t_sc[0], t_sc[1],
+                               t_sc[2], lx, ly, lz, ratio, e1, e2, 0.0, False, rtol, max_newton, max_warm, grid, znear,
+                               warm_bracket, newton_power)
             d[f, i] = di
             yx, yy, yz = t_sc[0] + di * lx, t_sc[1] + di * ly, t_sc[2] + di * lz
             log_m = log_gauge_point(xi, log_a, R0, dR0, yx, yy, yz, d_xi, d_g3, d_point)
