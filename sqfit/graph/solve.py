@@ -22,8 +22,9 @@ Methods (every one returns a :class:`sqfit.graph.problem.SlamResult`):
   odometry); then the re-fit of landmarks in poor minima, the move to the best scale
   (:mod:`sqfit.graph.scale`) and a last solve to ``final_relative_tolerance``, its floor factors at
   ``final_floor_sigma_m`` for the landmarks that fit their masks (``final_floor_misfit``), after
-  which the landmarks are tested again (misfit up to ``misfit_sigma``, and overlap) and, where one
-  is re-fitted, the graph solved once more; with a floor, a solution from iSAM2 far from the
+  which the landmarks are tested again (every landmark's axes, ``axis_check_frames``; overlap; the
+  misfit, up to ``misfit_sigma``, only without the axis test) and, where one changed, the graph
+  solved once more; with a floor, a solution from iSAM2 far from the
   odometry (``batch_odometry_chi2``) is solved again from windows;
 - ``graph-isam2``: the same graph grown frame by frame with iSAM2 (one update per frame; a landmark
   joins once its first frames are enough for its initial fit (``init_frames``, ``init_parallax_deg``),
@@ -54,7 +55,7 @@ from .landmark import N_SHAPE, landmark_to_superquadric
 from .options import GraphOptions
 from .problem import SlamResult, check_inputs, error_line
 from .quadric import initialise_quadric, observation_box, quadric_to_superquadric
-from .refit import object_misfits, refit_landmarks
+from .refit import object_misfits, refit_landmarks, reorient_landmarks
 from .scale import best_scale, rescaled, scale_dependent_factors
 from .schedule import RebuildSchedule
 from .weighting import noise_scales
@@ -277,14 +278,19 @@ def _batch_from(problem, options, start, scales=None):
         cap = options.misfit_sigma if options.misfit_sigma > 0 else np.inf  # 0: no outline is the model's
         for check in (False, True):
             # the last solve moves the poses and far along the scale valley: its landmarks are tested
-            # again as at the rebuilds, at poses no earlier test saw, so without the memory of re-fits
-            # not kept; one it dropped into 3G's far, huge minimum, or that sits in a poorer minimum
-            # than a re-fit finds (misfit above refit_misfit, up to misfit_sigma (cap): above, the
-            # outline is not a superquadric's, and a lower misfit is no better map), is re-fitted and
-            # the graph solved once more
-            if check and not refit_landmarks(problem, values, growth.added, options, result, growth.rays,
-                                             bounded=growth.bounded, misfit_cap=cap):
-                break
+            # again, at poses no earlier test saw, so without the memory of re-fits not kept. Every
+            # landmark's axes are checked whatever its misfit (axis_check_frames; reorient_landmarks);
+            # one the solve dropped into 3G's far, huge minimum is re-fitted; and, without the axis
+            # check, one whose misfit is above refit_misfit (up to misfit_sigma (cap): above, the
+            # outline is not a superquadric's, and a lower misfit is no better map). If any landmark
+            # changed, the graph is solved once more
+            if check:
+                reoriented = reorient_landmarks(problem, values, growth.added, options, result, growth.rays,
+                                                bounded=growth.bounded)
+                if not (refit_landmarks(problem, values, growth.added, options, result, growth.rays,
+                                        bounded=growth.bounded, misfit_cap=cap,
+                                        overlap_only=options.axis_check_frames > 0) or reoriented):
+                    break
             if options.rescale:
                 values = _rescale(graph, values, n, growth.added, silhouettes)
             result.error_initial = graph.error(values)
