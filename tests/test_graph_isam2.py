@@ -302,23 +302,31 @@ def test_a_batch_from_isam2_far_from_the_odometry_is_solved_again_from_windows(m
     assert starts == ["isam2"]
 
 
-@pytest.mark.parametrize("misfit_sigma, cap", [(1.5, 1.5), (0.0, np.inf)])
-def test_the_batch_tests_its_landmarks_again_after_its_last_solve(monkeypatch, seq, misfit_sigma, cap):
-    # the check after the last solve re-fits by misfit (up to misfit_sigma) and by overlap, without
-    # the memory of the re-fits not kept at iSAM2's rebuilds (the last solve moved the poses)
+@pytest.mark.parametrize("misfit_sigma, cap, axes", [(1.5, 1.5, 0), (0.0, np.inf, 0), (1.5, 1.5, 6)])
+def test_the_batch_tests_its_landmarks_again_after_its_last_solve(monkeypatch, seq, misfit_sigma, cap, axes):
+    # the check after the last solve re-fits by overlap, and by misfit (up to misfit_sigma) unless it
+    # tests every landmark's axes (axis_check_frames), without the memory of the re-fits not kept
+    # at iSAM2's rebuilds (the last solve moved the poses)
     calls, real = [], solve.refit_landmarks
+    tested, real_axes = [], solve.reorient_landmarks
 
     def refit_landmarks(*args, **kw):
         calls.append(kw)
         return real(*args, **kw)
 
+    def reorient_landmarks(*args, **kw):
+        tested.append(args[3].axis_check_frames)
+        return real_axes(*args, **kw)
+
     monkeypatch.setattr(solve, "refit_landmarks", refit_landmarks)
-    options = graph.GraphOptions(misfit_sigma=misfit_sigma)
+    monkeypatch.setattr(solve, "reorient_landmarks", reorient_landmarks)
+    options = graph.GraphOptions(misfit_sigma=misfit_sigma, axis_check_frames=axes)
     res = graph.run(seq.intrinsics, seq.odometry_poses, seq.observations, ["graph"], options)["graph"]
     assert res.ok
     last = calls[-1]
-    assert not last.get("overlap_only") and last.get("rejected") is None and last.get("n") is None
+    assert last.get("overlap_only") == (axes > 0) and last.get("rejected") is None and last.get("n") is None
     assert last["misfit_cap"] == cap  # misfit_sigma 0: no landmark's outline is taken for the model's
+    assert tested and set(tested) == {axes}  # called at the check (and a no-op with 0)
     # at the rebuilds, the memory and no cap
     assert all(kw.get("rejected") is not None and "misfit_cap" not in kw for kw in calls if kw.get("n") is not None)
 
