@@ -52,6 +52,8 @@ def test_a_landmark_on_other_axes_is_reoriented_whatever_its_misfit(seq):
     # off, or for a landmark whose factors are bounded (its fit left the grazing cost): untouched
     assert refit.reorient_landmarks(prob, values, list(seq.objects), graph.GraphOptions(axis_check_frames=0), result) == {}
     assert refit.reorient_landmarks(prob, values, [2], options, result, bounded=frozenset({2})) == {}
+    # nor above the check's misfit cap (misfit_sigma: an outline taken for the model's)
+    assert refit.reorient_landmarks(prob, values, [2], options, result, misfit_cap=0.99 * misfit[2]) == {}
     assert not result.warnings
     changed = refit.reorient_landmarks(prob, values, list(seq.objects), options, result)
     assert changed == {2: False}

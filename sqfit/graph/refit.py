@@ -162,7 +162,7 @@ REORIENT_CHAIN = "3G"
 REORIENT_MARGIN = 0.9
 
 
-def reorient_landmarks(problem, values, oids, options, result, rays_cache=None, bounded=frozenset()):
+def reorient_landmarks(problem, values, oids, options, result, rays_cache=None, bounded=frozenset(), misfit_cap=np.inf):
     """The batch's last check of every landmark's axes, without a misfit threshold: stage 3H's
     screen (:func:`sqfit.fitting.axis_screen.batch_levenberg_marquardt` from the landmark and its five
     symmetric re-parametrisations, :func:`sqfit.fitting.axis_screen.axis_candidates`) on up to
@@ -178,7 +178,9 @@ def reorient_landmarks(problem, values, oids, options, result, rays_cache=None, 
     the truth at misfits 0.45-0.55, about the re-fits' threshold of 0.5, so whether a run re-fitted
     it hinged on rounding (docs/slam-history.md, "Issue 23, twenty-first pass"). The screen asks
     every landmark whether another basin of the same cost is lower. Landmarks whose silhouette
-    factors are bounded (``bounded``: their fit left the grazing cost) are not tested. Returns
+    factors are bounded (``bounded``: their fit left the grazing cost) are not tested, nor those whose
+    misfit is above ``misfit_cap`` (as :func:`refit_landmarks`: their outline is taken for the
+    model's, not a poor minimum's, and a lower misfit is no better map). Returns
     ``{oid: whether the new fit left the grazing cost}`` of the landmarks replaced;
     ``axis_check_frames`` 0: none is tested.
     """
@@ -192,6 +194,8 @@ def reorient_landmarks(problem, values, oids, options, result, rays_cache=None, 
     misfits = object_misfits(problem, values, tested, options, rays_cache, bounded, None, most)
     changed = {}
     for oid in tested:
+        if misfits[oid] > misfit_cap:
+            continue
         seen = frames_before(problem, oid, None)
         sq = landmark_to_superquadric(values.atPose3(L(oid)).matrix(), variable.shape(values.atVector(S(oid))))
         screened = observation_set(problem, oid, poses, evenly_spread(seen, options.axis_check_frames))

@@ -279,14 +279,14 @@ def _batch_from(problem, options, start, scales=None):
         for check in (False, True):
             # the last solve moves the poses and far along the scale valley: its landmarks are tested
             # again, at poses no earlier test saw, so without the memory of re-fits not kept. Every
-            # landmark's axes are checked whatever its misfit (axis_check_frames; reorient_landmarks);
+            # landmark's axes are checked up to misfit_sigma (axis_check_frames; reorient_landmarks);
             # one the solve dropped into 3G's far, huge minimum is re-fitted; and, without the axis
             # check, one whose misfit is above refit_misfit (up to misfit_sigma (cap): above, the
             # outline is not a superquadric's, and a lower misfit is no better map). If any landmark
             # changed, the graph is solved once more
             if check:
                 reoriented = reorient_landmarks(problem, values, growth.added, options, result, growth.rays,
-                                                bounded=growth.bounded)
+                                                bounded=growth.bounded, misfit_cap=cap)
                 if not (refit_landmarks(problem, values, growth.added, options, result, growth.rays,
                                         bounded=growth.bounded, misfit_cap=cap,
                                         overlap_only=options.axis_check_frames > 0) or reoriented):
