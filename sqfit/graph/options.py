@@ -194,15 +194,16 @@ class GraphOptions(Options):
         sequence); 0: all its frames.
     axis_check_frames : int
         The batch's check after its last solve first tests every landmark's axes, whatever its
-        misfit (:func:`sqfit.graph.refit.reorient_landmarks`): stage 3H's screen from the landmark
-        and its five symmetric re-parametrisations on up to this many of its frames; where another
-        choice screens lower, 3G from that choice on up to ``refit_max_frames`` frames replaces it
-        if its misfit is lower. The check then re-fits no landmark for its misfit (only for its
-        overlap): those re-fits from scratch had kept 1 of 23 on eight sequences, at 0.13 s per
-        sequence, about what the axis test costs. 0: no axis test, and the check re-fits above
-        ``refit_misfit`` as before. Measured on the evaluation scenes (docs/slam-history.md "Issue
-        23, twenty-first pass"): batch ATE median 0.0061 -> 0.0053 m (seeds 0-3), the largest spread
-        of a sequence's ATE over 3 runs 0.0049 -> 0.0010 m (seeds 4-7), the same CPU.
+        misfit up to ``misfit_sigma`` (:func:`sqfit.graph.refit.reorient_landmarks`): stage 3H's
+        screen from the landmark and its five symmetric re-parametrisations on up to this many of
+        its frames; where another choice screens below 0.9 of its own, 3G from that choice on up
+        to ``refit_max_frames`` frames replaces it if its misfit is lower. The check then re-fits
+        no landmark for its misfit (only for its overlap): those re-fits from scratch had kept 1
+        of 23 on eight sequences, at 0.13 s per sequence, about what the axis test costs. 0: no
+        axis test, and the check re-fits above ``refit_misfit`` as before. Measured on the
+        evaluation scenes (docs/slam-history.md "Issue 23, twenty-first pass"): batch ATE median
+        0.0061 -> 0.0053 m (seeds 0-3), the largest spread of a sequence's ATE over 3 runs
+        0.0049 -> 0.0010 m (seeds 4-7), CPU +2.5-5 %.
     batch_rebuild_refit_misfit : float
         In the batch's iSAM2 start, iSAM2's rebuilds (``isam2_refit``) re-fit a landmark for its
         misfit only above this (for its overlap as always); the batch's re-fit after the start (none
