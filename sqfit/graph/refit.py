@@ -20,8 +20,8 @@ from .landmark import landmark_to_superquadric, left_grazing, superquadric_to_la
 from .problem import observation_at
 from .shapevar import PLAIN, shape_variable
 
-__all__ = ["RETRY_MISFIT", "RETRY_FRAMES", "OVERLAP_FRAMES", "REORIENT_CHAIN", "REORIENT_MARGIN", "refit_landmarks", "reorient_landmarks",
-           "object_misfits", "landmark_overlap", "observation_set", "frames_before"]
+__all__ = ["RETRY_MISFIT", "RETRY_FRAMES", "OVERLAP_FRAMES", "REORIENT_CHAIN", "REORIENT_MARGIN", "refit_landmarks",
+           "reorient_landmarks", "object_misfits", "landmark_overlap", "observation_set", "frames_before"]
 
 
 def object_misfits(problem, values, oids, options, rays_cache=None, bounded=frozenset(), n=None, most=0):
@@ -163,64 +163,69 @@ REORIENT_MARGIN = 0.9
 
 
 def reorient_landmarks(problem, values, oids, options, result, rays_cache=None, bounded=frozenset(), misfit_cap=np.inf):
-    """The batch's last check of every landmark's axes, without a misfit threshold: stage 3H's
+    """The batch's last check of every landmark's axes, without a re-fit threshold: stage 3H's
     screen (:func:`sqfit.fitting.axis_screen.batch_levenberg_marquardt` from the landmark and its five
     symmetric re-parametrisations, :func:`sqfit.fitting.axis_screen.axis_candidates`) on up to
     ``axis_check_frames`` of its frames at the solved poses (evenly spread); where another choice
-    ends lower than the landmark's own, 3H from the landmark (:data:`REORIENT_CHAIN`) on up to
-    ``refit_max_frames`` of them replaces it if its misfit (:func:`object_misfits`) is lower and its
-    silhouettes still overlap the masks. ``values`` is updated in place.
+    ends below :data:`REORIENT_MARGIN` of the landmark's own, 3G from that choice
+    (:data:`REORIENT_CHAIN`) on up to ``refit_max_frames`` of them replaces it if its misfit
+    (:func:`object_misfits`) is lower and its silhouettes still overlap the masks. ``values`` is
+    updated in place.
 
     Why: the graph's landmarks keep the axes their initial fit or re-fit chose, and a wrong choice
-    (the section turned by 45 degrees, ``e2`` about ``2 - e2``; or ``x`` and ``z`` swapped) is a
-    minimum of the whole graph that no solve leaves. Such a landmark's misfit need not be high:
-    on the growth scene its silhouette error was 1.3-2 times that of the same graph solved from
-    the truth at misfits 0.45-0.55, about the re-fits' threshold of 0.5, so whether a run re-fitted
-    it hinged on rounding (docs/slam-history.md, "Issue 23, twenty-first pass"). The screen asks
-    every landmark whether another basin of the same cost is lower. Landmarks whose silhouette
-    factors are bounded (``bounded``: their fit left the grazing cost) are not tested, nor those whose
-    misfit is above ``misfit_cap`` (as :func:`refit_landmarks`: their outline is taken for the
-    model's, not a poor minimum's, and a lower misfit is no better map). Returns
-    ``{oid: whether the new fit left the grazing cost}`` of the landmarks replaced;
-    ``axis_check_frames`` 0: none is tested.
+    (the section turned by 45 degrees, ``e2`` about ``2 - e2``; or two axes swapped) is a minimum of
+    the whole graph that no solve leaves. Such a landmark's misfit need not be high: on the growth
+    scene its silhouette error was 1.3-2 times that of the same graph solved from the truth at
+    misfits 0.45-0.55, about the re-fits' threshold of 0.5, so whether a run re-fitted it hinged on
+    rounding (docs/slam-history.md, "Issue 23, twenty-first pass"). The screen asks every landmark
+    whether another basin of the same cost is lower. Landmarks whose silhouette factors are
+    bounded (``bounded``: their fit left the grazing cost) are not tested, nor those whose misfit
+    is above ``misfit_cap`` (as :func:`refit_landmarks`: their outline is taken for the model's,
+    not a poor minimum's, and a lower misfit is no better map). Returns ``{oid: whether the new
+    fit left the grazing cost}`` of the landmarks replaced; ``axis_check_frames`` 0: none is tested.
     """
-    if options.axis_check_frames <= 0:
-        return {}
-    tested = [oid for oid in oids if oid not in bounded]
+    tested = [oid for oid in oids if oid not in bounded] if options.axis_check_frames > 0 else []
     if not tested:
         return {}
-    poses = pose_matrices(values, problem.n_frames)
-    variable, most = shape_variable(options), options.refit_max_frames
-    misfits = object_misfits(problem, values, tested, options, rays_cache, bounded, None, most)
+    poses, variable = pose_matrices(values, problem.n_frames), shape_variable(options)
+    misfits = object_misfits(problem, values, tested, options, rays_cache, bounded, None, options.refit_max_frames)
     changed = {}
-    for oid in tested:
-        if misfits[oid] > misfit_cap:
+    for oid in (oid for oid in tested if misfits[oid] <= misfit_cap):
+        new = _other_axes(problem, values, oid, poses, options, rays_cache, bounded)
+        if new is None or not new[1] < misfits[oid]:
             continue
-        seen = frames_before(problem, oid, None)
-        sq = landmark_to_superquadric(values.atPose3(L(oid)).matrix(), variable.shape(values.atVector(S(oid))))
-        screened = observation_set(problem, oid, poses, evenly_spread(seen, options.axis_check_frames))
-        ends, costs = batch_levenberg_marquardt(axis_candidates(sq.to_vector()), screen_rays(screened), SCREEN_ITERATIONS)
-        best = int(np.argmin(costs))
-        if not (best > 0 and costs[best] < REORIENT_MARGIN * costs[0]):  # the landmark's own axes hold
-            continue
-        frames = evenly_spread(seen, most)
-        fit = pipeline.fit(observation_set(problem, oid, poses, frames), REORIENT_CHAIN, initial=ends[best],
-                           options={"pose_noise_refit": False, "score_stages": False})
-        if not fit.ok or fit.superquadric is None:
-            continue
+        fit, after, frames = new
         T, shape = superquadric_to_landmark(fit.superquadric)
-        trial = gtsam.Values(values)
-        trial.update(L(oid), gtsam.Pose3(T))
-        trial.update(S(oid), variable.value(shape))
-        after = object_misfits(problem, trial, [oid], options, rays_cache, bounded, None, most)[oid]
-        if not after < misfits[oid]:
-            continue
-        overlap = observation_set(problem, oid, poses, evenly_spread(seen, OVERLAP_FRAMES))
-        if landmark_overlap(trial, oid, overlap, variable) < C.POOR_FIT_R_IOU_M:
-            continue
         values.update(L(oid), gtsam.Pose3(T))
         values.update(S(oid), variable.value(shape))
-        result.warnings.append(f"object {oid}: axes re-chosen from {len(frames)} of its {len(problem.frames[oid])} frames "
+        result.warnings.append(f"object {oid}: axes re-chosen from {frames} of its {len(problem.frames[oid])} frames "
                                f"(misfit {misfits[oid]:.2f} -> {after:.2f})")
         changed[oid] = left_grazing(fit)
     return changed
+
+
+def _other_axes(problem, values, oid, poses, options, rays_cache, bounded):
+    """Landmark ``oid`` on the axes its screen prefers (:func:`reorient_landmarks`): ``(fit, its
+    misfit, frames fitted)``, or None where its own axes screen lowest, the fit failed or its
+    silhouettes leave the masks."""
+    variable, seen = shape_variable(options), frames_before(problem, oid, None)
+    sq = landmark_to_superquadric(values.atPose3(L(oid)).matrix(), variable.shape(values.atVector(S(oid))))
+    screened = observation_set(problem, oid, poses, evenly_spread(seen, options.axis_check_frames))
+    ends, costs = batch_levenberg_marquardt(axis_candidates(sq.to_vector()), screen_rays(screened), SCREEN_ITERATIONS)
+    best = int(np.argmin(costs))
+    if not (best > 0 and costs[best] < REORIENT_MARGIN * costs[0]):  # its own axes hold (or nothing is finite)
+        return None
+    frames = evenly_spread(seen, options.refit_max_frames)
+    fit = pipeline.fit(observation_set(problem, oid, poses, frames), REORIENT_CHAIN, initial=ends[best],
+                       options={"pose_noise_refit": False, "score_stages": False})
+    if not fit.ok or fit.superquadric is None:
+        return None
+    T, shape = superquadric_to_landmark(fit.superquadric)
+    trial = gtsam.Values(values)
+    trial.update(L(oid), gtsam.Pose3(T))
+    trial.update(S(oid), variable.value(shape))
+    overlap = observation_set(problem, oid, poses, evenly_spread(seen, OVERLAP_FRAMES))
+    if landmark_overlap(trial, oid, overlap, variable) < C.POOR_FIT_R_IOU_M:
+        return None
+    after = object_misfits(problem, trial, [oid], options, rays_cache, bounded, None, options.refit_max_frames)[oid]
+    return fit, after, len(frames)
