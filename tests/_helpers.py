@@ -73,3 +73,21 @@ def stage(result, name):
     """The last :class:`sqfit.StageRecord` named ``name`` of a :class:`sqfit.FitResult` (the default chain
     ends in 3R, so 3H's record is not the last one)."""
     return [s for s in result.stages if s.name == name][-1]
+
+
+def graph_values(poses, objects):
+    """``gtsam.Values`` of a superquadric graph: ``X(i)`` at each of ``poses`` (camera -> world) and
+    each object's landmark ``L(j)``, ``S(j)`` at ``objects`` (``{j: sqfit.Superquadric}``)."""
+    import gtsam
+    from gtsam.symbol_shorthand import L, S, X
+
+    from sqfit.graph.landmark import superquadric_to_landmark
+
+    values = gtsam.Values()
+    for i, T in enumerate(poses):
+        values.insert(X(i), gtsam.Pose3(T))
+    for oid, sq in objects.items():
+        T, shape = superquadric_to_landmark(sq)
+        values.insert(L(oid), gtsam.Pose3(T))
+        values.insert(S(oid), shape)
+    return values

@@ -15,6 +15,7 @@ from sqfit.graph.testing import object_ious, position_rmse, synthetic_sequence  
 from sqfit.metrics import iou_3d  # noqa: E402
 from sqfit.testing import polygon_mask  # noqa: E402
 from _numeric import central_difference  # noqa: E402
+from _helpers import graph_values  # noqa: E402
 
 from gtsam.symbol_shorthand import L, Q, S, X  # noqa: E402
 
@@ -464,16 +465,9 @@ def _object_2_in_a_poor_minimum(seq):
     from sqfit.graph import problem as gproblem
 
     prob = gproblem.check_inputs(seq.intrinsics, seq.true_poses, seq.observations)
-    values = gtsam.Values()
-    for i, T in enumerate(seq.true_poses):
-        values.insert(X(i), gtsam.Pose3(T))
-    for oid, sq in seq.objects.items():
-        if oid == 2:
-            sq = sqfit.Superquadric(np.array(sq.size)[[2, 0, 1]], (1.8, 0.2), np.array(sq.position) + 0.15, sq.rotation)
-        T, s = landmark.superquadric_to_landmark(sq)
-        values.insert(L(oid), gtsam.Pose3(T))
-        values.insert(S(oid), s)
-    return prob, values
+    sq = seq.objects[2]
+    poor = sqfit.Superquadric(np.array(sq.size)[[2, 0, 1]], (1.8, 0.2), np.array(sq.position) + 0.15, sq.rotation)
+    return prob, graph_values(seq.true_poses, {**seq.objects, 2: poor})
 
 
 def test_a_landmark_left_in_a_poor_minimum_is_refitted(small):

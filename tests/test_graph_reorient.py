@@ -12,7 +12,8 @@ from sqfit.graph import landmark, problem as gproblem, refit  # noqa: E402
 from sqfit.graph.testing import synthetic_sequence  # noqa: E402
 from sqfit.metrics import iou_3d  # noqa: E402
 
-from gtsam.symbol_shorthand import L, S, X  # noqa: E402
+from gtsam.symbol_shorthand import L, S  # noqa: E402
+from _helpers import graph_values  # noqa: E402
 
 
 @pytest.fixture(scope="module")
@@ -25,16 +26,8 @@ def _with_object_2_turned(seq):
     section is turned by 45 degrees (3H's ``R45`` of the truth: ``e2`` -> ``2 - e2``, the xy sizes the
     section's diagonal radius), the kind of minimum of the graph no solve leaves."""
     prob = gproblem.check_inputs(seq.intrinsics, seq.true_poses, seq.observations)
-    values = gtsam.Values()
-    for i, T in enumerate(seq.true_poses):
-        values.insert(X(i), gtsam.Pose3(T))
-    for oid, sq in seq.objects.items():
-        if oid == 2:
-            sq = sqfit.Superquadric.from_vector(axis_candidates(sq.to_vector())[1])
-        T, s = landmark.superquadric_to_landmark(sq)
-        values.insert(L(oid), gtsam.Pose3(T))
-        values.insert(S(oid), s)
-    return prob, values
+    turned = sqfit.Superquadric.from_vector(axis_candidates(seq.objects[2].to_vector())[1])
+    return prob, graph_values(seq.true_poses, {**seq.objects, 2: turned})
 
 
 def _landmark(values, oid):

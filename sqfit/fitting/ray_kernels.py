@@ -10,10 +10,10 @@ numpy code does not sum through BLAS, so the two agree to rounding (tests: resid
 Jacobians to 1e-12). No ``fastmath``: it would reorder them.
 
 Importing this module imports numba; :mod:`sqfit.fitting.backend` does that lazily. Every kernel is
-compiled on first use and cached next to this file (``cache=True``); the cache of every kernel module
-is cleared when any kernel source changed (:mod:`sqfit.fitting.kernel_cache`: numba's own check sees
-only the file that defines a kernel). Arrays in are C-contiguous
-float64 (``int64`` / ``bool`` where noted), so each kernel compiles one specialisation.
+compiled on first use and cached next to this file (``cache=True``), cleared when any kernel source
+changed (:mod:`sqfit.fitting.kernel_cache`: numba's own check sees only a kernel's own file). Arrays
+in are C-contiguous float64 (``int64`` / ``bool`` where noted), so each kernel compiles one
+specialisation.
 Constants of the numpy code (bounds, tolerances) are passed in as arguments, never copied here.
 """
 
@@ -26,7 +26,7 @@ from numba import njit
 
 from .kernel_cache import refresh_for
 
-__all__ = ["nan_max", "nan_min", "ray_minimiser", "solve_ray", "gauge_minima", "rotation", "log_gauge_point", "ray_rows", "posed_rows",
+__all__ = ["nan_max", "nan_min", "ray_minimiser", "gauge_minima", "rotation", "log_gauge_point", "ray_rows", "posed_rows",
            "radial_rows", "g5_rows", "log_gauge_rows", "screen_lm"]
 
 _TINY = 1e-300
@@ -120,10 +120,8 @@ def _line_slope(q0x, q0y, q0z, ux, uy, uz, d, e1, e2):
 @njit(**_JIT)
 def ray_minimiser(q0x, q0y, q0z, ux, uy, uz, r0x, r0y, r0z, lx, ly, lz, ratio, e1, e2, d0, warm, rtol, max_newton,
                   max_warm, grid, znear, warm_bracket, newton_power):
-    """Minimiser ``d`` of ``log g`` along one ray; see :func:`sqfit.fitting.line_gauge.ray_minima`.
-
-    The residual kernels (:func:`ray_rows`, :func:`posed_rows`, ``view_kernels.silhouette_rows``)
-    evaluate the gauge at ``d`` themselves, with its derivatives: :func:`solve_ray`'s value there
+    """Minimiser ``d`` of ``log g`` along one ray (:func:`sqfit.fitting.line_gauge.ray_minima`); the
+    residual kernels evaluate the gauge there with its derivatives, so returning the value there
     would cost them a seventh of each ray's logarithms and exponentials for nothing."""
     bb = lx * lx + ly * ly + lz * lz
     dc = -(r0x * lx + r0y * ly + r0z * lz) / bb
@@ -186,15 +184,6 @@ def ray_minimiser(q0x, q0y, q0z, ux, uy, uz, r0x, r0y, r0z, lx, ly, lz, ratio, e
 
 
 @njit(**_JIT)
-def solve_ray(q0x, q0y, q0z, ux, uy, uz, r0x, r0y, r0z, lx, ly, lz, ratio, e1, e2, d0, warm, rtol, max_newton,
-              max_warm, grid, znear, warm_bracket, newton_power):
-    """Minimiser ``d`` and ``log g`` there of one ray (:func:`ray_minimiser`, then the value)."""
-    d = ray_minimiser(q0x, q0y, q0z, ux, uy, uz, r0x, r0y, r0z, lx, ly, lz, ratio, e1, e2, d0, warm, rtol, max_newton,
-                      max_warm, grid, znear, warm_bracket, newton_power)
-    return d, _line_value(q0x, q0y, q0z, ux, uy, uz, d, e1, e2)
-
-
-@njit(**_JIT)
 def gauge_minima(q0, u, rel0, ul, ratio, e1, e2, d0, warm, rtol, max_newton, max_warm, grid, znear, warm_bracket,
                  newton_power):
     """``sqfit.fitting.line_gauge.gauge_minima``: ``q0``, ``u`` ``(3, n)``; ``rel0``, ``ul`` ``(n, 3)``;
@@ -203,10 +192,11 @@ def gauge_minima(q0, u, rel0, ul, ratio, e1, e2, d0, warm, rtol, max_newton, max
     n = rel0.shape[0]
     d, log_m = np.empty(n), np.empty(n)
     for i in range(n):
-        d[i], log_m[i] = solve_ray(q0[0, i], q0[1, i], q0[2, i], u[0, i], u[1, i], u[2, i], rel0[i, 0], rel0[i, 1],
-                                    rel0[i, 2], ul[i, 0], ul[i, 1], ul[i, 2], ratio[i], e1[i], e2[i],
-                                    d0[i] if warm else 0.0, warm, rtol, max_newton, max_warm, grid, znear,
-                                    warm_bracket, newton_power)
+        d[i] = ray_minimiser(q0[0, i], q0[1, i], q0[2, i], u[0, i], u[1, i], u[2, i], rel0[i, 0], rel0[i, 1],
+                             rel0[i, 2], ul[i, 0], ul[i, 1], ul[i, 2], ratio[i], e1[i], e2[i],
+                             d0[i] if warm else 0.0, warm, rtol, max_newton, max_warm, grid, znear,
+                             warm_bracket, newton_power)
+        log_m[i] = _line_value(q0[0, i], q0[1, i], q0[2, i], u[0, i], u[1, i], u[2, i], d[i], e1[i], e2[i])
     return d, log_m
 
 
@@ -602,6 +592,5 @@ def screen_lm(X0, origins, directions, weights, kind, iterations, rtol, max_newt
     return X, cost
 
 
-# Before any kernel here or in the modules that import from here runs: compiled kernels that call
-# another file's kernels are compiled again when any kernel source changed (sqfit.fitting.kernel_cache).
+# before any kernel here or in the modules importing from here runs (sqfit.fitting.kernel_cache)
 refresh_for(nan_max)
