@@ -127,9 +127,7 @@ def refit_landmarks(problem, values, oids, options, result, rays_cache=None, ove
         landmark = fit.landmark
         if landmark is None:
             continue
-        trial = gtsam.Values(values)
-        trial.update(L(oid), gtsam.Pose3(landmark[0]))
-        trial.update(S(oid), variable.value(landmark[1]))
+        trial = _put_landmark(gtsam.Values(values), oid, landmark, variable)
         after = object_misfits(problem, trial, [oid], options, rays_cache, bounded, n, most)[oid]
         overlap_after = landmark_overlap(trial, oid, tested, variable)
         # a lower misfit is no gain where the re-fit's silhouettes leave the masks (3G's far, huge
@@ -142,8 +140,7 @@ def refit_landmarks(problem, values, oids, options, result, rays_cache=None, ove
             else:
                 rejected[oid] = (before, len(seen))
         if kept:
-            values.update(L(oid), gtsam.Pose3(landmark[0]))
-            values.update(S(oid), variable.value(landmark[1]))
+            _put_landmark(values, oid, landmark, variable)
             result.warnings.append(f"object {oid}: re-initialised from {len(frames)} of its {len(problem.frames[oid])} frames "
                                    f"{'' if n is None else f'(at frame {n}) '}"
                                    f"(misfit {before:.2f} -> {after:.2f}, R-IOU-M {overlap:.2f} -> "
@@ -192,12 +189,12 @@ def reorient_landmarks(problem, values, oids, options, result, rays_cache=None, 
     changed = {}
     for oid in (oid for oid in tested if misfits[oid] <= misfit_cap):
         new = _other_axes(problem, values, oid, poses, options, rays_cache, bounded)
-        if new is None or not new[1] < misfits[oid]:
+        if new is None:
             continue
-        fit, after, frames = new
-        T, shape = superquadric_to_landmark(fit.superquadric)
-        values.update(L(oid), gtsam.Pose3(T))
-        values.update(S(oid), variable.value(shape))
+        fit, landmark, after, frames = new
+        if not after < misfits[oid]:
+            continue
+        _put_landmark(values, oid, landmark, variable)
         result.warnings.append(f"object {oid}: axes re-chosen from {frames} of its {len(problem.frames[oid])} frames "
                                f"(misfit {misfits[oid]:.2f} -> {after:.2f})")
         changed[oid] = left_grazing(fit)
@@ -206,7 +203,7 @@ def reorient_landmarks(problem, values, oids, options, result, rays_cache=None, 
 
 def _other_axes(problem, values, oid, poses, options, rays_cache, bounded):
     """Landmark ``oid`` on the axes its screen prefers (:func:`reorient_landmarks`): ``(fit, its
-    misfit, frames fitted)``, or None where its own axes screen lowest, the fit failed or its
+    landmark (T, shape), its misfit, frames fitted)``, or None where its own axes screen lowest, the fit failed or its
     silhouettes leave the masks."""
     variable, seen = shape_variable(options), frames_before(problem, oid, None)
     sq = landmark_to_superquadric(values.atPose3(L(oid)).matrix(), variable.shape(values.atVector(S(oid))))
@@ -220,12 +217,17 @@ def _other_axes(problem, values, oid, poses, options, rays_cache, bounded):
                        options={"pose_noise_refit": False, "score_stages": False})
     if not fit.ok or fit.superquadric is None:
         return None
-    T, shape = superquadric_to_landmark(fit.superquadric)
-    trial = gtsam.Values(values)
-    trial.update(L(oid), gtsam.Pose3(T))
-    trial.update(S(oid), variable.value(shape))
+    landmark = superquadric_to_landmark(fit.superquadric)
+    trial = _put_landmark(gtsam.Values(values), oid, landmark, variable)
     overlap = observation_set(problem, oid, poses, evenly_spread(seen, OVERLAP_FRAMES))
     if landmark_overlap(trial, oid, overlap, variable) < C.POOR_FIT_R_IOU_M:
         return None
     after = object_misfits(problem, trial, [oid], options, rays_cache, bounded, None, options.refit_max_frames)[oid]
-    return fit, after, len(frames)
+    return fit, landmark, after, len(frames)
+
+
+def _put_landmark(values, oid, landmark, variable):
+    """``values`` with landmark ``oid`` set to ``landmark`` ``(T, shape)`` (in place; returned)."""
+    values.update(L(oid), gtsam.Pose3(landmark[0]))
+    values.update(S(oid), variable.value(landmark[1]))
+    return values
