@@ -407,7 +407,7 @@ def visible_iou(polys, valid, obs, polygon="hull", hidden=None):
     if hidden is None:
         cut, clip, hi, hu = obs.partial_views(polys, polygon)
     else:
-        cut = np.flatnonzero(obs.border_views | obs.occluded_views)
+        cut = np.flatnonzero(partial)
         clip = obs.border_views[cut]
         hi, hu = (np.broadcast_to(h, (len(polys), len(cut))) for h in hidden)
     if kernels is not None:  # the same clipping, compiled
