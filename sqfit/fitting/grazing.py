@@ -67,7 +67,7 @@ __all__ = ["outline_rays", "N_CONTOUR", "BAND_PX", "SMOOTH_PX", "OFFSET_UNIT_PX"
            "at_shape_bound", "pose_noise_estimate", "pose_prior_scale", "offset_groups", "offset_prior",
            "shifted_rays", "describe_values", "describe_offsets", "read_offsets"]
 
-#: Contour points (rays) per view.
+#: Contour points (rays) per view: ``FitOptions.n_contour``'s default.
 N_CONTOUR = 64
 #: 0: grazing residuals on the contour; > 0: inside / outside hinge residuals this many px off it.
 BAND_PX = 0.0
@@ -119,13 +119,13 @@ _RAYS = weakref.WeakKeyDictionary()
 _OFFSET_LABEL = "outline offset [px]"
 
 
-def outline_rays(obs):
+def outline_rays(obs, n_contour=N_CONTOUR):
     """The 3G rays of an :class:`sqfit.fitting.costs.ObservationSet` (cached with it), a
-    :class:`sqfit.views.rays.RaySet`."""
-    key = (N_CONTOUR, BAND_PX, SMOOTH_PX)
+    :class:`sqfit.views.rays.RaySet`: ``n_contour`` per view (``FitOptions.n_contour``)."""
+    key = (int(n_contour), BAND_PX, SMOOTH_PX)
     cached = _RAYS.get(obs)
     if cached is None or cached[0] != key:
-        cached = (key, contour_rays(obs.observations, N_CONTOUR, BAND_PX, smooth_px=SMOOTH_PX))
+        cached = (key, contour_rays(obs.observations, key[0], BAND_PX, smooth_px=SMOOTH_PX))
         _RAYS[obs] = cached
     return cached[1]
 
@@ -173,7 +173,7 @@ def silhouette_fit(state, obs, options, name="3G", plain_first=True, offsets=Non
     ``pose_scale`` given: that prior from the start, in one run (3H's other candidates, compared
     under one prior). Returns a :class:`SilhouetteFit`.
     """
-    rays = outline_rays(obs)
+    rays = outline_rays(obs, options.n_contour)
     xi0 = np.array(state.xi, dtype=np.float64)
     sigma = np.radians(options.pose_sigma_deg)
     offset_sigma = float(options.outline_offset_sigma_px)

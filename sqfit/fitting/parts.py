@@ -72,7 +72,7 @@ def outline_part_stage(state, obs, options):
     new = outline_stage(state, obs, options)
     if np.array_equal(new.xi, state.xi):
         return replace(new, message="3TP: " + new.message)
-    ev = stretches(np.asarray(new.xi, dtype=np.float64), outline_rays(obs), options.penalty_analytic)
+    ev = stretches(np.asarray(new.xi, dtype=np.float64), outline_rays(obs, options.n_contour), options.penalty_analytic)
     detail = f"{ev.stretch} outlier rays in stretches of {ev.views} views"
     if ev.stretch >= PART_RAYS and ev.views >= PART_VIEWS:
         return replace(new, message=f"3TP: {detail}: kept 3T's fit; {new.message}")

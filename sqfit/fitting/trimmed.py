@@ -286,7 +286,7 @@ def _trimmed(state, obs, options, code, hull):
     if state.cost is None or not MIN_COST < state.cost <= TRIGGER_COST:
         cost = "no 3G cost" if state.cost is None else f"3G cost {state.cost:.2e} outside ({MIN_COST:g}, {TRIGGER_COST:g}]"
         return replace(state, message=f"{code}: {cost}: kept the input")
-    rays = outline_rays(obs)
+    rays = outline_rays(obs, options.n_contour)
     pen = options.penalty_analytic
     xi0 = np.array(state.xi, dtype=np.float64)
     before = truncated_cost(xi0, rays, pen)

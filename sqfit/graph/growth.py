@@ -106,7 +106,8 @@ def landmark_fit(obs, options, pose_noise_refit, where):
     (:func:`sqfit.graph.landmark.left_grazing`: its silhouette factors are then bounded,
     ``GraphOptions.mismatch_ray_k``) and its R-IOU-M on ``obs``. ``pose_noise_refit``: the fit's
     option of that name."""
-    res = pipeline.fit(obs, options.init_chain, options={"pose_noise_refit": bool(pose_noise_refit), "score_stages": False})
+    res = pipeline.fit(obs, options.init_chain, options={"pose_noise_refit": bool(pose_noise_refit), "score_stages": False,
+                                                         "n_contour": options.fit_n_contour})
     if not res.ok or res.superquadric is None:
         return LandmarkFit(None, f"initial fit on {where} failed: {res.status}: {res.message}", False, 0.0)
     return LandmarkFit(superquadric_to_landmark(res.superquadric), "", left_grazing(res), float(res.r_iou_m))

@@ -214,7 +214,7 @@ def _other_axes(problem, values, oid, poses, options, rays_cache, bounded):
         return None
     frames = evenly_spread(seen, options.refit_max_frames)
     fit = pipeline.fit(observation_set(problem, oid, poses, frames), REORIENT_CHAIN, initial=ends[best],
-                       options={"pose_noise_refit": False, "score_stages": False})
+                       options={"pose_noise_refit": False, "score_stages": False, "n_contour": options.fit_n_contour})
     if not fit.ok or fit.superquadric is None:
         return None
     landmark = superquadric_to_landmark(fit.superquadric)

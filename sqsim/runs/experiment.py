@@ -299,7 +299,7 @@ def fit_trial(scene_dict, index, chains, limits=None):
                "occlusion_aware": scene.fit.occlusion_aware,
                "outline_offset_sigma_px": scene.fit.outline_offset_sigma_px, "outline_offset": scene.fit.outline_offset,
                "outline_offset_view_sigma_px": scene.fit.outline_offset_view_sigma_px,
-               "size_min_m": scene.fit.size_min_m}
+               "size_min_m": scene.fit.size_min_m, "n_contour": scene.fit.n_contour}
     limit_cache = None
     if scene.experiment.limit:
         from ..world.limit import LimitCache, object_limit

@@ -142,6 +142,7 @@ class FitConfig:
     outline_offset: str = sqfit.FitOptions.outline_offset
     outline_offset_view_sigma_px: float = sqfit.FitOptions.outline_offset_view_sigma_px
     size_min_m: float = sqfit.FitOptions.size_min_m
+    n_contour: int = sqfit.FitOptions.n_contour
 
 
 _CHECKS = {
@@ -172,7 +173,7 @@ _CHECKS = {
             "penalty_analytic": number(0, lo_open=True), "pose_sigma_deg": number(0),
             "occlusion_aware": boolean, "outline_offset_sigma_px": number(0),
             "outline_offset": choice(OUTLINE_OFFSETS), "outline_offset_view_sigma_px": number(0, lo_open=True),
-            "size_min_m": number(0, lo_open=True)},
+            "size_min_m": number(0, lo_open=True), "n_contour": integer(3)},
 }
 _SECTIONS = {"experiment": ExperimentConfig, "camera": CameraConfig, "trajectory": TrajectoryConfig,
              "objects": ObjectsConfig, "masks": MasksConfig, "noise": NoiseConfig, "fit": FitConfig}
