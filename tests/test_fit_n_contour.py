@@ -19,6 +19,19 @@ def trial():
     return paper_trial(0)
 
 
+def _count_rays(monkeypatch):
+    """The rays per view of every outline ray set the silhouette stages make (appended to the list
+    returned) while ``monkeypatch`` holds."""
+    counts, real = [], grazing.contour_rays
+
+    def rays(observations, n_contour=64, *args, **kwargs):
+        counts.append(n_contour)
+        return real(observations, n_contour, *args, **kwargs)
+
+    monkeypatch.setattr(grazing, "contour_rays", rays)
+    return counts
+
+
 def test_the_default_is_64_rays_per_view():
     assert sqfit.FitOptions().n_contour == grazing.N_CONTOUR == 64
 
@@ -38,13 +51,7 @@ def test_outline_rays_has_n_contour_rays_per_view_and_caches_each_count(trial):
 
 
 def test_a_fit_grazes_n_contour_rays_per_view(monkeypatch, trial):
-    counts, real = [], grazing.contour_rays
-
-    def rays(observations, n_contour=64, *args, **kwargs):
-        counts.append(n_contour)
-        return real(observations, n_contour, *args, **kwargs)
-
-    monkeypatch.setattr(grazing, "contour_rays", rays)
+    counts = _count_rays(monkeypatch)
     fits = {}
     for n in (24, 64):
         counts.clear()
@@ -63,13 +70,7 @@ def test_the_scene_key_reaches_the_fits(monkeypatch):
     assert scene.fit.n_contour == 64
     with pytest.raises(ValueError, match=r"fit.n_contour"):
         scene.with_overrides({"fit.n_contour": 2})
-    counts, real = [], grazing.contour_rays
-
-    def rays(observations, n_contour=64, *args, **kwargs):
-        counts.append(n_contour)
-        return real(observations, n_contour, *args, **kwargs)
-
-    monkeypatch.setattr(grazing, "contour_rays", rays)
+    counts = _count_rays(monkeypatch)
     fit_trial(scene.with_overrides({"fit.n_contour": 20, "objects.count": 1}).to_dict(), 0, ["default"])
     assert counts and set(counts) == {20}
 
