@@ -1,5 +1,7 @@
 """Outline rays per view of the silhouette stages: ``FitOptions.n_contour`` (default 64), the scene key
-``fit.n_contour``, and the factor graph's landmark fits on ``GraphOptions.fit_n_contour`` (default the fitter's 64)."""
+``fit.n_contour``, and the factor graph's first landmark fits on ``GraphOptions.fit_n_contour``
+(default the fitter's 64), the batch's re-fits on ``batch_refit_n_contour``
+(default 32)."""
 from pathlib import Path
 
 import numpy as np
@@ -75,25 +77,43 @@ def test_the_scene_key_reaches_the_fits(monkeypatch):
     assert counts and set(counts) == {20}
 
 
-def test_the_graphs_landmark_fits_use_fit_n_contour(monkeypatch):
+def test_the_graphs_first_fits_use_fit_n_contour_and_the_batchs_refits_batch_refit_n_contour(monkeypatch):
     pytest.importorskip("gtsam")
     from sqfit import graph
     from sqfit.fitting import pipeline
+    from sqfit.graph import refit
     from sqfit.graph.testing import synthetic_sequence
 
-    assert graph.GraphOptions().fit_n_contour == sqfit.FitOptions().n_contour == 64
-    with pytest.raises(ValueError, match="fit_n_contour must be an integer >= 3"):
-        graph.GraphOptions(fit_n_contour=2)
-    seq, seen, real = synthetic_sequence(0, n_frames=6, n_objects=2), [], pipeline.fit
+    defaults = graph.GraphOptions()
+    assert defaults.fit_n_contour == sqfit.FitOptions().n_contour == 64 and defaults.batch_refit_n_contour == 32
+    for name in ("fit_n_contour", "batch_refit_n_contour"):
+        with pytest.raises(ValueError, match=f"{name} must be an integer >= 3"):
+            graph.GraphOptions(**{name: 2})
+    seq, seen, inside = synthetic_sequence(0, n_frames=6, n_objects=2), [], []
+    real_fit, real_refit = pipeline.fit, refit.landmark_fit
 
     def fit(observations, chain=None, **kw):
-        seen.append(sqfit.FitOptions.coerce(kw.get("options")).n_contour)
-        return real(observations, chain, **kw)
+        seen.append((bool(inside), sqfit.FitOptions.coerce(kw.get("options")).n_contour))
+        return real_fit(observations, chain, **kw)
+
+    def landmark_refit(*args, **kw):
+        inside.append(True)
+        try:
+            return real_refit(*args, **kw)
+        finally:
+            inside.pop()
 
     monkeypatch.setattr(pipeline, "fit", fit)
-    for options, expected in ((None, 64), ({"fit_n_contour": 20}, 20)):
+    monkeypatch.setattr(refit, "landmark_fit", landmark_refit)
+    # every landmark re-fitted at every chance (misfit thresholds of ~0), iSAM2 rebuilt every 3 frames
+    always = {"refit_misfit": 1e-9, "batch_rebuild_refit_misfit": 1e-9, "isam2_rescale_every": 3,
+              "isam2_rescale_parallax_deg": 0.0}
+    chosen = {**always, "fit_n_contour": 20, "batch_refit_n_contour": 24}
+    # (method, options, rays of the first fits, rays of the re-fits): iSAM2 re-fits on fit_n_contour
+    for method, options, first, again in (("graph", always, 64, 32), ("graph", chosen, 20, 24),
+                                          ("graph-isam2", always, 64, 64), ("graph-isam2", chosen, 20, 20)):
         seen.clear()
-        result = graph.run(seq.intrinsics, seq.odometry_poses, seq.observations, ["graph", "graph-isam2"],
-                           options)
-        assert all(r.ok for r in result.values())
-        assert seen and set(seen) == {expected}, options
+        result = graph.run(seq.intrinsics, seq.odometry_poses, seq.observations, [method], options)[method]
+        assert result.ok
+        assert {n for is_refit, n in seen if not is_refit} == {first}, (method, options)
+        assert {n for is_refit, n in seen if is_refit} == {again}, (method, options)

@@ -99,15 +99,17 @@ def initial_fit(problem, oid, frames, poses, options, pose_noise_refit=True):
     return landmark_fit(obs, options, pose_noise_refit, f"frames {list(frames)}")
 
 
-def landmark_fit(obs, options, pose_noise_refit, where):
+def landmark_fit(obs, options, pose_noise_refit, where, n_contour=None):
     """:func:`sqfit.fit` (chain ``init_chain``) on ``obs`` (observations, or an ObservationSet), as
     a :class:`LandmarkFit`: the landmark ``(T, shape)`` or None and the failure message (naming
     ``where``), whether the fit had to leave the grazing cost
     (:func:`sqfit.graph.landmark.left_grazing`: its silhouette factors are then bounded,
     ``GraphOptions.mismatch_ray_k``) and its R-IOU-M on ``obs``. ``pose_noise_refit``: the fit's
-    option of that name."""
+    option of that name; ``n_contour``: its outline rays per view (None: ``fit_n_contour``, the
+    first fits'; the re-fits pass theirs, :attr:`Growth.refit_n_contour`)."""
+    rays = options.fit_n_contour if n_contour is None else n_contour
     res = pipeline.fit(obs, options.init_chain, options={"pose_noise_refit": bool(pose_noise_refit), "score_stages": False,
-                                                         "n_contour": options.fit_n_contour})
+                                                         "n_contour": rays})
     if not res.ok or res.superquadric is None:
         return LandmarkFit(None, f"initial fit on {where} failed: {res.status}: {res.message}", False, 0.0)
     return LandmarkFit(superquadric_to_landmark(res.superquadric), "", left_grazing(res), float(res.r_iou_m))
@@ -206,11 +208,15 @@ class Growth:
     its silhouette factors, and the landmarks whose first frames have become enough for their
     initial fit (at the current pose estimates; ``pose_noise_refit``: :func:`initial_fit`), or whose
     deferred initial fit (module docstring) is tried again. ``scales``: ``{oid: scale}`` of the
-    landmarks whose silhouette noise is scaled (:mod:`sqfit.graph.weighting`), 1 where absent."""
+    landmarks whose silhouette noise is scaled (:mod:`sqfit.graph.weighting`), 1 where absent.
+    ``refit_n_contour``: the outline rays per view of its landmarks' re-fits
+    (:func:`sqfit.graph.refit.refit_landmarks`; None: ``fit_n_contour``, the ``graph-isam2``
+    method's; the batch passes ``batch_refit_n_contour``)."""
 
-    def __init__(self, problem, options, result, pose_noise_refit=True, scales=None):
+    def __init__(self, problem, options, result, pose_noise_refit=True, scales=None, refit_n_contour=None):
         self.problem, self.options, self.result = problem, options, result
         self.pose_noise_refit = pose_noise_refit
+        self.refit_n_contour = options.fit_n_contour if refit_n_contour is None else int(refit_n_contour)
         self.noise = noise_models(options)
         self.by_frame = {}
         for oid, frames in problem.frames.items():

@@ -72,7 +72,7 @@ OVERLAP_FRAMES = 4
 
 
 def refit_landmarks(problem, values, oids, options, result, rays_cache=None, overlap_only=False, bounded=frozenset(), n=None,
-                    pose_noise_refit=None, rejected=None, misfit_cap=np.inf, misfit_threshold=None):
+                    pose_noise_refit=None, rejected=None, misfit_cap=np.inf, misfit_threshold=None, n_contour=None):
     """Re-initialise the landmarks left in a poor minimum by :func:`sqfit.fit` on all their frames at
     the solved poses: those whose silhouettes disagree (misfit above ``refit_misfit``; a refit is
     kept if its misfit is lower and its R-IOU-M not below ``sqfit.constants.POOR_FIT_R_IOU_M``) and
@@ -96,13 +96,17 @@ def refit_landmarks(problem, values, oids, options, result, rays_cache=None, ove
     for its misfit (its outline taken for the model's, not a poor minimum's; the batch's last check
     passes ``misfit_sigma``, :mod:`sqfit.graph.weighting`), only for its overlap.
     ``misfit_threshold``: the misfit above which a landmark is re-fitted (None: ``refit_misfit``;
-    the batch's iSAM2 rebuilds pass ``batch_rebuild_refit_misfit``); with ``refit_misfit`` 0 none is."""
+    the batch's iSAM2 rebuilds pass ``batch_rebuild_refit_misfit``); with ``refit_misfit`` 0 none is.
+    ``n_contour``: the fits' outline rays per view (None: ``batch_refit_n_contour``; iSAM2 passes
+    its :attr:`sqfit.graph.growth.Growth.refit_n_contour`)."""
     if options.refit_misfit <= 0:
         return {}
     threshold = options.refit_misfit if misfit_threshold is None else misfit_threshold
     poses = pose_matrices(values, problem.n_frames if n is None else n)
     if pose_noise_refit is None:
         pose_noise_refit = options.batch_pose_noise_refit
+    if n_contour is None:
+        n_contour = options.batch_refit_n_contour
     most, variable = options.refit_max_frames, shape_variable(options)
     misfits = {} if overlap_only else object_misfits(problem, values, oids, options, rays_cache, bounded, n, most)
     changed = {}
@@ -123,7 +127,7 @@ def refit_landmarks(problem, values, oids, options, result, rays_cache=None, ove
             continue
         frames = evenly_spread(seen, most)
         fit = landmark_fit(observation_set(problem, oid, poses, frames), options, pose_noise_refit,
-                           f"frames {list(frames)}")
+                           f"frames {list(frames)}", n_contour)
         landmark = fit.landmark
         if landmark is None:
             continue

@@ -249,7 +249,7 @@ def _batch_from(problem, options, start, scales=None):
     clock, n = _Clock(), problem.n_frames
     result = SlamResult("graph", problem.odometry_poses.copy(), skipped=dict(problem.skipped),
                         warnings=list(problem.warnings))
-    growth = Growth(problem, options, result, options.batch_pose_noise_refit, scales)
+    growth = Growth(problem, options, result, options.batch_pose_noise_refit, scales, options.batch_refit_n_contour)
     estimated = {}
     try:
         if start == "isam2":
@@ -457,7 +457,8 @@ def _restarted(factors, estimate, new, params, n, growth, options, result, exc):
     values.insert(new[1])
     graph = growth.refitted(graph, refit_landmarks(growth.problem, values, growth.added, options, result, growth.rays,
                                                    overlap_only=True, bounded=growth.bounded, n=n,
-                                                   pose_noise_refit=growth.pose_noise_refit))
+                                                   pose_noise_refit=growth.pose_noise_refit,
+                                                   n_contour=growth.refit_n_contour))
     values, _ = _lm(graph, values, options)
     fresh = gtsam.ISAM2(params)
     fresh.update(graph, values)
@@ -498,7 +499,7 @@ def _isam2_rescaled(isam, factors, estimate, params, n, growth, options, result,
         threshold = options.batch_rebuild_refit_misfit if batch and options.batch_rebuild_refit_misfit > 0 else None
         refitted = refit_landmarks(growth.problem, moved, growth.added, options, result, growth.rays,
                                    bounded=growth.bounded, n=n, pose_noise_refit=growth.pose_noise_refit,
-                                   rejected=growth.rejected, misfit_threshold=threshold)
+                                   rejected=growth.rejected, misfit_threshold=threshold, n_contour=growth.refit_n_contour)
     graph = growth.refitted(graph, refitted)
     if not refitted and abs(moved.atPose3(X(n - 1)).translation() - estimate.atPose3(X(n - 1)).translation()).max() < 1e-6:
         return isam, estimate, factors
