@@ -91,9 +91,9 @@ def test_a_refit_not_kept_is_retried_only_when_misfit_or_frames_grew(monkeypatch
     options, fits = graph.GraphOptions(), []
     real = refit.landmark_fit
 
-    def worse(obs, opts, pose_noise_refit, where):  # a fit further off than the landmark: not kept
+    def worse(obs, opts, pose_noise_refit, where, n_contour=None):  # a fit further off than the landmark: not kept
         fits.append(where)
-        fit = real(obs, opts, pose_noise_refit, where)
+        fit = real(obs, opts, pose_noise_refit, where, n_contour)
         T, shape = fit.landmark
         T = T.copy()
         T[:3, 3] += 0.5
