@@ -90,10 +90,11 @@ class GraphOptions(Options):
         Default :data:`INIT_CHAIN`.
     fit_n_contour : int
         Outline rays per view of the landmarks' first fits and of the axis check's 3G
-        (``FitOptions.n_contour``), >= 3. Default 64, the fitter's. 32 makes the batch about 6-10 %
-        faster at the same ATE and object IoU on the evaluation scenes, but a household sequence of
-        the unseen seeds then ran off in one run of four and iSAM2's runs spread more than the
-        stability target allows: a first fit is taken as it is (docs/slam-history.md "Issue 23,
+        (``FitOptions.n_contour``), and of every fit of the ``graph-isam2`` method, >= 3. Default
+        64, the fitter's. Every fit on 32 made the batch 6-10 % faster than every fit on 64 at the
+        same ATE and object IoU on the evaluation scenes, but a household sequence of the unseen
+        seeds then ran off in one run of four, and iSAM2's runs spread more than the stability
+        target allows: a first fit is taken as it is (docs/slam-history.md "Issue 23,
         twenty-second pass").
     batch_refit_n_contour : int
         The same for the batch's re-fits (:func:`sqfit.graph.refit.refit_landmarks`: at its iSAM2
