@@ -612,15 +612,9 @@ def test_a_landmark_whose_silhouettes_miss_the_masks_is_refitted(small):
     seq, _ = small
     options = graph.GraphOptions(refit_misfit=1e9)
     prob = gproblem.check_inputs(seq.intrinsics, seq.true_poses, seq.observations)
-    values = gtsam.Values()
-    for i, T in enumerate(seq.true_poses):
-        values.insert(X(i), gtsam.Pose3(T))
-    for oid, sq in seq.objects.items():
-        if oid == 2:  # moved 20 m up: its silhouettes leave the masks
-            sq = sqfit.Superquadric(sq.size, sq.shape, np.array(sq.position) + (0.0, 0.0, 20.0), sq.rotation)
-        T, s = landmark.superquadric_to_landmark(sq)
-        values.insert(L(oid), gtsam.Pose3(T))
-        values.insert(S(oid), s)
+    sq = seq.objects[2]  # moved 20 m up: its silhouettes leave the masks
+    far = sqfit.Superquadric(sq.size, sq.shape, np.array(sq.position) + (0.0, 0.0, 20.0), sq.rotation)
+    values = graph_values(seq.true_poses, {**seq.objects, 2: far})
     overlap = {oid: refit.landmark_overlap(values, oid, refit.observation_set(prob, oid, seq.true_poses, prob.frames[oid]))
                for oid in seq.objects}
     assert overlap[2] < sqfit.constants.POOR_FIT_R_IOU_M < min(overlap[1], overlap[3]), overlap

@@ -13,6 +13,7 @@ from sqfit.graph import landmark, refit, schedule, solve  # noqa: E402
 from sqfit.graph import problem as gproblem  # noqa: E402
 from sqfit.graph.testing import object_ious, position_rmse, synthetic_sequence  # noqa: E402
 from sqfit.metrics import iou_3d  # noqa: E402
+from _helpers import graph_values  # noqa: E402
 
 from gtsam.symbol_shorthand import L, S, X  # noqa: E402
 
@@ -26,15 +27,9 @@ def test_refit_mid_sequence_uses_only_the_frames_so_far(seq):
     # values hold frames 0 .. n-1 only, as iSAM2's estimate at its rebuild after frame n-1
     n = 9
     prob = gproblem.check_inputs(seq.intrinsics, seq.true_poses, seq.observations)
-    values = gtsam.Values()
-    for i in range(n):
-        values.insert(X(i), gtsam.Pose3(seq.true_poses[i]))
-    for oid, sq in seq.objects.items():
-        if oid == 2:  # moved 20 m up: 3G's far minimum, its silhouettes leave the masks
-            sq = sqfit.Superquadric(sq.size, sq.shape, np.array(sq.position) + (0.0, 0.0, 20.0), sq.rotation)
-        T, s = landmark.superquadric_to_landmark(sq)
-        values.insert(L(oid), gtsam.Pose3(T))
-        values.insert(S(oid), s)
+    sq = seq.objects[2]  # moved 20 m up: 3G's far minimum, its silhouettes leave the masks
+    far = sqfit.Superquadric(sq.size, sq.shape, np.array(sq.position) + (0.0, 0.0, 20.0), sq.rotation)
+    values = graph_values(seq.true_poses[:n], {**seq.objects, 2: far})
     result = graph.SlamResult("graph-isam2", seq.true_poses)
     with pytest.raises(RuntimeError):  # all frames: the later poses are not there
         refit.refit_landmarks(prob, gtsam.Values(values), list(seq.objects), graph.GraphOptions(), result)
@@ -74,16 +69,9 @@ def test_isam2_refit_is_checked():
 def _poor_minimum_values(seq, n):
     """Frames 0 .. n-1 at the true poses, the landmarks at the truth but object 2 flat with its
     axes swapped (a high misfit)."""
-    values = gtsam.Values()
-    for i in range(n):
-        values.insert(X(i), gtsam.Pose3(seq.true_poses[i]))
-    for oid, sq in seq.objects.items():
-        if oid == 2:
-            sq = sqfit.Superquadric(np.array(sq.size)[[2, 0, 1]], (1.8, 0.2), np.array(sq.position) + 0.15, sq.rotation)
-        T, s = landmark.superquadric_to_landmark(sq)
-        values.insert(L(oid), gtsam.Pose3(T))
-        values.insert(S(oid), s)
-    return values
+    sq = seq.objects[2]
+    poor = sqfit.Superquadric(np.array(sq.size)[[2, 0, 1]], (1.8, 0.2), np.array(sq.position) + 0.15, sq.rotation)
+    return graph_values(seq.true_poses[:n], {**seq.objects, 2: poor})
 
 
 def test_a_refit_not_kept_is_retried_only_when_misfit_or_frames_grew(monkeypatch, seq):
