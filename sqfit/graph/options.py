@@ -188,7 +188,10 @@ class GraphOptions(Options):
         trajectory's scale and the map's place are fixed only by the odometry and the prior on
         frame 0 (silhouettes are scale-free), so the optimum sits at the end of a long, nearly
         flat valley that Levenberg-Marquardt descends in steps of far less than 0.1 % of the error:
-        1e-3 stops part way, at a point that depends on rounding.
+        1e-3 stops part way, at a point that depends on rounding. Where speed matters more, 1e-4
+        (evaluation scenes, 96 runs beside the default: about 5 % less batch CPU, the same pooled
+        medians of object IoU and ATE, the largest spreads over 3 runs per sequence 0.0023 m / 0.012
+        against 0.0015 m / 0.007; docs/slam-history.md, "Issue 23, twenty-third pass").
     final_max_lambda : float
         Largest Levenberg-Marquardt damping of those last solves, > 0. They start at a solution
         and take near Gauss-Newton steps (accepted at a damping of 1e-6 or less, each success
