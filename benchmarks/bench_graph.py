@@ -80,9 +80,11 @@ def _row(method, result, seq):
     return row
 
 
-def scene_sequence(path, seed, index=0, frames=None):
+def scene_sequence(path, seed, index=0, frames=None, laps=None):
     """Sequence ``index`` of ``seed`` of a sequence scene, with observations as ``sqsim slam`` makes them;
-    ``frames``: the trajectory's frame count instead of the scene's (same path, denser or sparser)."""
+    ``frames``: the trajectory's frame count instead of the scene's (same path, denser or sparser);
+    ``laps``: an orbit's turns instead of the scene's (``trajectory.laps``; with ``frames`` growing as
+    the laps, the same step per frame on a longer run)."""
     from dataclasses import replace
     from types import SimpleNamespace
 
@@ -93,6 +95,10 @@ def scene_sequence(path, seed, index=0, frames=None):
     scene = load_scene(path)
     if frames is not None:
         scene = replace(scene, trajectory=replace(scene.trajectory, frames=int(frames)))
+    if laps is not None:
+        if scene.trajectory.kind != "orbit" or scene.trajectory.arc_deg < 360.0:
+            raise ValueError(f"{path}: laps need an orbit of full turns (trajectory.kind = \"orbit\", arc_deg = 360)")
+        scene = replace(scene, trajectory=replace(scene.trajectory, laps=int(laps)))
     seq = simulate_sequence(scene, seed=seed, index=index)
     rng = np.random.default_rng(child_seed(trial_seed(seed, index), OBSERVATION_STREAM))
     observations = graph.observations_from_instances(seq.intrinsics, seq.odometry_poses, seq.images,
@@ -159,11 +165,16 @@ def main(argv=None):
                         "kept")
     parser.add_argument("--scene-frames", type=int, default=None, help="with --scene: the trajectory's frame "
                         "count instead of the scene's (growth with sequence length)")
+    parser.add_argument("--scene-laps", type=int, default=None, help="with --scene: an orbit's turns instead of "
+                        "the scene's (trajectory.laps); with --scene-frames growing as the laps: growth at the "
+                        "same step per frame, the run longer, each lap revisiting the objects")
     parser.add_argument("--sequences", type=int, default=1, help="with --scene: sequences 0..N-1 of each seed")
     parser.add_argument("--perturb", type=int, default=1, help="runs per sequence with silhouette_sigma scaled by "
                         "1 + k 1e-9, k = 0..N-1: the spread of the results under a negligible change")
     parser.add_argument("--json", default=None)
     args = parser.parse_args(argv)
+    if args.scene_laps is not None and (args.scene_laps < 1 or not args.scene):
+        parser.error(f"--scene-laps must be >= 1 and needs --scene, got {args.scene_laps}")
     for name in ("repeat", "sequences", "perturb"):
         if getattr(args, name) < 1:
             parser.error(f"--{name} must be >= 1, got {getattr(args, name)}")
@@ -174,7 +185,7 @@ def main(argv=None):
     for scene, seed, index in [(scene, seed, index) for scene in (args.scene or [None])
                                for seed in range(args.seed, args.seed + args.seeds)
                                for index in range(args.sequences if scene else 1)]:
-        seq = (scene_sequence(scene, seed, index, args.scene_frames) if scene
+        seq = (scene_sequence(scene, seed, index, args.scene_frames, args.scene_laps) if scene
                else synthetic_sequence(seed, args.frames, args.objects))
         given = base
         if scene:
@@ -192,6 +203,7 @@ def main(argv=None):
                              "views": len(seq.observations),
                              "repeat": args.repeat, **min(runs, key=lambda r: r["cpu_seconds"])})
     at = '' if args.scene_frames is None else f' at {args.scene_frames} frames'
+    at += '' if args.scene_laps is None else f' in {args.scene_laps} laps'
     what = (f"{' + '.join(args.scene)}{at} (sequences 0..{args.sequences - 1} of each seed)" if args.scene
             else f"{args.frames} frames, {args.objects} objects")
     if args.perturb > 1:

@@ -61,6 +61,30 @@ def test_orbit_without_variation_is_the_circle():
                                atol=1e-12)
 
 
+def test_orbit_laps_go_round_again_at_other_distances_and_heights():
+    one = scene(trajectory={"frames": 20})
+    two = scene(trajectory={"frames": 40, "laps": 2})
+    assert one.trajectory.laps == 1 and two.trajectory.laps == 2
+    t1, p1 = sequence_poses(one.trajectory)
+    t2, p2 = sequence_poses(two.trajectory)
+    assert np.allclose(t2, np.arange(40) / 10.0)
+    # the camera's bearing about look_at advances 360 * 2 / 40 = 18 degrees per frame: two turns
+    c1, c2 = p1[:, :3, 3], p2[:, :3, 3]
+    bearing = np.unwrap(np.arctan2(c2[:, 1] - 0.0, c2[:, 0] - 0.0))
+    np.testing.assert_allclose(np.diff(np.degrees(bearing)), 18.0, atol=1e-9)
+    # the first lap passes the bearings of the one-lap orbit, the second lap the same bearings again
+    np.testing.assert_allclose(np.arctan2(c2[:20, 1], c2[:20, 0]), np.arctan2(c1[:, 1], c1[:, 0]), atol=1e-12)
+    np.testing.assert_allclose(np.arctan2(c2[20:, 1], c2[20:, 0]), np.arctan2(c1[:, 1], c1[:, 0]), atol=1e-12)
+    # ... from other places and gazes: a revisit, not the same images again
+    assert np.linalg.norm(c2[20:] - c2[:20], axis=1).max() > 0.5
+    assert angle_deg(np.einsum("kji,kjl->kil", p2[20:, :3, :3], p2[:20, :3, :3])).max() > 5.0
+    r2 = np.hypot(c2[:, 0], c2[:, 1])
+    # radius and height keep their ranges over the whole run
+    assert r2.min() == pytest.approx(4.0, abs=0.05) and r2.max() == pytest.approx(6.0, abs=0.05)
+    # one lap is today's orbit
+    np.testing.assert_array_equal(sequence_poses(scene(trajectory={"frames": 20, "laps": 1}).trajectory)[1], p1)
+
+
 def test_waypoints_interpolate_linearly_and_slerp(tmp_path):
     rows = [[0.0, 0, 0, 1, 0, 0, 0, 1], [2.0, 4, 0, 1, *Rotation.from_euler("z", 90, degrees=True).as_quat()],
             [3.0, 4, 2, 1, *Rotation.from_euler("z", 180, degrees=True).as_quat()]]
@@ -110,6 +134,12 @@ ORBIT_KEYS = {"radius_amplitude": None, "height_amplitude": None, "look_at_wande
     ({"trajectory": {"kind": "waypoints", **ORBIT_KEYS, "waypoints_file": "/nonexistent/x.tum"}},
      r"trajectory\.waypoints_file: TUM file not found"),
     ({"trajectory": {"radius_amplitude": 5.0}}, r"trajectory\.radius_amplitude must be < trajectory\.radius"),
+    ({"trajectory": {"laps": 0}}, r"trajectory\.laps must be >= 1, got 0"),
+    ({"trajectory": {"laps": 1.5}}, r"trajectory\.laps must be an integer"),
+    ({"trajectory": {"laps": 2, "arc_deg": 300.0}}, r"trajectory\.laps > 1 needs full turns \(trajectory\.arc_deg = 360\)"),
+    ({"trajectory": {"kind": "waypoints", **ORBIT_KEYS, "laps": 2,
+                     "waypoints": [[0, 0, 0, 0, 0, 0, 0, 1], [1, 0, 0, 0, 0, 0, 0, 1]]}},
+     r"trajectory\.laps is only used with kind = \"orbit\""),
     ({"trajectory": {"look_at_wander": 4.5}}, r"trajectory\.look_at_wander must be <"),
     ({"noise": {"pose_rotation_deg": 1.0}}, r"noise\.pose_rotation_deg is per-view noise"),
     ({"noise": {"pose_translation_m": 0.1}}, r"noise\.pose_translation_m is per-view noise"),

@@ -72,6 +72,7 @@ class TrajectoryConfig:
     # Sequences only (kind "orbit" or "waypoints"; sqsim.world.trajectory): None = not given.
     frames: int | None = None
     frame_rate_hz: float | None = None
+    laps: int | None = None
     radius_amplitude: float | None = None
     height_amplitude: float | None = None
     look_at_wander: float | None = None
@@ -152,7 +153,7 @@ _CHECKS = {
                "fy": number(0, lo_open=True), "cx": number(), "cy": number()},
     "trajectory": {"kind": choice(TRAJECTORIES), "radius": number(0, lo_open=True), "views": integer(1),
                    "height": number(), "arc_deg": number(0, 360, lo_open=True), "look_at": vector(3),
-                   "start_deg": number(), "frames": integer(2), "frame_rate_hz": number(0, lo_open=True),
+                   "start_deg": number(), "frames": integer(2), "frame_rate_hz": number(0, lo_open=True), "laps": integer(1),
                    "radius_amplitude": number(0), "height_amplitude": number(0), "look_at_wander": number(0),
                    "waypoints": waypoint_rows, "waypoints_file": optional_path},
     "objects": {"count": integer(1), "kind": choice(OBJECT_KINDS), "size": interval(0, lo_open=True),

@@ -5,8 +5,12 @@ Two sequence kinds (``[trajectory] kind``); the multi-view ``circle`` stays in `
 ``orbit``
     ``frames`` cameras going round ``look_at`` over ``arc_deg`` degrees from ``start_deg`` (a
     full turn, ``arc_deg = 360``, does not repeat the first pose), frame ``k`` at time
-    ``k / frame_rate_hz`` seconds. With ``u`` the fraction of the sweep (``k / frames`` for a full
-    turn, ``k / (frames - 1)`` otherwise), the camera is at distance
+    ``k / frame_rate_hz`` seconds; with ``laps = L`` (> 1, full turns only) the camera goes round
+    ``L`` times, ``360 L`` degrees over the ``frames``. With ``u`` the fraction of the sweep
+    (``k / frames`` for full turns, ``k / (frames - 1)`` otherwise; over all laps, so the radius,
+    height and gaze below vary over the whole run as over one turn, and each lap passes the objects
+    at other distances, heights and gazes than the one before: revisits, not repeated images),
+    the camera is at distance
     ``radius + radius_amplitude * sin(2 pi * ORBIT_RADIUS_CYCLES * u)`` from the (wandering)
     centre in the horizontal plane, at height ``height + height_amplitude *
     sin(2 pi * ORBIT_HEIGHT_CYCLES * u)``, and looks at ``look_at + look_at_wander * w(u)`` with
@@ -21,7 +25,7 @@ Two sequence kinds (``[trajectory] kind``); the multi-view ``circle`` stays in `
     spherical linear interpolation (``scipy.spatial.transform.Slerp``) between the two waypoints
     around each timestamp, so a frame at a waypoint's time has that waypoint's pose.
 
-Keys used only by sequences (``frames``, ``frame_rate_hz``, ``*_amplitude``, ``look_at_wander``,
+Keys used only by sequences (``frames``, ``frame_rate_hz``, ``laps``, ``*_amplitude``, ``look_at_wander``,
 ``waypoints``, ``waypoints_file``, ``noise.odometry_*``) are an error on a ``circle`` scene, and the
 per-view ``noise.pose_*`` noise is an error on a sequence scene (sequences get odometry noise,
 ``sqsim.world.odometry``); every message names the key.
@@ -50,7 +54,7 @@ ORBIT_RADIUS_CYCLES, ORBIT_HEIGHT_CYCLES = 2, 3
 #: Vertical extent of the look-at wander, as a fraction of ``look_at_wander``.
 LOOK_AT_WANDER_Z = 0.25
 
-_ORBIT_ONLY = ("frame_rate_hz", "radius_amplitude", "height_amplitude", "look_at_wander")
+_ORBIT_ONLY = ("frame_rate_hz", "laps", "radius_amplitude", "height_amplitude", "look_at_wander")
 _WAYPOINTS_ONLY = ("waypoints", "waypoints_file")
 _SEQUENCE_NOISE = ("odometry_rotation_deg", "odometry_translation_m")
 _VIEW_NOISE = ("pose_rotation_deg", "pose_translation_m")
@@ -114,8 +118,12 @@ def check_sequence_keys(scene):
         for k in _WAYPOINTS_ONLY:
             if getattr(t, k) is not None:
                 raise ValueError(f"{src}: trajectory.{k} is only used with kind = \"waypoints\"")
-        fill.update(frame_rate_hz=t.frame_rate_hz or DEFAULT_FRAME_RATE_HZ, radius_amplitude=t.radius_amplitude or 0.0,
-                    height_amplitude=t.height_amplitude or 0.0, look_at_wander=t.look_at_wander or 0.0)
+        fill.update(frame_rate_hz=t.frame_rate_hz or DEFAULT_FRAME_RATE_HZ, laps=t.laps or 1,
+                    radius_amplitude=t.radius_amplitude or 0.0, height_amplitude=t.height_amplitude or 0.0,
+                    look_at_wander=t.look_at_wander or 0.0)
+        if fill["laps"] > 1 and t.arc_deg < 360.0:
+            raise ValueError(f"{src}: trajectory.laps > 1 needs full turns (trajectory.arc_deg = 360), got "
+                             f"laps = {fill['laps']} with arc_deg = {t.arc_deg}")
         if fill["radius_amplitude"] >= t.radius:
             raise ValueError(f"{src}: trajectory.radius_amplitude must be < trajectory.radius "
                              f"({t.radius}), got {fill['radius_amplitude']}")
@@ -173,10 +181,10 @@ def sequence_poses(trajectory):
 
 def orbit_poses(t):
     """Frames of an ``orbit`` trajectory (module docstring); returns ``(timestamps, poses)``."""
-    n = t.frames
+    n, laps = t.frames, t.laps or 1
     k = np.arange(n)
     u = k / n if t.arc_deg >= 360.0 else k / (n - 1)
-    theta = np.radians(t.start_deg + t.arc_deg * u)
+    theta = np.radians(t.start_deg + t.arc_deg * laps * u)
     two_pi_u = 2 * np.pi * u
     wander = np.stack([np.sin(two_pi_u), np.sin(2 * two_pi_u), LOOK_AT_WANDER_Z * np.sin(3 * two_pi_u)], axis=1)
     targets = np.asarray(t.look_at, dtype=np.float64) + t.look_at_wander * wander
