@@ -61,7 +61,7 @@ def test_orbit_without_variation_is_the_circle():
                                atol=1e-12)
 
 
-def test_orbit_laps_go_round_again_at_other_distances_and_heights():
+def test_orbit_laps_revisit_from_other_places_and_gazes():
     one = scene(trajectory={"frames": 20})
     two = scene(trajectory={"frames": 40, "laps": 2})
     assert one.trajectory.laps == 1 and two.trajectory.laps == 2

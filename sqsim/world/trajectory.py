@@ -8,9 +8,10 @@ Two sequence kinds (``[trajectory] kind``); the multi-view ``circle`` stays in `
     ``k / frame_rate_hz`` seconds; with ``laps = L`` (> 1, full turns only) the camera goes round
     ``L`` times, ``360 L`` degrees over the ``frames``. With ``u`` the fraction of the sweep
     (``k / frames`` for full turns, ``k / (frames - 1)`` otherwise; over all laps, so the radius,
-    height and gaze below vary over the whole run as over one turn, and each lap passes the objects
-    at other distances, heights and gazes than the one before: revisits, not repeated images),
-    the camera is at distance
+    height and gaze below vary over the whole run as over one turn, and no lap passes the objects
+    from the places and gazes of the one before: the gaze's first term never repeats a lap's, and the
+    radius (2 cycles) and the height (3 cycles) never both do: revisits, not repeated images), the
+    camera is at distance
     ``radius + radius_amplitude * sin(2 pi * ORBIT_RADIUS_CYCLES * u)`` from the (wandering)
     centre in the horizontal plane, at height ``height + height_amplitude *
     sin(2 pi * ORBIT_HEIGHT_CYCLES * u)``, and looks at ``look_at + look_at_wander * w(u)`` with
