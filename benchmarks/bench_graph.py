@@ -89,16 +89,15 @@ def scene_sequence(path, seed, index=0, frames=None, laps=None):
     from types import SimpleNamespace
 
     from sqsim.world.scene import child_seed, load_scene, trial_seed
+    from sqsim.world.trajectory import check_sequence_keys
     from sqsim.imaging.sequence import simulate_sequence
     from sqsim.runs.slam import OBSERVATION_STREAM
 
     scene = load_scene(path)
     if frames is not None:
         scene = replace(scene, trajectory=replace(scene.trajectory, frames=int(frames)))
-    if laps is not None:
-        if scene.trajectory.kind != "orbit" or scene.trajectory.arc_deg < 360.0:
-            raise ValueError(f"{path}: laps need an orbit of full turns (trajectory.kind = \"orbit\", arc_deg = 360)")
-        scene = replace(scene, trajectory=replace(scene.trajectory, laps=int(laps)))
+    if laps is not None:  # the scene's own checks: an orbit of full turns
+        scene = check_sequence_keys(replace(scene, trajectory=replace(scene.trajectory, laps=int(laps))))
     seq = simulate_sequence(scene, seed=seed, index=index)
     rng = np.random.default_rng(child_seed(trial_seed(seed, index), OBSERVATION_STREAM))
     observations = graph.observations_from_instances(seq.intrinsics, seq.odometry_poses, seq.images,

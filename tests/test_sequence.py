@@ -70,7 +70,7 @@ def test_orbit_laps_revisit_from_other_places_and_gazes():
     assert np.allclose(t2, np.arange(40) / 10.0)
     # the camera's bearing about look_at advances 360 * 2 / 40 = 18 degrees per frame: two turns
     c1, c2 = p1[:, :3, 3], p2[:, :3, 3]
-    bearing = np.unwrap(np.arctan2(c2[:, 1] - 0.0, c2[:, 0] - 0.0))
+    bearing = np.unwrap(np.arctan2(c2[:, 1], c2[:, 0]))  # look_at is above the origin
     np.testing.assert_allclose(np.diff(np.degrees(bearing)), 18.0, atol=1e-9)
     # the first lap passes the bearings of the one-lap orbit, the second lap the same bearings again
     np.testing.assert_allclose(np.arctan2(c2[:20, 1], c2[:20, 0]), np.arctan2(c1[:, 1], c1[:, 0]), atol=1e-12)
