@@ -216,3 +216,49 @@ def test_the_screen_penalises_shapes_below_its_own_bound(kernels, request):
     assert np.isfinite(r3g).all() and np.isfinite(rscreen).all()
     np.testing.assert_array_equal(r3g[0, :n], rscreen[0, :n])  # the same rays
     assert r3g[0, n + 3] == 0.0 and rscreen[0, n + 3] > 0.0  # only the screen holds e1 = 0.02 back
+
+
+def _slab_trial(seed, rotation_noise_deg=0.0):
+    """A thin, box-like superquadric (0.15 x 0.8 x 1.2 m half-axes) in a random orientation, four
+    views 4 m up on a 10 m circle; the observations' cameras turned by ``rotation_noise_deg`` about
+    random axes (their masks from the true cameras)."""
+    from scipy.spatial.transform import Rotation
+
+    from sqfit.geometry.camera import Camera
+    from sqfit.geometry.superquadric import Superquadric
+    from sqfit.testing import paper_cameras, polygon_mask
+    from sqfit.views.observation import Observation
+
+    rng = np.random.default_rng(seed)
+    gt = Superquadric([0.15, 0.8, 1.2], [0.1, 0.1], [0.0, 0.0, 0.0], rng.uniform(-np.pi, np.pi, 3))
+    observations = []
+    for cam in paper_cameras(4, height=4.0):
+        mask = polygon_mask(gt, cam)
+        pose = cam.pose.copy()
+        if rotation_noise_deg:
+            axis = rng.normal(size=3)
+            turn = Rotation.from_rotvec(np.radians(rotation_noise_deg) * axis / np.linalg.norm(axis)).as_matrix()
+            pose[:3, :3] = pose[:3, :3] @ turn
+        observations.append(Observation.from_mask(Camera(cam.intrinsics, pose), mask, 100, "uniform", rng))
+    return gt, observations
+
+
+def test_default_chain_keeps_thin_slabs_thin_on_clean_masks():
+    # 3H's pose corrections and outline offset traded against the thin axis (2-4 % too thick, median
+    # 3D IoU 0.977 on these eight, the lowest 0.941); where they are idle the fit is plain 3G from
+    # the refinement's result (sqfit.fitting.axis_screen, step 3)
+    ious, thin = [], []
+    for seed in range(8):
+        gt, observations = _slab_trial(seed)
+        result = sqfit.fit(observations, "default", rng=np.random.default_rng(0))
+        assert "nuisances idle" in stage(result, "3H").message
+        ious.append(iou_3d(result.superquadric, gt))
+        thin.append(np.sort(result.superquadric.to_vector()[:3])[0] / 0.15)
+    assert np.median(ious) >= 0.982 and min(ious) >= 0.97
+    assert np.median(thin) <= 1.02
+
+
+def test_refinement_keeps_its_nuisances_where_the_cameras_disagree():
+    gt, observations = _slab_trial(0, rotation_noise_deg=1.5)
+    result = sqfit.fit(observations, "default", rng=np.random.default_rng(0))
+    assert "nuisances idle" not in stage(result, "3H").message
