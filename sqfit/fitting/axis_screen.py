@@ -51,6 +51,7 @@ therefore decides before 3G, from the 3G cost itself:
    seed 0) 1 fit of 100 changed (better, 10th percentile 0.368 -> 0.401), 1 px over-segmentation
    (``scenes/paper-bias1.toml``) 6 changed, 2 worse by up to 0.020, median 0.9889 either way.
    It costs one more 3G run where it acts: median +0.5-1.1 ms per object on the paper scene.
+   ``FitOptions.idle_nuisances_plain = False`` leaves it out (:mod:`sqfit.graph`'s landmark fits).
 4. Rescue: when the result's silhouettes miss the masks (R-IOU-M below :data:`RESCUE_R_IOU_M`;
    ~2 % of paper trials, mostly needles and slabs with an aspect ratio above 10, where stage 2's
    ellipsoid is far off and 3G slides into its "far, huge" minimum: a large superquadric behind the
@@ -348,7 +349,7 @@ def _without_idle_nuisances(fit, obs, options):
     outline offset is within :data:`IDLE_OFFSET_PX`. The plain fit then has no offset (None) and
     the message says so."""
     nuisances = options.pose_sigma_deg > 0 or options.outline_offset_sigma_px > 0
-    if not nuisances or fit.pose_scale is not None:
+    if not (options.idle_nuisances_plain and nuisances) or fit.pose_scale is not None:
         return fit
     if fit.pose_noise_deg is not None and fit.pose_noise_deg > POSE_NOISE_TRIGGER_DEG:
         return fit

@@ -117,6 +117,13 @@ class FitOptions(Options):
         3H refine every axis candidate under it (default True); False keeps the fit under the fixed
         prior and 3H's refinement of the screen's best candidate (for callers that estimate the
         poses themselves and only need a start: :mod:`sqfit.graph`).
+    idle_nuisances_plain : bool
+        Stage 3H: where its refinement's pose corrections and outline offset are idle (the cameras
+        agree, the offset is within ``sqfit.fitting.axis_screen.IDLE_OFFSET_PX``), take plain 3G
+        from its result (default True; :mod:`sqfit.fitting.axis_screen`, step 3: clean masks of
+        thin slabs and boxes no longer come out too thick). :mod:`sqfit.graph`'s landmark fits
+        keep False: at odometry poses it moved its results without improving them
+        (:func:`sqfit.graph.growth.landmark_fit`).
     score_stages : bool
         Score every stage's snapshot by R-IOU-M (:attr:`StageRecord.r_iou_m`; default True), or
         only the result (False: the other stages' ``r_iou_m`` None, for callers that only need the
@@ -192,6 +199,7 @@ class FitOptions(Options):
     silhouette_directions: int = 48
     pose_sigma_deg: float = 50.0
     pose_noise_refit: bool = True
+    idle_nuisances_plain: bool = True
     score_stages: bool = True
     occlusion_aware: bool = True
     outline_offset_sigma_px: float = 0.5
@@ -226,7 +234,7 @@ class FitOptions(Options):
             raise ValueError(f"riou_jacobian must be 'analytic' or 'numeric', got {self.riou_jacobian!r}")
         if self.fd_step <= 0:
             raise ValueError(f"fd_step must be > 0, got {self.fd_step}")
-        for name in ("occlusion_aware", "pose_noise_refit", "score_stages"):
+        for name in ("occlusion_aware", "pose_noise_refit", "idle_nuisances_plain", "score_stages"):
             if not isinstance(getattr(self, name), (bool, np.bool_)):
                 raise ValueError(f"{name} must be True or False, got {getattr(self, name)!r}")
 
