@@ -50,7 +50,8 @@ therefore decides before 3G, from the 3G cost itself:
    nuisances are not idle it cannot act: 2 px jitter and 1 deg of rotation (``scenes/paper-noisy.toml``,
    seed 0) 1 fit of 100 changed (better, 10th percentile 0.368 -> 0.401), 1 px over-segmentation
    (``scenes/paper-bias1.toml``) 6 changed, 2 worse by up to 0.020, median 0.9889 either way.
-   It costs one more 3G run where it acts: median +0.5-1.1 ms per object on the paper scene.
+   It costs one more 3G run where it acts (3-15 evaluations, 1-5 ms): `benchmarks/bench_fit.py`
+   (20 paper trials, two rounds beside the code before) 16.7 / 14.8 ms against 15.4 / 13.1.
    ``FitOptions.idle_nuisances_plain = False`` leaves it out (:mod:`sqfit.graph`'s landmark fits).
 4. Rescue: when the result's silhouettes miss the masks (R-IOU-M below :data:`RESCUE_R_IOU_M`;
    ~2 % of paper trials, mostly needles and slabs with an aspect ratio above 10, where stage 2's
@@ -126,8 +127,8 @@ from .restarts import N_SCREEN_CONTOUR, screen_rays, symmetric_candidates
 from .backend import compiled
 from .line_gauge import solver_args
 from .raycost import RAY_BOUNDS, batch_ray_residuals, ray_bounds, ray_kind
-from .grazing import (POSE_NOISE_TRIGGER_DEG, SilhouetteFit, describe_values, minimise, offset_groups, outline_rays,
-                      shifted_rays, silhouette_fit)
+from .grazing import (POSE_NOISE_TRIGGER_DEG, SilhouetteFit, describe_offsets, describe_values, minimise, offset_groups,
+                      outline_rays, shifted_rays, silhouette_fit)
 from .costs import ObservationSet
 from .stages import NUMERICAL_ERRORS, STAGES, FitState, StageError, ellipsoid_depths, r_iou_m, register, to_superquadric
 from ..views.grid import with_grid_samples, with_outline_samples
@@ -346,8 +347,9 @@ def _without_idle_nuisances(fit, obs, options):
     """``fit`` (a :class:`sqfit.fitting.grazing.SilhouetteFit` of the refinement) or, where its
     nuisance unknowns are idle, plain 3G from it (module docstring, step 3): the cameras agree (pose
     noise at most :data:`sqfit.fitting.grazing.POSE_NOISE_TRIGGER_DEG`, the fixed prior) and the
-    outline offset is within :data:`IDLE_OFFSET_PX`. The plain fit then has no offset (None) and
-    the message says so."""
+    outline offset is within :data:`IDLE_OFFSET_PX`. The plain fit then has no offset (None: its
+    message names the refinement's, but not as an estimate, so ``FitResult.outline_offset_px`` is
+    None)."""
     nuisances = options.pose_sigma_deg > 0 or options.outline_offset_sigma_px > 0
     if not (options.idle_nuisances_plain and nuisances) or fit.pose_scale is not None:
         return fit
@@ -358,8 +360,14 @@ def _without_idle_nuisances(fit, obs, options):
     res = minimise(outline_rays(obs, options.n_contour), np.asarray(fit.state.xi, dtype=np.float64), options, 0.0)
     if not np.all(np.isfinite(res.x)):
         return fit
+    # the refinement's message without its offset part: the result estimates none
+    # (FitResult.outline_offset_px is read from the message, sqfit.fitting.grazing.read_offsets)
+    before = fit.state.message
+    if fit.offsets is not None:
+        before = before.replace("; " + describe_offsets(fit.offsets, options.outline_offset),
+                                f"; outline offset {describe_values(fit.offsets)} px")
     state = replace(fit.state, xi=res.x, cost=res.cost, status=res.status, nfev=fit.state.nfev + res.nfev,
-                    message=f"{fit.state.message}; nuisances idle, plain 3G from there: {res.message}")
+                    message=f"{res.message} (plain 3G: the refinement's nuisances were idle; it ended {before})")
     return SilhouetteFit(state, None, fit.pose_noise_deg, None)
 
 
