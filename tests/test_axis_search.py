@@ -244,9 +244,9 @@ def _slab_trial(seed, rotation_noise_deg=0.0):
 
 
 def test_default_chain_keeps_thin_slabs_thin_on_clean_masks():
-    # 3H's pose corrections and outline offset traded against the thin axis (2-4 % too thick, median
-    # 3D IoU 0.977 on these eight, the lowest 0.941); where they are idle the fit is plain 3G from
-    # the refinement's result (sqfit.fitting.axis_screen, step 3)
+    # 3H's pose corrections and outline offset traded against the thin axis (before: up to 4 % too
+    # thick, median 3D IoU 0.977 on these eight, the lowest 0.941); where they are idle the fit is
+    # plain 3G from the refinement's result (sqfit.fitting.axis_screen, step 3)
     ious, thin = [], []
     for seed in range(8):
         gt, observations = _slab_trial(seed)

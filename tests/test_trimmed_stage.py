@@ -35,8 +35,13 @@ def test_a_mug_lets_its_handle_go():
     assert "kept it" in default.stages[-2].message, default.stages[-2].message
     assert iou_3d(default.superquadric, body) > iou_3d(plain.superquadric, body) + 0.05
     np.testing.assert_array_equal(default.superquadric.to_vector(), tolerant.superquadric.to_vector())
-    # 3H estimated an outline offset; 3R's re-fit has none, so the result reports none
-    assert plain.outline_offset_px is not None and default.outline_offset_px is None
+    # where 3H keeps its outline offset, 3R's re-fit has none, so the result reports none (here 3H's
+    # offset is idle, so by default 3H ends with plain 3G and reports none either: kept on request)
+    assert plain.outline_offset_px is None and "nuisances were idle" in plain.stages[-1].message
+    kept = {"idle_nuisances_plain": False}
+    plain, default = sqfit.fit(obs, "1-2M-3H", options=kept), sqfit.fit(obs, options=kept)
+    assert plain.outline_offset_px is not None and "kept it" in default.stages[-2].message
+    assert default.outline_offset_px is None
 
 
 @pytest.mark.parametrize("mask, view, runs", [
