@@ -262,3 +262,26 @@ def test_refinement_keeps_its_nuisances_where_the_cameras_disagree():
     gt, observations = _slab_trial(0, rotation_noise_deg=1.5)
     result = sqfit.fit(observations, "default", rng=np.random.default_rng(0))
     assert "nuisances were idle" not in stage(result, "3H").message
+
+
+def test_refinement_keeps_its_nuisances_where_no_superquadric_grazes_the_outline():
+    # a table (a top on four legs): 3H's cost stays far above 3T's trigger, the nuisances are idle
+    # (no camera correction) but the plain re-fit is not taken: 3T/3TP's domain, whose results it
+    # only moved (household tables, monitors, lamps; sqfit.fitting.axis_screen)
+    from sqfit import Observation, Superquadric
+    from sqfit.fitting.outline import TRIGGER_COST
+    from sqfit.testing import paper_cameras, polygon_mask
+
+    top = Superquadric([0.8, 0.5, 0.04], [0.1, 0.1], [0.0, 0.0, 0.75], [0.0, 0.0, 0.3])
+    corners = [top.rotation_matrix @ [sx * 0.7, sy * 0.4, 0.0] for sx in (-1, 1) for sy in (-1, 1)]
+    legs = [Superquadric([0.03, 0.03, 0.37], [0.1, 0.1], c + [0.0, 0.0, 0.37], [0.0, 0.0, 0.3]) for c in corners]
+    rng = np.random.default_rng(0)
+    observations = []
+    for cam in paper_cameras(views=4, radius=8.0, height=4.0):
+        mask = polygon_mask(top, cam)
+        for leg in legs:
+            mask |= polygon_mask(leg, cam)
+        observations.append(Observation.from_mask(cam, mask, rng=rng))
+    refined = stage(sqfit.fit(observations), "3H")
+    assert refined.cost > TRIGGER_COST
+    assert "nuisances were idle" not in refined.message

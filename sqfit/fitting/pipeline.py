@@ -119,7 +119,8 @@ class FitOptions(Options):
         poses themselves and only need a start: :mod:`sqfit.graph`).
     idle_nuisances_plain : bool
         Stage 3H: where its refinement's pose corrections and outline offset are idle (the cameras
-        agree, the offset is within ``sqfit.fitting.axis_screen.IDLE_OFFSET_PX``), take plain 3G
+        agree, the offset is within ``sqfit.fitting.axis_screen.IDLE_OFFSET_PX``) and its fit
+        grazes the outline (cost at most ``sqfit.fitting.outline.TRIGGER_COST``), take plain 3G
         from its result (default True; :mod:`sqfit.fitting.axis_screen`, step 3: clean masks of
         thin slabs and boxes no longer come out too thick). :mod:`sqfit.graph`'s landmark fits
         keep False: at odometry poses it moved its results without improving them

@@ -108,9 +108,9 @@ def landmark_fit(obs, options, pose_noise_refit, where, n_contour=None):
     option of that name; ``n_contour``: its outline rays per view (None: ``fit_n_contour``, the
     first fits'; the re-fits pass theirs, :attr:`Growth.refit_n_contour`). Without 3H's plain 3G
     where its nuisances are idle (``FitOptions.idle_nuisances_plain``): on the issue-23 evaluation
-    sequences (seeds 0-3, 3 runs each) it moved all 72 batch runs without improving them (ATE
-    median 0.0052 against 0.0053 m, the largest 0.0120 against 0.0098 m, the largest spreads 0.0038
-    m / 0.016 against 0.0015 m / 0.007, CPU x1.014)."""
+    sequences (seeds 0-3, 3 runs each; measured before its cost condition) it moved all 72 batch
+    runs without improving them (ATE median 0.0052 against 0.0053 m, the largest 0.0120 against
+    0.0098 m, the largest spreads 0.0038 m / 0.016 against 0.0015 m / 0.007, CPU x1.014)."""
     rays = options.fit_n_contour if n_contour is None else n_contour
     res = pipeline.fit(obs, options.init_chain, options={"pose_noise_refit": bool(pose_noise_refit), "score_stages": False,
                                                          "n_contour": rays, "idle_nuisances_plain": False})
