@@ -38,11 +38,11 @@ therefore decides before 3G, from the 3G cost itself:
    at most :data:`sqfit.fitting.grazing.POSE_NOISE_TRIGGER_DEG`) and the outline offset is within
    :data:`IDLE_OFFSET_PX` -- and the superquadric grazes the outline (the refinement's cost at most
    :data:`sqfit.fitting.outline.TRIGGER_COST`, below 3T's domain), the fit is plain 3G (no pose
-   corrections, no offset) started at the refinement's result. Those unknowns trade against the size: an offset of a tenth or two of a
-   pixel and small rotation corrections buy a thicker slab at nearly the same cost, so on clean
-   masks the refinement stopped with thin axes too thick (a box of 0.03 x 0.16 x 0.23, 20 trials
-   of 4 elevated views: thinnest half-axis 1.02-1.11 times the truth on 17 of 20, 1.04 at the
-   median, 3D IoU 0.950; without both nuisances throughout the chain 0.967;
+   corrections, no offset) started at the refinement's result. Those unknowns trade against the
+   size: an offset of a tenth or two of a pixel and small rotation corrections buy a thicker slab at
+   nearly the same cost, so on clean masks the refinement stopped with thin axes too thick (a box of
+   0.03 x 0.16 x 0.23, 20 trials of 4 elevated views: thinnest half-axis 1.02-1.11 times the truth
+   on 17 of 20, 1.04 at the median, 3D IoU 0.950; without both nuisances throughout the chain 0.967;
    the plain cost lower at the truth than at the fit on 4 of 8 trials checked). Plain 3G from there:
    0.966.
    Measured with the default chain beside the code before (``sqsim experiment``, median / 10th
@@ -144,8 +144,8 @@ from .stages import NUMERICAL_ERRORS, STAGES, FitState, StageError, ellipsoid_de
 from ..views.grid import with_grid_samples, with_outline_samples
 
 __all__ = ["N_SCREEN_CONTOUR", "SCREEN_SHAPE_MIN", "SCREEN_BOUNDS", "SCREEN_ITERATIONS", "SCREEN_MAX_NEWTON", "CANDIDATES", "RESCUE_R_IOU_M",
-           "DECISION_MARGIN", "RESCUE_STAGES", "RESCREEN_PX", "IDLE_OFFSET_PX", "axis_candidates", "batch_levenberg_marquardt",
-           "axis_search_stage"]
+           "DECISION_MARGIN", "RESCUE_STAGES", "RESCREEN_PX", "IDLE_OFFSET_PX", "axis_candidates",
+           "batch_levenberg_marquardt", "axis_search_stage"]
 
 #: Names of the rows of :func:`axis_candidates`, in order.
 CANDIDATES = ("input", "R45", "P1", "P1R45", "P2", "P2R45")
@@ -358,9 +358,9 @@ def _without_idle_nuisances(fit, obs, options):
     nuisance unknowns are idle, plain 3G from it (module docstring, step 3): the cameras agree (pose
     noise at most :data:`sqfit.fitting.grazing.POSE_NOISE_TRIGGER_DEG`, the fixed prior), the
     outline offset is within :data:`IDLE_OFFSET_PX`, and the superquadric grazes the outline (the
-    refinement's cost at most :data:`sqfit.fitting.outline.TRIGGER_COST`, 3T's trigger). The plain fit then has no offset (None: its
-    message names the refinement's, but not as an estimate, so ``FitResult.outline_offset_px`` is
-    None)."""
+    refinement's cost at most :data:`sqfit.fitting.outline.TRIGGER_COST`, 3T's trigger). The plain
+    fit then has no offset (None: its message names the refinement's, but not as an estimate, so
+    ``FitResult.outline_offset_px`` is None)."""
     nuisances = options.pose_sigma_deg > 0 or options.outline_offset_sigma_px > 0
     if not (options.idle_nuisances_plain and nuisances) or fit.pose_scale is not None:
         return fit
