@@ -69,6 +69,16 @@ def mask_shapes():
     return {"square": square, "ell": ell, "border": border}
 
 
+def turned_pose(pose, rotvec):
+    """``pose`` (camera -> world, ``(4, 4)``) with its rotation turned by ``rotvec`` (radians, about
+    the camera's own axes: ``R exp([rotvec]x)``), a copy."""
+    from scipy.spatial.transform import Rotation
+
+    out = np.array(pose, dtype=np.float64)
+    out[:3, :3] = out[:3, :3] @ Rotation.from_rotvec(rotvec).as_matrix()
+    return out
+
+
 def stage(result, name):
     """The last :class:`sqfit.StageRecord` named ``name`` of a :class:`sqfit.FitResult` (the default chain
     ends in 3R, so 3H's record is not the last one)."""

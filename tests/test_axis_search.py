@@ -8,7 +8,7 @@ from sqfit.metrics import iou_3d
 from sqfit.fitting.raycost import batch_log_gauge_jacobian, batch_ray_residuals, log_gauge_jacobian, ray_residuals
 from sqfit.views.rays import INSIDE, RaySet, contour_rays
 from sqfit.testing import paper_trial
-from _helpers import stage
+from _helpers import stage, turned_pose
 
 
 @pytest.fixture(scope="module")
@@ -222,8 +222,6 @@ def _slab_trial(seed, rotation_noise_deg=0.0):
     """A thin, box-like superquadric (0.15 x 0.8 x 1.2 m half-axes) in a random orientation, four
     views 4 m up on a 10 m circle; the observations' cameras turned by ``rotation_noise_deg`` about
     random axes (their masks from the true cameras)."""
-    from scipy.spatial.transform import Rotation
-
     from sqfit.geometry.camera import Camera
     from sqfit.geometry.superquadric import Superquadric
     from sqfit.testing import paper_cameras, polygon_mask
@@ -234,11 +232,10 @@ def _slab_trial(seed, rotation_noise_deg=0.0):
     observations = []
     for cam in paper_cameras(4, height=4.0):
         mask = polygon_mask(gt, cam)
-        pose = cam.pose.copy()
+        pose = cam.pose
         if rotation_noise_deg:
             axis = rng.normal(size=3)
-            turn = Rotation.from_rotvec(np.radians(rotation_noise_deg) * axis / np.linalg.norm(axis)).as_matrix()
-            pose[:3, :3] = pose[:3, :3] @ turn
+            pose = turned_pose(pose, np.radians(rotation_noise_deg) * axis / np.linalg.norm(axis))
         observations.append(Observation.from_mask(Camera(cam.intrinsics, pose), mask, 100, "uniform", rng))
     return gt, observations
 

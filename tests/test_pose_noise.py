@@ -3,7 +3,6 @@ rotation corrections say that the cameras disagree (sqfit.fitting.grazing, sqfit
 
 import numpy as np
 import pytest
-from scipy.spatial.transform import Rotation
 
 import sqfit
 from sqfit.fitting.costs import ObservationSet
@@ -13,7 +12,7 @@ from sqfit.fitting.stages import FitState
 from sqfit.metrics import iou_3d
 from sqfit.testing import paper_trial
 from sqfit.views.rays import contour_rays
-from _helpers import stage
+from _helpers import stage, turned_pose
 
 #: Per-view camera-frame rotation errors (degrees) of the "noisy" trial below.
 TURNS_DEG = [(1.0, -0.5, 0.3), (-0.8, 1.2, -0.4), (0.6, 0.9, 1.0)]
@@ -22,8 +21,7 @@ TURNS_DEG = [(1.0, -0.5, 0.3), (-0.8, 1.2, -0.4), (0.6, 0.9, 1.0)]
 def _turned_observations(trial, turns_deg):
     obs = []
     for o, delta in zip(trial.observations, turns_deg):
-        pose = np.array(o.camera.pose, dtype=np.float64)
-        pose[:3, :3] = pose[:3, :3] @ Rotation.from_rotvec(np.radians(delta)).as_matrix()
+        pose = turned_pose(o.camera.pose, np.radians(delta))
         obs.append(sqfit.Observation(sqfit.Camera(o.camera.intrinsics, pose), o.samples, o.contour, o.centroid,
                                      o.area_px, o.touches_border))
     return obs

@@ -9,6 +9,7 @@ from sqfit.fitting.raycost import posed_ray_residuals, ray_residuals
 from sqfit.views.rays import CONTOUR, INSIDE, OUTSIDE, RaySet, contour_rays, outward_normals
 from sqfit.geometry.superquadric import Superquadric, implicit
 from sqfit.testing import paper_trial
+from _helpers import turned_pose
 from _numeric import central_difference
 
 # Shapes near the ends of the soft bounds, but not on them (the penalty has a kink there).
@@ -204,7 +205,7 @@ def test_posed_correction_turns_rays_like_the_camera_rotation(trial):
     from sqfit.fitting.grazing import camera_corrections
 
     delta = np.array([[0.01, -0.02, 0.005], [0.0, 0.0, 0.0], [-0.01, 0.01, 0.02]])
-    rotated = [sqfit.Observation(sqfit.Camera(o.camera.intrinsics, _turned(o.camera.pose, dv)), o.samples,
+    rotated = [sqfit.Observation(sqfit.Camera(o.camera.intrinsics, turned_pose(o.camera.pose, dv)), o.samples,
                                  o.contour, o.centroid, o.area_px, o.touches_border)
                for o, dv in zip(trial.observations, delta)]
     xi = trial.gt.to_vector()
@@ -217,14 +218,6 @@ def test_posed_correction_turns_rays_like_the_camera_rotation(trial):
     change = np.abs(plain - uncorrected).max()
     assert change > 0.01  # the rotation matters ...
     assert np.abs(corrected - plain).max() < 0.02 * change  # ... and the correction reproduces it
-
-
-def _turned(pose, delta):
-    from scipy.spatial.transform import Rotation
-
-    out = np.array(pose, dtype=np.float64)
-    out[:3, :3] = out[:3, :3] @ Rotation.from_rotvec(delta).as_matrix()
-    return out
 
 
 @pytest.mark.parametrize("x, sigma, match", [
@@ -250,7 +243,7 @@ def test_pose_refinement_explains_a_rotated_camera():
     trial = paper_trial(1)
     obs = list(trial.observations)
     o = obs[0]
-    obs[0] = sqfit.Observation(sqfit.Camera(o.camera.intrinsics, _turned(o.camera.pose, np.radians([0, 1, 0]))),
+    obs[0] = sqfit.Observation(sqfit.Camera(o.camera.intrinsics, turned_pose(o.camera.pose, np.radians([0, 1, 0]))),
                                o.samples, o.contour, o.centroid, o.area_px, o.touches_border)
     plain = sqfit.fit(obs, "1-2-3G", options={"pose_sigma_deg": 0.0})
     refined = sqfit.fit(obs, "1-2-3G", options={"pose_sigma_deg": 20.0})
