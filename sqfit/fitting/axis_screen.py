@@ -362,8 +362,9 @@ def _without_idle_nuisances(fit, obs, options):
     fit then has no offset (None: its message names the refinement's, but not as an estimate, so
     ``FitResult.outline_offset_px`` is None)."""
     nuisances = options.pose_sigma_deg > 0 or options.outline_offset_sigma_px > 0
-    if not (options.idle_nuisances_plain and nuisances) or fit.pose_scale is not None:
+    if not (options.idle_nuisances_plain and nuisances):
         return fit
+    # (a fit under the noise-scaled prior is one whose pose noise exceeded the trigger: never taken)
     if fit.pose_noise_deg is not None and fit.pose_noise_deg > POSE_NOISE_TRIGGER_DEG:
         return fit
     if fit.offsets is not None and np.abs(fit.offsets).max() > IDLE_OFFSET_PX:
