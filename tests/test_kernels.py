@@ -193,7 +193,11 @@ def test_screen_agrees(kernels):
     rays = contour_rays(trial.observations, axis_screen.N_SCREEN_CONTOUR)
     X = axis_screen.axis_candidates(trial.gt.to_vector() * np.r_[1.3, 0.8, 1.1, 0.8, 1.2, np.ones(6)])
     (X_k, c_k), (X_n, c_n) = kernels(lambda: axis_screen.batch_levenberg_marquardt(X, rays, 12))
-    assert np.abs(X_k - X_n).max() < 1e-9 and _close(c_k, c_n, 1e-9)
+    # A start that has converged goes on taking steps of ~1e-9 driven by round-off, accepted or not by
+    # the cost's last bits, which the two implementations sum in different orders: the points agree to
+    # ~1e-8 (here 2e-9 with numba 0.68 / numpy 2.4, up to 7e-9 on paper trials 0-5; 1e-14 until the
+    # start converges), the costs to 1e-11.
+    assert np.abs(X_k - X_n).max() < 1e-7 and _close(c_k, c_n, 1e-9)
     assert np.all(c_k < axis_screen.batch_levenberg_marquardt(X, rays, 0)[1])  # it descended
 
 
