@@ -225,8 +225,8 @@ def test_3g_recovers_a_boundary_bias(delta):
     obs = _biased(trial, delta)
     fixed = sqfit.fit(obs, "3G", initial=trial.gt, options={"outline_offset_sigma_px": 0.0})
     free = sqfit.fit(obs, "3G", initial=trial.gt)
-    estimate = grazing.read_offsets(free.stages[-1].message)
-    assert estimate.shape == (1,) and abs(estimate[0] - delta) < 0.3
+    estimate = free.stages[-1].outline_offset_px
+    assert len(estimate) == 1 and abs(estimate[0] - delta) < 0.3 and free.outline_offset_px == estimate
     assert iou_3d(free.superquadric, trial.gt) > iou_3d(fixed.superquadric, trial.gt) + 0.03
     assert iou_3d(free.superquadric, trial.gt) > 0.97
 
@@ -234,13 +234,14 @@ def test_3g_recovers_a_boundary_bias(delta):
 def test_offset_stays_near_zero_on_clean_masks():
     trial = paper_trial(1)
     kept = sqfit.fit(trial.observations, options={"idle_nuisances_plain": False})
-    assert kept.outline_offset_px == grazing.read_offsets(stage(kept, "3H").message).tolist()
+    assert kept.outline_offset_px == stage(kept, "3H").outline_offset_px
+    assert "outline offset [px] (object): " + grazing.describe_values(kept.outline_offset_px) in stage(kept, "3H").message
     assert kept.to_dict()["outline_offset_px"] == kept.outline_offset_px
     assert abs(kept.outline_offset_px[0]) < 0.2
     # by default an offset that small is idle: 3H ends with plain 3G, and no offset is reported
     result = sqfit.fit(trial.observations)
     assert "nuisances were idle" in stage(result, "3H").message
-    assert grazing.read_offsets(stage(result, "3H").message) is None and result.outline_offset_px is None
+    assert stage(result, "3H").outline_offset_px is None and result.outline_offset_px is None
     assert result.to_dict()["outline_offset_px"] is None
     assert iou_3d(result.superquadric, trial.gt) > 0.98
 
@@ -250,14 +251,15 @@ def test_default_chain_reports_the_offset_per_view_on_request():
     result = sqfit.fit(_biased(trial, 1.0), options={"outline_offset": "view"})
     message = stage(result, "3H").message
     assert "outline offset [px] (view)" in message
-    estimate = grazing.read_offsets(message)
+    estimate = np.array(result.outline_offset_px)
     assert estimate.shape == (3,) and np.all(np.abs(estimate - 1.0) < 0.6)
 
 
 def test_offsets_can_be_switched_off():
     trial = paper_trial(1)
     result = sqfit.fit(trial.observations, options={"outline_offset_sigma_px": 0.0})
-    assert grazing.read_offsets(stage(result, "3H").message) is None and result.outline_offset_px is None
+    assert stage(result, "3H").outline_offset_px is None and result.outline_offset_px is None
+    assert "outline offset [px]" not in stage(result, "3H").message
 
 
 def _box_trial(index):
@@ -297,10 +299,28 @@ def test_at_shape_bound():
     assert not grazing.at_shape_bound(xi)
 
 
-def test_read_offsets_round_trip():
-    message = "converged; " + grazing.describe_offsets(np.array([0.5, -1.25]), "view") + "; more"
-    np.testing.assert_allclose(grazing.read_offsets(message), [0.5, -1.25])
-    assert grazing.read_offsets("converged") is None
+def test_describe_offsets():
+    message = grazing.describe_offsets(np.array([0.5, -1.25]), "view")
+    assert message == "outline offset [px] (view): +0.500, -1.250"
+
+
+def test_offset_follows_the_fit_through_the_chain():
+    """The offset goes with the superquadric it was estimated with: a stage that passes its input on
+    keeps it, a stage that moves the fit without estimating one drops it."""
+    trial = paper_trial(2)
+    obs = _biased(trial, 1.0)
+    # 3T passes a fit that grazes its outline on unchanged (3G cost below its trigger)
+    result = sqfit.fit(obs, "3G-3T", initial=trial.gt)
+    g, t = stage(result, "3G"), stage(result, "3T")
+    assert g.outline_offset_px is not None and abs(g.outline_offset_px[0] - 1.0) < 0.3
+    assert "kept the input" in t.message and t.outline_offset_px == g.outline_offset_px
+    assert result.outline_offset_px == g.outline_offset_px
+    # 3A moves it by another cost, which has no offset
+    moved = sqfit.fit(obs, "3G-3A", initial=trial.gt)
+    assert stage(moved, "3G").outline_offset_px == g.outline_offset_px
+    assert not np.array_equal(moved.superquadric.to_vector(), stage(moved, "3G").superquadric.to_vector())
+    assert stage(moved, "3A").outline_offset_px is None and moved.outline_offset_px is None
+    assert moved.to_dict()["stages"][0]["outline_offset_px"] == g.outline_offset_px
 
 
 @pytest.mark.parametrize("options, match", [

@@ -136,7 +136,7 @@ from .restarts import N_SCREEN_CONTOUR, screen_rays, symmetric_candidates
 from .backend import compiled
 from .line_gauge import solver_args
 from .raycost import RAY_BOUNDS, batch_ray_residuals, ray_bounds, ray_kind
-from .grazing import (POSE_NOISE_TRIGGER_DEG, SilhouetteFit, describe_offsets, describe_values, minimise, offset_groups,
+from .grazing import (POSE_NOISE_TRIGGER_DEG, SilhouetteFit, describe_values, minimise, offset_groups,
                       outline_rays, shifted_rays, silhouette_fit)
 from .costs import ObservationSet
 from .outline import TRIGGER_COST
@@ -343,10 +343,11 @@ def _visible_r_iou_m(state, obs, options):
 def _screen_and_refine(state, obs, options):
     """Screen and refine (steps 1-3), and, with outline offsets estimated, again on rays shifted by
     the estimate when it exceeds :data:`RESCREEN_PX` (module docstring); the lower cost is kept."""
-    new, offsets = _screen_refine_once(state, obs, options)
+    new = _screen_refine_once(state, obs, options)
+    offsets = new.outline_offsets
     if offsets is None or not np.abs(offsets).max() > RESCREEN_PX:
         return new
-    other, _ = _screen_refine_once(state, obs, options, offsets)
+    other = _screen_refine_once(state, obs, options, offsets)
     keep, lost = (other, new) if other.cost < new.cost else (new, other)
     note = (f"re-screened on outlines offset by {describe_values(offsets)} px: cost {other.cost:.3e} against "
             f"{new.cost:.3e}, kept the {'re-screened' if keep is other else 'first'} fit")
@@ -359,35 +360,31 @@ def _without_idle_nuisances(fit, obs, options):
     noise at most :data:`sqfit.fitting.grazing.POSE_NOISE_TRIGGER_DEG`, the fixed prior), the
     outline offset is within :data:`IDLE_OFFSET_PX`, and the superquadric grazes the outline (the
     refinement's cost at most :data:`sqfit.fitting.outline.TRIGGER_COST`, 3T's trigger). The plain
-    fit then has no offset (None: its message names the refinement's, but not as an estimate, so
-    ``FitResult.outline_offset_px`` is None)."""
+    fit then has no offset (``outline_offsets`` None, so ``FitResult.outline_offset_px`` is None; its
+    message ends with the refinement's, which names the idle value)."""
     nuisances = options.pose_sigma_deg > 0 or options.outline_offset_sigma_px > 0
     if not (options.idle_nuisances_plain and nuisances):
         return fit
     # (a fit under the noise-scaled prior is one whose pose noise exceeded the trigger: never taken)
     if fit.pose_noise_deg is not None and fit.pose_noise_deg > POSE_NOISE_TRIGGER_DEG:
         return fit
-    if fit.offsets is not None and np.abs(fit.offsets).max() > IDLE_OFFSET_PX:
+    offsets = fit.state.outline_offsets
+    if offsets is not None and np.abs(offsets).max() > IDLE_OFFSET_PX:
         return fit
     if fit.state.cost is None or fit.state.cost > TRIGGER_COST:  # no superquadric grazes this outline
         return fit
     res = minimise(outline_rays(obs, options.n_contour), np.asarray(fit.state.xi, dtype=np.float64), options, 0.0)
     if not np.all(np.isfinite(res.x)):
         return fit
-    # the refinement's message without its offset part: the result estimates none
-    # (FitResult.outline_offset_px is read from the message, sqfit.fitting.grazing.read_offsets)
-    before = fit.state.message
-    if fit.offsets is not None:
-        before = before.replace("; " + describe_offsets(fit.offsets, options.outline_offset),
-                                f"; outline offset {describe_values(fit.offsets)} px")
     state = replace(fit.state, xi=res.x, cost=res.cost, status=res.status, nfev=fit.state.nfev + res.nfev,
-                    message=f"{res.message} (plain 3G: the refinement's nuisances were idle; it ended {before})")
-    return SilhouetteFit(state, None, fit.pose_noise_deg, None)
+                    message=f"{res.message} (plain 3G: the refinement's nuisances were idle; it ended "
+                            f"{fit.state.message})", outline_offsets=None)
+    return SilhouetteFit(state, fit.pose_noise_deg, None)
 
 
 def _screen_refine_once(state, obs, options, shift=None):
     """One screen and refinement; ``shift`` (px per offset group): screen on outline rays offset by it
-    and start the refinement's offsets there. Returns the state and the estimated offsets (or None).
+    and start the refinement's offsets there. Returns the state (with its estimated offsets, or None).
 
     When the refinement finds that the cameras disagree (its pose prior scaled to the residual
     noise, :func:`sqfit.fitting.grazing.silhouette_fit`), the screen, which ranks the candidates
@@ -412,5 +409,4 @@ def _screen_refine_once(state, obs, options, shift=None):
     refined = f"refined all under the pose prior: {CANDIDATES[best]} lowest; " if len(fits) > 1 else ""
     nfev = sum(f.state.nfev for f in fits)
     return replace(new, nfev=nfev + (SCREEN_ITERATIONS + 1) * len(candidates),
-                   message=f"3H: start {CANDIDATES[best]} (screen costs: {screened}); {refined}{new.message}"), \
-        fits[pick].offsets
+                   message=f"3H: start {CANDIDATES[best]} (screen costs: {screened}); {refined}{new.message}")

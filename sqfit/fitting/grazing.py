@@ -35,8 +35,9 @@ Nuisance unknowns: after the plain run above converges, a second run estimates, 
   outline lies a few tenths of a pixel to pixels outside (over-segmentation) or inside the
   object's silhouette, the same amount all around; one offset per object (or per view,
   ``options.outline_offset = "view"``) moves every outline ray's image point along the outline
-  normal (:mod:`sqfit.views.rays`). The stage message gives the estimate (``outline offset [px]
-  (object): +0.912``; :func:`read_offsets` reads it back). A fit whose shape exponent ends at 3G's
+  normal (:mod:`sqfit.views.rays`). The estimate is the state's ``outline_offsets``
+  (:class:`sqfit.fitting.stages.FitState`, in :attr:`sqfit.FitResult.outline_offset_px`), and the
+  stage message gives it too (``outline offset [px] (object): +0.912``). A fit whose shape exponent ends at 3G's
   lower bound (:func:`at_shape_bound`: boxes, cylinders) is fitted again without it, and the message
   says that the offset was not estimated: there the offset absorbs the superquadric's rounded
   edges, a shape error, and grows the fit (:data:`SHAPE_AT_BOUND`).
@@ -65,7 +66,7 @@ from .stages import StageError, register
 __all__ = ["outline_rays", "N_CONTOUR", "BAND_PX", "SMOOTH_PX", "OFFSET_UNIT_PX", "POSE_NOISE_TRIGGER_DEG",
            "SHAPE_AT_BOUND", "SilhouetteFit", "silhouette_stage", "silhouette_fit", "minimise", "camera_corrections",
            "at_shape_bound", "pose_noise_estimate", "pose_prior_scale", "offset_groups", "offset_prior",
-           "shifted_rays", "describe_values", "describe_offsets", "read_offsets"]
+           "shifted_rays", "describe_values", "describe_offsets"]
 
 #: Contour points (rays) per view: ``FitOptions.n_contour``'s default.
 N_CONTOUR = 64
@@ -116,7 +117,6 @@ POSE_NOISE_TRIGGER_DEG = 0.25
 SHAPE_AT_BOUND = 0.005
 
 _RAYS = weakref.WeakKeyDictionary()
-_OFFSET_LABEL = "outline offset [px]"
 
 
 def outline_rays(obs, n_contour=N_CONTOUR):
@@ -137,8 +137,8 @@ class SilhouetteFit:
     Attributes
     ----------
     state : FitState
-    offsets : (g,) float or None
-        Estimated outline offsets, px (None when not estimated).
+        The fit; its ``outline_offsets`` are the estimated outline offsets, px (None when not
+        estimated).
     pose_noise_deg : float or None
         The cameras' rotation noise seen in the corrections under the fixed prior
         (:func:`pose_noise_estimate`, degrees; None without pose corrections).
@@ -148,7 +148,6 @@ class SilhouetteFit:
     """
 
     state: object
-    offsets: np.ndarray | None
     pose_noise_deg: float | None
     pose_scale: float | None
 
@@ -220,8 +219,8 @@ def silhouette_fit(state, obs, options, name="3G", plain_first=True, offsets=Non
         message += "; " + describe_offsets(estimate, options.outline_offset)
     if dropped:
         message += f"; outline offset not estimated (shape exponent at its bound {C.SILHOUETTE_SHAPE_BOUNDS[0]})"
-    return SilhouetteFit(replace(state, xi=xi, cost=res.cost, status=res.status, message=message, nfev=nfev),
-                         estimate, noise_deg, scale)
+    return SilhouetteFit(replace(state, xi=xi, cost=res.cost, status=res.status, message=message, nfev=nfev,
+                                 outline_offsets=estimate), noise_deg, scale)
 
 
 def at_shape_bound(xi):
@@ -374,17 +373,8 @@ def describe_values(values):
 
 def describe_offsets(offsets, kind="object"):
     """The stage message's part on the estimated outline offsets ``(g,) float`` (px, > 0: the masks'
-    outlines lie outside the silhouettes); :func:`read_offsets` reads it back."""
-    return f"{_OFFSET_LABEL} ({kind}): {describe_values(offsets)}"
-
-
-def read_offsets(message):
-    """The outline offsets (px, ``(g,) float``) in a stage message of 3G or 3H (the last ones given),
-    or None if it has none."""
-    if _OFFSET_LABEL not in message:
-        return None
-    part = message.rsplit(_OFFSET_LABEL, 1)[1].split(":", 1)[1].split(";")[0]
-    return np.array([float(v) for v in part.split(",")])
+    outlines lie outside the silhouettes)."""
+    return f"outline offset [px] ({kind}): {describe_values(offsets)}"
 
 
 @register("3G")

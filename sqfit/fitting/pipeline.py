@@ -23,7 +23,7 @@ from .. import constants as C
 from .._checks import Options, check_fields
 from .costs import ObservationSet
 from ..views.observation import POLYGON_KINDS, Observation
-from .grazing import N_CONTOUR, read_offsets
+from .grazing import N_CONTOUR
 from .hull import HULL_CHAIN
 from .stages import (NUMERICAL_ERRORS, STAGES, FitState, StageError, default_state, ellipsoid_depths, r_iou_m,
                      to_superquadric)
@@ -142,7 +142,7 @@ class FitOptions(Options):
         outside the silhouette, a segmenter's over-segmentation) with the superquadric, under a
         Gaussian prior of this standard deviation, px, relative to the noise of the fit's residuals
         (:func:`sqfit.fitting.grazing.offset_prior`); 0 trusts the outlines. The estimate is in
-        3G's (3H's) stage message and in :attr:`FitResult.outline_offset_px`. Default 0.5 (100
+        3G's (3H's) stage record and message and in :attr:`FitResult.outline_offset_px`. Default 0.5 (100
         paper trials, default chain, median / 10th percentile of IoU, seeds 0; 1, README "Real
         masks"): 1 px over-segmentation 0.989 / 0.836; 0.989 / 0.901 (no offset 0.928 / 0.761;
         0.944 / 0.788), 1 px under-segmentation 0.989 / 0.804; 0.991 / 0.850, clean 0.995 / 0.904;
@@ -261,6 +261,10 @@ class StageRecord:
         R-IOU-M of the snapshot (None but for the last stage's with ``FitOptions.score_stages`` False).
     nfev : int
         Cost evaluations (finite-difference columns included).
+    outline_offset_px : list of float or None
+        The outline offset that goes with the snapshot (px, as :attr:`FitResult.outline_offset_px`):
+        the stage's estimate (3G, 3H), the input's where the stage passed its input on unchanged,
+        None otherwise.
     """
 
     name: str
@@ -271,6 +275,7 @@ class StageRecord:
     message: str
     r_iou_m: float | None = None
     nfev: int = 0
+    outline_offset_px: list | None = None
 
     def to_dict(self):
         d = asdict(self)
@@ -301,10 +306,11 @@ class FitResult:
     chain : str
     warnings : list of str
     outline_offset_px : list of float or None
-        The masks' outline offset estimated by the last stage that estimates it (3G, 3H; px, > 0:
-        the outlines lie outside the silhouettes; one value per object or per view,
-        ``FitOptions.outline_offset``); None if no stage did, or if a later stage changed the fit
-        without estimating one (stage 3R's trimmed re-fit keeps no offset).
+        The masks' outline offset estimated with the final superquadric (3G, 3H; px, > 0: the
+        outlines lie outside the silhouettes; one value per object or per view,
+        ``FitOptions.outline_offset``): the last stage's ``outline_offset_px``. None if no stage
+        estimated one, or if a later stage changed the fit without estimating one (stage 3R's
+        trimmed re-fit keeps no offset).
     """
 
     superquadric: Superquadric | None
@@ -484,21 +490,16 @@ def fit(observations, chain=None, *, initial=None, rng=None, options=None):
         else:
             status, message = new.status, new.message
         seconds = time.perf_counter() - ts
+        offsets = None if new is None or new.outline_offsets is None else np.asarray(new.outline_offsets).tolist()
         result.stages.append(StageRecord(name, sq, seconds, None if new is None else new.cost, status,
-                                         message, None, 0 if new is None else new.nfev))
+                                         message, None, 0 if new is None else new.nfev, offsets))
         if new is None:
             result.status, result.message = status, message
             break
         state = new
         snapshots.append(sq)
         result.superquadric, result.cost = sq, new.cost
-        offsets = read_offsets(new.message)
-        if offsets is not None:
-            result.outline_offset_px = offsets.tolist()
-        elif not np.array_equal(new.xi, start.xi):
-            # a stage that moved the fit without estimating an offset (3R's trimmed re-fit, 3T):
-            # an earlier stage's offset belongs to a fit that is no longer the result
-            result.outline_offset_px = None
+        result.outline_offset_px = None if offsets is None else list(offsets)
     if snapshots:
         scored = [r for r in result.stages if r.superquadric is not None]
         if not options.score_stages:

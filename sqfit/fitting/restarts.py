@@ -239,6 +239,7 @@ def multistart_stage(state, obs, options):
     new_m = r_iou_m([to_superquadric(new.xi)], obs, options.polygon)[0]
     if new_misfit < base and new_m >= m[0] - RIOU_M_SLACK:
         return replace(state, xi=new.xi, cost=new.cost, status=new.status, nfev=nfev,
+                       outline_offsets=new.outline_offsets,
                        message=f"3S: misfit {base:.4f} -> {new_misfit:.4f} from {label}; {new.message}")
     return replace(state, nfev=nfev, message=f"3S: misfit {base:.4f}, {label} refined to "
                                              f"{new_misfit:.4f}: kept")

@@ -99,6 +99,12 @@ class FitState:
     message : str
     nfev : int
         Cost evaluations (a finite-difference Jacobian counts its columns).
+    outline_offsets : (g,) float or None
+        The masks' outline offsets (px, > 0: the outlines lie outside the silhouettes; one per
+        object or per view) estimated together with ``xi`` (stages 3G and 3H), or None. A stage
+        that passes its input on (``dataclasses.replace`` without ``xi``) keeps them; a stage
+        that moves ``xi`` without estimating offsets sets None, since they belong to a fit that
+        is no longer this one.
     """
 
     xi: np.ndarray
@@ -108,6 +114,7 @@ class FitState:
     status: str = "ok"
     message: str = ""
     nfev: int = 0
+    outline_offsets: np.ndarray | None = None
 
 
 class StageError(Exception):
@@ -407,7 +414,7 @@ def _riou_stage(state, obs, options, free, quadric, name):
     xi[free] = res.x
     _check_result(xi, name)
     return replace(state, xi=xi, cost=res.cost, status=res.status, message=res.message,
-                   nfev=res.nfev + (0 if analytic else res.njev * k))
+                   nfev=res.nfev + (0 if analytic else res.njev * k), outline_offsets=None)
 
 
 @register("3A")

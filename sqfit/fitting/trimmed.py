@@ -302,7 +302,7 @@ def _trimmed(state, obs, options, code, hull):
             detail = (f"{ev.stretch} of {len(rays)} rays outliers in stretches of {ev.views} views, {ev.contrary} "
                       f"passing through by > {PHI_MIN:g}, {ev.beyond} beyond it")
             if ev.part:
-                return replace(state, xi=best, nfev=state.nfev + nfev,
+                return replace(state, xi=best, nfev=state.nfev + nfev, outline_offsets=None,
                                message=f"{code}: truncated cost {before:.3g} -> {best_cost:.3g} (trimmed re-fit from the "
                                        f"{best_name}, {detail}): kept it")
             what += f" ({detail}: no part sticks out)"
