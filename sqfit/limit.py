@@ -357,7 +357,7 @@ def search_volume(sample, volume, rng=None, *, extent=None, rotations=(), search
     """Superquadrics of highest estimated 3D IoU with a solid given by a uniform sample of its inside.
 
     Steps 2-3 of the module docstring, for any solid: a mesh (:func:`best_superquadric`), a
-    carved visual hull (:mod:`sqfit.fitting.hull_volume`).
+    carved visual hull (``scripts/hull_volume.py``).
 
     Parameters
     ----------
