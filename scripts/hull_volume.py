@@ -3,7 +3,7 @@
 Usage::
 
     OPENBLAS_NUM_THREADS=1 python scripts/hull_volume.py [--scene scenes/household.toml] \
-        [--kinds table chair ...] [--trials 10] [--seed 0] [--no-search] [--limits DIR] [--views N]
+        [--kinds table chair ...] [--trials 10] [--seed 0] [--no-search] [--limits DIR] [--views N] [--fine N]
 
 An idea measured, not adopted (far from the limit on furniture), kept so that it can be repeated. The representation limit
 (:func:`sqfit.limit.best_superquadric`) is the superquadric of highest 3D IoU with the object's
@@ -43,7 +43,9 @@ instead of the scene's (at the scene's mean camera distance, clean masks; the ch
 scene's views): the hull of what any set of masks can show, so its best superquadric is what a
 fitter of the masks reaches at best when it recovers everything they show and guesses nothing
 else (cavities no silhouette shows, a book's recess seen from few directions stay filled). README
-"Real objects", "What the masks can show".
+"Real objects", "What the masks can show". ``--fine N`` carves at ``N`` voxels across the
+hull's largest extent instead of stage ``HULL``'s :data:`sqfit.views.carving.FINE_CELLS` (thin
+parts, a book's recess).
 """
 
 from __future__ import annotations
@@ -69,6 +71,7 @@ from sqsim.world.household import CATALOGUE  # noqa: E402
 from sqsim.world.limit import LimitCache, object_limit  # noqa: E402
 from sqsim.world.scene import parse_scene, trial_seed  # noqa: E402
 from sqfit.geometry.camera import Camera, look_at  # noqa: E402
+from sqfit.views.carving import FINE_CELLS  # noqa: E402
 from sqfit.views.dataset import observations_from_images  # noqa: E402
 
 #: Interior sample of each mesh (the hull's share of it).
@@ -145,7 +148,7 @@ def chain_iou(sim, obs, scene, index, chain, mesh):
     return sq, iou_3d_mesh(sq, mesh)
 
 
-def kind_rows(scene_dict, kind, trials, seed, search, cache, views=None):
+def kind_rows(scene_dict, kind, trials, seed, search, cache, views=None, fine=FINE_CELLS):
     """``(trials, 8) float``: hull / mesh volume, share of the mesh in the hull, IoU of hull and mesh;
     IoUs with the mesh of the default, the tolerant chain, the hull's best superquadric, the rule, and
     the limit (NaN without ``search``)."""
@@ -159,7 +162,7 @@ def kind_rows(scene_dict, kind, trials, seed, search, cache, views=None):
         obj = sim.objects[0]
         obs = observations(sim, obj.id, scene)
         hull = object_hull(ObservationSet(obs if views is None else many_view_observations(sim, obj, scene, renderer,
-                                                                                           views)))
+                                                                                           views)), fine=fine)
         share = in_hull(hull, interior_points(obj.mesh, MESH_POINTS, 0)).mean()
         inter = share * obj.mesh.volume
         row = [hull.volume / obj.mesh.volume, share, inter / (hull.volume + obj.mesh.volume - inter)]
@@ -183,16 +186,21 @@ def main(argv=None):
     parser.add_argument("--limits", default=None, help="directory of cached limits (an experiment's DIR/limits)")
     parser.add_argument("--views", type=int, default=None, help="carve the hull from this many views on a sphere "
                                                                 "around the object (default: the scene's)")
+    parser.add_argument("--fine", type=int, default=FINE_CELLS, help="voxels across the hull's largest extent "
+                                                                       f"(default {FINE_CELLS}, stage HULL's)")
     args = parser.parse_args(argv)
     if args.views is not None and args.views < 2:
         parser.error(f"--views must be >= 2, got {args.views}")
+    if args.fine < 8:
+        parser.error(f"--fine must be >= 8, got {args.fine}")
     with open(args.scene, "rb") as f:
         scene_dict = tomllib.load(f)
     cache = LimitCache(args.limits) if args.limits else None
     print("medians  kind: hull/mesh volume, mesh in hull, IoU(hull, mesh) | 3D IoU: default, tolerant, "
           f"best SQ of hull, rule ({INSIDE_SHARE}), limit")
     for kind in args.kinds:
-        m = np.median(kind_rows(scene_dict, kind, args.trials, args.seed, args.search, cache, args.views), axis=0)
+        m = np.median(kind_rows(scene_dict, kind, args.trials, args.seed, args.search, cache, args.views, args.fine),
+                      axis=0)
         print(f"{kind:<10} {m[0]:5.2f} {m[1]:6.3f} {m[2]:6.3f} | " + " ".join(f"{v:6.3f}" for v in m[3:]), flush=True)
 
 

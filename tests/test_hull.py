@@ -5,13 +5,15 @@ import numpy as np
 import pytest
 
 import sqfit
+from sqfit.fitting.costs import ObservationSet
+from sqfit.fitting.hull import object_hull
 from sqfit.fitting.pointcloud import fit_points, radial_residuals
 from sqfit.fitting.stages import to_superquadric
 from sqfit.geometry.camera import Camera, look_at, project
 from sqfit.geometry.superquadric import contains, sample_surface_uniform, volume
 from sqfit.metrics import iou_3d
 from sqfit.testing import PAPER_INTRINSICS, polygon_mask, random_superquadric
-from sqfit.views.carving import carve, fill_polygon, object_pixels, visual_hull
+from sqfit.views.carving import FINE_CELLS, carve, fill_polygon, object_pixels, visual_hull
 
 SQ = sqfit.Superquadric([1.0, 0.6, 0.4], [0.5, 1.2], [0.3, -0.2, 0.1], [0.3, 0.2, 0.5])
 
@@ -171,3 +173,13 @@ def test_carving_rejects_bad_input():
         carve(obs, np.zeros((1, 3)), radius=-0.1)
     with pytest.raises(TypeError, match="sqfit.Observation"):
         object_pixels(np.zeros((4, 4)))
+
+
+def test_object_hull_carves_at_the_resolution_asked_for():
+    obs = ObservationSet(_observations(SQ, _cameras()))
+    default, coarse = object_hull(obs), object_hull(obs, fine=FINE_CELLS // 2)
+    assert coarse.voxel == pytest.approx(2.0 * default.voxel, rel=0.1)
+    assert max(default.occupied.shape) > 1.8 * max(coarse.occupied.shape)
+    # the same solid either way, within the carvings' half-voxel rounding
+    assert volume(SQ) < min(default.volume, coarse.volume) and max(default.volume, coarse.volume) < 2.0 * volume(SQ)
+    assert coarse.volume == pytest.approx(default.volume, rel=0.15)

@@ -45,7 +45,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..views.carving import visual_hull
+from ..views.carving import FINE_CELLS, visual_hull
 from .pointcloud import fit_points
 from .stages import FitState, StageError, default_state, ellipsoid_depths, register, triangulate
 
@@ -59,7 +59,7 @@ BOX_MARGIN = 1.5
 _MIN_POINTS = 11
 
 
-def object_hull(obs, options=None):
+def object_hull(obs, options=None, fine=FINE_CELLS):
     """The visual hull of one object's observations (steps 1-2 of the module docstring).
 
     Parameters
@@ -67,6 +67,9 @@ def object_hull(obs, options=None):
     obs : sqfit.fitting.costs.ObservationSet
     options : FitOptions, optional
         Passed to stage 1 (which reads none of them today).
+    fine : int
+        Voxels across the largest extent of the fine carving
+        (:func:`sqfit.views.carving.visual_hull`; stage ``HULL``: the default).
 
     Returns
     -------
@@ -84,7 +87,7 @@ def object_hull(obs, options=None):
         k = o.camera.intrinsics
         offset = np.abs(o.contour - o.centroid) / np.array([k.fx, k.fy])
         reach.append(float(np.max(np.linalg.norm(offset, axis=1))) * depth)
-    return visual_hull(obs.observations, centre, BOX_MARGIN * max(reach))
+    return visual_hull(obs.observations, centre, BOX_MARGIN * max(reach), fine=fine)
 
 
 @register("HULL")
