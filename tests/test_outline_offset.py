@@ -235,7 +235,7 @@ def test_offset_stays_near_zero_on_clean_masks():
     trial = paper_trial(1)
     kept = sqfit.fit(trial.observations, options={"idle_nuisances_plain": False})
     assert kept.outline_offset_px == stage(kept, "3H").outline_offset_px
-    assert "outline offset [px] (object): " + grazing.describe_values(kept.outline_offset_px) in stage(kept, "3H").message
+    assert grazing.describe_offsets(kept.outline_offset_px) in stage(kept, "3H").message
     assert kept.to_dict()["outline_offset_px"] == kept.outline_offset_px
     assert abs(kept.outline_offset_px[0]) < 0.2
     # by default an offset that small is idle: 3H ends with plain 3G, and no offset is reported

@@ -37,10 +37,10 @@ Nuisance unknowns: after the plain run above converges, a second run estimates, 
   ``options.outline_offset = "view"``) moves every outline ray's image point along the outline
   normal (:mod:`sqfit.views.rays`). The estimate is the state's ``outline_offsets``
   (:class:`sqfit.fitting.stages.FitState`, in :attr:`sqfit.FitResult.outline_offset_px`), and the
-  stage message gives it too (``outline offset [px] (object): +0.912``). A fit whose shape exponent ends at 3G's
-  lower bound (:func:`at_shape_bound`: boxes, cylinders) is fitted again without it, and the message
-  says that the offset was not estimated: there the offset absorbs the superquadric's rounded
-  edges, a shape error, and grows the fit (:data:`SHAPE_AT_BOUND`).
+  stage message gives it too (``outline offset [px] (object): +0.912``). A fit whose shape
+  exponent ends at 3G's lower bound (:func:`at_shape_bound`: boxes, cylinders) is fitted again
+  without it, and the message says that the offset was not estimated: there the offset absorbs the
+  superquadric's rounded edges, a shape error, and grows the fit (:data:`SHAPE_AT_BOUND`).
 
 The offset is observable because a constant pixel offset is not a change of size: a size change
 moves the outline by ``f da / z`` px, less in the far views, and the paper's cameras are 5-15 m
