@@ -40,9 +40,10 @@ machine (the mesh's limit search in the same runs: median 14 s).
 
 ``--views N`` carves the hull from ``N`` views spread evenly over a sphere around the object
 instead of the scene's (at the scene's mean camera distance, clean masks; the chains still fit the
-scene's views): the hull of what any set of masks can show, so its best superquadric is what a
-fitter of the masks reaches at best when it recovers everything they show and guesses nothing
-else (cavities no silhouette shows, a book's recess seen from few directions stay filled). README
+scene's views): the hull of what any set of masks can show, so its best superquadric is the fit
+that recovers everything they show and guesses nothing else (cavities no silhouette shows, a
+book's recess seen from few directions stay filled); not an upper bound, since a fit's own bias
+may land nearer the mesh's best. README
 "Real objects", "What the masks can show". ``--fine N`` carves at ``N`` voxels across the
 hull's largest extent instead of stage ``HULL``'s :data:`sqfit.views.carving.FINE_CELLS` (thin
 parts, a book's recess).
