@@ -72,7 +72,7 @@ from sqsim.world.household import CATALOGUE  # noqa: E402
 from sqsim.world.limit import LimitCache, object_limit  # noqa: E402
 from sqsim.world.scene import parse_scene, trial_seed  # noqa: E402
 from sqfit.geometry.camera import Camera, look_at  # noqa: E402
-from sqfit.views.carving import FINE_CELLS  # noqa: E402
+from sqfit.views.carving import COARSE_CELLS, FINE_CELLS  # noqa: E402
 from sqfit.views.dataset import observations_from_images  # noqa: E402
 
 #: Interior sample of each mesh (the hull's share of it).
@@ -192,8 +192,8 @@ def main(argv=None):
     args = parser.parse_args(argv)
     if args.views is not None and args.views < 2:
         parser.error(f"--views must be >= 2, got {args.views}")
-    if args.fine < 8:
-        parser.error(f"--fine must be >= 8, got {args.fine}")
+    if args.fine < COARSE_CELLS:  # the carving's own bound (sqfit.views.carving.visual_hull)
+        parser.error(f"--fine must be >= the coarse carving's {COARSE_CELLS} voxels, got {args.fine}")
     with open(args.scene, "rb") as f:
         scene_dict = tomllib.load(f)
     cache = LimitCache(args.limits) if args.limits else None
