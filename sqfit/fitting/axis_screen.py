@@ -254,8 +254,8 @@ def batch_levenberg_marquardt(X0, rays, iterations, weight=C.PENALTY_ANALYTIC, p
     X = np.array(check_shape(X0, (None, C.N_PARAMS), "X0"), dtype=np.float64)
     if int(iterations) != iterations or iterations < 0:
         raise ValueError(f"iterations must be an integer >= 0, got {iterations}")
-    kernels = compiled()
-    if kernels is not None:  # the same loop, compiled (sqfit.fitting.ray_kernels.screen_lm)
+    kernels = compiled("screen")
+    if kernels is not None:  # the same loop, compiled (sqfit.fitting.screen_kernels.screen_lm)
         with np.errstate(all="ignore"):
             return kernels.screen_lm(X, rays.origins, rays.directions, rays.weights, ray_kind(rays), int(iterations),
                                      *solver_args(SCREEN_RTOL, SCREEN_MAX_NEWTON), float(weight), *bounds,

@@ -3,8 +3,8 @@
 The ray minimisers and the 3G residuals and Jacobians (:mod:`sqfit.fitting.raycost`, used by stages 3G,
 3H, 3S and the factor graph) and the radial terms of G3-G5 (:mod:`sqfit.fitting.costs`) have two
 implementations that compute the same numbers: vectorised numpy, and per-ray loops compiled with
-numba (:mod:`sqfit.fitting.ray_kernels`); so do the silhouettes, convex IoUs and hulls of R-IOU-M
-(:mod:`sqfit.fitting.silhouette_kernels`). Small arrays make numpy pay its per-call overhead dozens of
+numba (:mod:`sqfit.fitting.ray_kernels`; 3H's screen of them, :mod:`sqfit.fitting.screen_kernels`); so
+do the silhouettes, convex IoUs and hulls of R-IOU-M (:mod:`sqfit.fitting.silhouette_kernels`). Small arrays make numpy pay its per-call overhead dozens of
 times per evaluation; the compiled loops do not (README, "Fitter speed").
 
 Choice, first match wins:
@@ -30,7 +30,7 @@ KERNELS = ("auto", "numba", "numpy")
 ENV_VAR = "SQFIT_KERNELS"
 
 #: The kernel modules by part, imported at first use.
-PARTS = ("rays", "silhouettes", "views")
+PARTS = ("rays", "screen", "silhouettes", "views")
 
 _state = {"choice": None, "modules": {}, "resolved": None}
 
@@ -69,7 +69,8 @@ def _requested():
 def compiled(part="rays"):
     """A compiled kernels module, or None for the numpy path.
 
-    ``part``: ``"rays"`` (:mod:`sqfit.fitting.ray_kernels`), ``"silhouettes"``
+    ``part``: ``"rays"`` (:mod:`sqfit.fitting.ray_kernels`), ``"screen"``
+    (:mod:`sqfit.fitting.screen_kernels`, stage 3H's), ``"silhouettes"``
     (:mod:`sqfit.fitting.silhouette_kernels`) or ``"views"`` (:mod:`sqfit.fitting.view_kernels`, the
     factor graph's); each is imported (and its kernels loaded) at the first call that asks for it.
     """
@@ -81,6 +82,8 @@ def compiled(part="rays"):
     if module is None:
         if part == "rays":
             from . import ray_kernels as module
+        elif part == "screen":
+            from . import screen_kernels as module
         elif part == "silhouettes":
             from . import silhouette_kernels as module
         elif part == "views":

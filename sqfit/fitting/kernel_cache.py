@@ -3,8 +3,9 @@
 numba invalidates a cached kernel when the file that defines it changes, not when a function it calls
 from another file does (numba's documentation, "Notes on Caching": changes to symbols defined in
 another file are not detected). The factor graph's silhouette kernel
-(:mod:`sqfit.fitting.view_kernels`) calls the ray minimiser of :mod:`sqfit.fitting.ray_kernels`, and
-the silhouette kernels call its NaN-aware minimum and maximum. So after a change of ``ray_kernels.py``
+(:mod:`sqfit.fitting.view_kernels`) calls the ray minimiser of :mod:`sqfit.fitting.ray_kernels`, 3H's
+screen (:mod:`sqfit.fitting.screen_kernels`) its 3G rows, and the silhouette kernels its NaN-aware
+minimum and maximum. So after a change of ``ray_kernels.py``
 alone, a checkout kept loading the silhouette factors compiled against the old minimiser, while a fresh
 clone compiled them against the new one: the same code gave other results (found in issue 23's
 twenty-first pass: a checkout's cache from before the minimiser's slope fix of the nineteenth pass
@@ -26,7 +27,7 @@ import os
 __all__ = ["KERNEL_MODULES", "STAMP", "source_digest", "refresh", "refresh_for"]
 
 #: The modules of compiled kernels (in ``sqfit/fitting``), any of which may call another's kernels.
-KERNEL_MODULES = ("ray_kernels", "silhouette_kernels", "view_kernels")
+KERNEL_MODULES = ("ray_kernels", "screen_kernels", "silhouette_kernels", "view_kernels")
 #: File in numba's cache directory holding the digest of the sources its kernel files were compiled from.
 STAMP = "sqfit-kernels.sha256"
 

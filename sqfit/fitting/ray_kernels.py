@@ -5,7 +5,8 @@ The same formulas as the numpy code, written per ray / per point: :func:`gauge_m
 with the ray solve fused in, :func:`posed_rows` is :func:`sqfit.fitting.raycost.posed_ray_residuals`,
 :func:`radial_rows` is ``sqfit.fitting.costs._radial_core``, :func:`g5_rows` is
 :func:`sqfit.fitting.costs.g5_residuals` and :func:`log_gauge_rows` is
-:func:`sqfit.fitting.raycost.batch_log_gauge_jacobian`. Same operations in the same order wherever the
+:func:`sqfit.fitting.raycost.batch_log_gauge_jacobian`. Stage 3H's screen, a loop of these rows, is
+:mod:`sqfit.fitting.screen_kernels`. Same operations in the same order wherever the
 numpy code does not sum through BLAS, so the two agree to rounding (tests: residuals and
 Jacobians to 1e-12). No ``fastmath``: it would reorder them.
 
@@ -26,8 +27,8 @@ from numba import njit
 
 from .kernel_cache import refresh_for
 
-__all__ = ["nan_max", "nan_min", "ray_minimiser", "gauge_minima", "rotation", "log_gauge_point", "ray_rows", "posed_rows",
-           "radial_rows", "g5_rows", "log_gauge_rows", "screen_lm"]
+__all__ = ["nan_max", "nan_min", "ray_minimiser", "gauge_minima", "rotation", "log_gauge_point", "ray_block",
+           "penalty_rows", "ray_rows", "posed_rows", "radial_rows", "g5_rows", "log_gauge_rows"]
 
 _TINY = 1e-300
 _LOGE2 = math.log(2.0)
@@ -370,7 +371,7 @@ def log_gauge_rows(X, points):
 
 
 @njit(**_JIT)
-def _ray_block(xi, origins, directions, weights, kind, d0, warm, rtol, max_newton, max_warm, grid, znear,
+def ray_block(xi, origins, directions, weights, kind, d0, warm, rtol, max_newton, max_warm, grid, znear,
                warm_bracket, newton_power, r, J, d):
     """Weighted ray residuals of one superquadric into ``r`` ``(n,)``, their Jacobian into ``J``
     ``(n, 11)`` and the minimisers into ``d`` ``(n,)``.
@@ -412,7 +413,7 @@ def _ray_block(xi, origins, directions, weights, kind, d0, warm, rtol, max_newto
 
 
 @njit(**_JIT)
-def _penalty_rows(xi, weight, lower, upper, r, J, row):
+def penalty_rows(xi, weight, lower, upper, r, J, row):
     for j in range(11):
         r[row + j] = weight * (nan_max(lower[j] - xi[j], 0.0) + nan_max(xi[j] - upper[j], 0.0))
         J[row + j, j] = weight * ((1.0 if xi[j] > upper[j] else 0.0) - (1.0 if xi[j] < lower[j] else 0.0))
@@ -427,9 +428,9 @@ def ray_rows(X, origins, directions, weights, kind, d0, warm, rtol, max_newton, 
     b, n = X.shape[0], origins.shape[0]
     r, J, d = np.empty((b, n + 11)), np.zeros((b, n + 11, 11)), np.empty((b, n))
     for s in range(b):
-        _ray_block(X[s], origins, directions, weights, kind, d0[s] if warm else d[s], warm, rtol, max_newton,
+        ray_block(X[s], origins, directions, weights, kind, d0[s] if warm else d[s], warm, rtol, max_newton,
                    max_warm, grid, znear, warm_bracket, newton_power, r[s], J[s], d[s])
-        _penalty_rows(X[s], weight, lower, upper, r[s], J[s], n)
+        penalty_rows(X[s], weight, lower, upper, r[s], J[s], n)
     return r, J, d
 
 
@@ -460,7 +461,7 @@ def posed_rows(x, origins, directions, offsets, weights, radii, kind, view, grou
             turned[i, 0], turned[i, 1], turned[i, 2] = bx, by, bz
     r, J, d = np.empty(n + k + m), np.zeros((n + k + m, k + m)), np.empty(n)
     block = np.empty((n, k))
-    _ray_block(x[:k], origins, turned, weights, kind, d0, warm, rtol, max_newton, max_warm, grid, znear,
+    ray_block(x[:k], origins, turned, weights, kind, d0, warm, rtol, max_newton, max_warm, grid, znear,
                warm_bracket, newton_power, r, block, d)
     for i in range(n):
         for j in range(k):
@@ -489,7 +490,7 @@ def posed_rows(x, origins, directions, offsets, weights, radii, kind, view, grou
                 J[i, j] *= factor
             if inward < 0:
                 J[i, col] -= r[i] / radii[i]
-    _penalty_rows(x[:k], weight, lower, upper, r, J, n)
+    penalty_rows(x[:k], weight, lower, upper, r, J, n)
     for j in range(n_pose):
         r[n + k + j] = x[k + j] / sigma
         J[n + k + j, k + j] = 1.0 / sigma
@@ -500,96 +501,6 @@ def posed_rows(x, origins, directions, offsets, weights, radii, kind, view, grou
             J[n + k + n_pose + j, k + n_pose + col] = offset_prior[j, col]
         r[n + k + n_pose + j] = acc
     return r, J, d
-
-
-# ------------------------------------------------------------------------------------------------
-# the screen of stage 3H (sqfit.fitting.axis_screen.batch_levenberg_marquardt)
-
-
-@njit(**_JIT)
-def _normal(J, r, H, g):
-    m, k = J.shape
-    for i in range(k):
-        acc = 0.0
-        for row in range(m):
-            acc += J[row, i] * r[row]
-        g[i] = acc
-        for j in range(i, k):
-            acc = 0.0
-            for row in range(m):
-                acc += J[row, i] * J[row, j]
-            H[i, j] = acc
-            H[j, i] = acc
-
-
-@njit(**_JIT)
-def _all_finite(A):
-    for v in A.ravel():
-        if not np.isfinite(v):
-            return False
-    return True
-
-
-@njit(**_JIT)
-def screen_lm(X0, origins, directions, weights, kind, iterations, rtol, max_newton, max_warm, grid, znear,
-              warm_bracket, newton_power, weight, lower, upper, lambda0, lambda_max, prune_after, prune_ratio):
-    """:func:`sqfit.fitting.axis_screen.batch_levenberg_marquardt` (``prune_after < 0``: never) -> best
-    points ``(b, 11)`` and costs ``(b,)``. Each start is solved on its own (the numpy code solves
-    the active starts' ``11 x 11`` systems as one stack)."""
-    b, n, k = X0.shape[0], origins.shape[0], 11
-    X = X0.copy()
-    r, J, d = ray_rows(X, origins, directions, weights, kind, X, False, rtol, max_newton, max_warm, grid, znear,
-                       warm_bracket, newton_power, weight, lower, upper)
-    cost, lam, nu = np.empty(b), np.empty(b), np.full(b, 2.0)
-    ok = np.empty(b, dtype=np.bool_)
-    H, g = np.empty((b, k, k)), np.empty((b, k))
-    for s in range(b):
-        cost[s] = 0.5 * np.dot(r[s], r[s])
-        ok[s] = np.isfinite(cost[s]) and _all_finite(J[s])
-        if not ok[s]:
-            cost[s] = np.inf
-        _normal(J[s], r[s], H[s], g[s])
-        lam[s] = lambda0 * max(np.max(np.diag(H[s])), 1e-12)
-    r_new, J_new, d_new = np.empty(n + k), np.zeros((n + k, k)), np.empty(n)
-    trial, dx, Jdx = np.empty(k), np.empty(k), np.empty(n + k)
-    for it in range(iterations):
-        if it == prune_after:
-            lowest = np.min(cost)
-            for s in range(b):
-                ok[s] = ok[s] and cost[s] <= prune_ratio * lowest
-        any_active = False
-        for s in range(b):
-            if not (ok[s] and lam[s] < lambda_max):
-                continue
-            any_active = True
-            A = H[s] + lam[s] * np.eye(k)
-            try:
-                dx[:] = -np.linalg.solve(A, g[s])
-            except Exception:  # singular or not finite: as a non-finite step
-                dx[:] = np.nan
-            finite = _all_finite(dx)
-            for j in range(k):
-                trial[j] = X[s, j] + dx[j] if finite else X[s, j]
-                if not finite:
-                    dx[j] = 0.0
-            _ray_block(trial, origins, directions, weights, kind, d[s], True, rtol, max_newton, max_warm, grid, znear,
-                       warm_bracket, newton_power, r_new, J_new, d_new)
-            _penalty_rows(trial, weight, lower, upper, r_new, J_new, n)
-            cost_new = 0.5 * np.dot(r_new, r_new)
-            Jdx[:] = J[s] @ dx
-            predicted = -np.dot(g[s], dx) - 0.5 * np.dot(Jdx, Jdx)
-            rho = (cost[s] - cost_new) / predicted if predicted > 0 else -1.0
-            if finite and np.isfinite(cost_new) and rho > 0 and _all_finite(J_new):
-                X[s], r[s], J[s], d[s], cost[s] = trial, r_new, J_new, d_new, cost_new
-                _normal(J[s], r[s], H[s], g[s])
-                lam[s] *= max(1.0 / 3.0, 1.0 - (2.0 * rho - 1.0) ** 3)
-                nu[s] = 2.0
-            else:
-                lam[s] *= nu[s]
-                nu[s] *= 2.0
-        if not any_active:
-            break
-    return X, cost
 
 
 # before any kernel here or in the modules importing from here runs (sqfit.fitting.kernel_cache)
