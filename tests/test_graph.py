@@ -98,6 +98,32 @@ def test_silhouette_jacobians_match_central_differences():
     np.testing.assert_allclose(Js, central_difference(f_s, s), atol=1e-6)
 
 
+@pytest.mark.parametrize("batch", [False, True])
+def test_silhouette_jacobians_of_a_diamond_section_match_central_differences(batch):
+    """A landmark whose section is diamond-like (``e2 = 1.8``): its outline rays have their minimisers
+    on its coordinate planes, where the pose Jacobians carry the minimiser's motion with the plane
+    (:func:`sqfit.fitting.raycost.crossing_correction`; without it they were off by up to ~40 %, and
+    Levenberg-Marquardt and iSAM2 stopped in the graph's flat directions). Central differences of
+    such cusps carry ~1e-4, hence the tolerance."""
+    sq = sqfit.Superquadric((0.5, 0.3, 0.4), (1.0, 1.8), (0.2, -0.1, 0.4), (0.3, -0.2, 0.5))
+    rays = _rays(sq, n=32)
+    T, s = landmark.superquadric_to_landmark(sq)
+    Tl = _retract(T, np.array([0.01, -0.01, 0.005, 0.004, 0.002, -0.003]))
+
+    def evaluate(Tc, Tl_, s_):
+        if not batch:
+            return landmark.silhouette_residuals(Tc, Tl_, s_, rays)
+        return [a[0] for a in landmark.batch_silhouette_residuals(Tc[None], Tl_[None], s_[None],
+                                                                  landmark.stack_rays([rays]))]
+
+    r, Jc, Jl, Js, d = evaluate(T_CAM, Tl, s)
+    f_cam = lambda x: evaluate(_retract(T_CAM, x), Tl, s)[0]  # noqa: E731
+    f_lm = lambda x: evaluate(T_CAM, _retract(Tl, x), s)[0]  # noqa: E731
+    scale = max(np.abs(Jc).max(), np.abs(Jl).max())
+    np.testing.assert_allclose(Jc, central_difference(f_cam, np.zeros(6), h=1e-7), atol=1e-3 * scale)
+    np.testing.assert_allclose(Jl, central_difference(f_lm, np.zeros(6), h=1e-7), atol=1e-3 * scale)
+
+
 def test_silhouette_shape_outside_the_domain_is_clipped_with_zero_columns():
     rays = _rays()
     T, s = landmark.superquadric_to_landmark(SQ)

@@ -19,7 +19,7 @@ PROBE = """
 import sys
 sys.path.insert(0, sys.argv[1])
 import numpy as np
-from sqfit.fitting import line_gauge, view_kernels
+from sqfit.fitting import line_gauge, raycost, view_kernels
 camera, landmark = np.eye(4)[None].copy(), np.eye(4)[None].copy()
 landmark[0, 2, 3] = 5.0
 shape = np.array([[0.5, 0.4, 0.3, 1.0, 1.0]])
@@ -27,7 +27,7 @@ bearings = np.array([[[0.1, 0.0, 1.0], [0.0, 0.09, 1.0], [-0.1, 0.0, 1.0], [0.0,
 off, on = np.zeros((1, 4), dtype=bool), np.ones((1, 4), dtype=bool)
 r = view_kernels.silhouette_rows(camera, landmark, shape, bearings, np.ones((1, 4)), off, off, on,
                                  np.array([0.01] * 3 + [0.1] * 2), np.array([10.0] * 3 + [1.9] * 2),
-                                 *line_gauge.solver_args(start="nearest"))[0]
+                                 *line_gauge.solver_args(start="nearest"), *raycost.CROSSING_ARGS)[0]
 print(repr(float(r.sum())))
 """
 

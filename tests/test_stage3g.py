@@ -9,6 +9,9 @@ from sqfit.fitting.raycost import posed_ray_residuals, ray_residuals
 from sqfit.views.rays import CONTOUR, INSIDE, OUTSIDE, RaySet, contour_rays, outward_normals
 from sqfit.geometry.superquadric import Superquadric, implicit
 from sqfit.testing import paper_trial
+from sqfit.fitting import backend
+from sqfit.geometry.camera import bearings
+from sqfit.geometry.silhouette import silhouette
 from _helpers import turned_pose
 from _numeric import central_difference
 
@@ -55,15 +58,17 @@ def test_ray_minima_warm_start_agrees(trial):
     np.testing.assert_allclose(warm, cold, atol=1e-6)
 
 
-# Known limitation: for e2 near 1.9 (octahedron-like sections) rays grazing an edge are nearly
-# kinks of m, the inner minimiser is not converged to first order and a few Jacobian rows are off.
-KINKY = pytest.mark.xfail(strict=True, reason="e2 ~ 1.9: near-kink rays, inner minimiser not converged")
+# For e2 near 1.9 (octahedron-like sections) rays grazing an edge have their minimiser on a
+# coordinate plane, where |y|^(2 / e2) is nearly a kink: central differences of such rows carry
+# errors of ~1e-4, so there the Jacobian is compared at 1e-3 (it was off by up to ~0.5, an expected
+# failure here, before the minimiser's motion with the plane was added:
+# sqfit.fitting.raycost.crossing_correction).
+KINKY_E2 = 1.8
 # 3G's own lower bound (``constants.SILHOUETTE_SHAPE_BOUNDS``), just above it and just below (the
 # penalty is soft), where boxes and cylinders end: powers of 2 / e ~ 130 stay finite in log space.
 SHARP = C.SILHOUETTE_SHAPE_BOUNDS[0]
 SHARP_SHAPES = [(1.1 * SHARP, 1.1 * SHARP), (1.1 * SHARP, 1.0), (1.0, 1.1 * SHARP), (0.8 * SHARP, 0.8 * SHARP)]
-JAC_SHAPES = [(0.11, 0.11), pytest.param((0.11, 1.89), marks=KINKY), (1.89, 0.11),
-              pytest.param((1.89, 1.89), marks=KINKY), (1.0, 1.0), (0.5, 1.5)] + SHARP_SHAPES
+JAC_SHAPES = [(0.11, 0.11), (0.11, 1.89), (1.89, 0.11), (1.89, 1.89), (1.0, 1.0), (0.5, 1.5)] + SHARP_SHAPES
 
 
 @pytest.mark.parametrize("shape", JAC_SHAPES)
@@ -79,7 +84,48 @@ def test_ray_residual_jacobian_matches_central_differences(trial, shape, band):
     # sizes disagree, the difference quotient is meaningless; at most a few rays may be such.
     smooth = np.all(np.abs(num - fine) < 1e-4 * max(1.0, np.abs(num).max()), axis=1)
     assert smooth.mean() > 0.7
-    np.testing.assert_allclose(J[smooth], num[smooth], atol=1e-5 * max(1.0, np.abs(num).max()))
+    tol = 1e-3 if shape[1] > KINKY_E2 else 1e-5
+    np.testing.assert_allclose(J[smooth], num[smooth], atol=tol * max(1.0, np.abs(num).max()))
+
+
+@pytest.mark.parametrize("kernels", ["numba", "numpy"])
+@pytest.mark.parametrize("shape", [(1.0, 1.8), (1.8, 1.0), (0.5, 1.9), (1.9, 0.3), (1.7, 1.6)])
+def test_jacobian_where_the_minimiser_is_on_a_coordinate_plane(trial, kernels, shape):
+    """Rays through the exact outline of superquadrics whose sections are diamond-like (``e > 1``)
+    graze them at their edges, where the ray's minimiser lies on a coordinate plane and the slope of
+    ``|y_j|^(2 / e)`` along the ray never reaches 0 in floating point: the Jacobian in the position
+    and the rotation must carry the minimiser's motion with that plane
+    (:func:`sqfit.fitting.raycost.crossing_correction`; without it off by 4-70 % per column here).
+    Minimisers on an axis (two planes: rays through a pointed tip) are left out, as the correction
+    leaves them."""
+    if kernels == "numba":
+        pytest.importorskip("numba")
+    previous = backend.set_kernels(kernels)
+    try:
+        rng = np.random.default_rng(7)
+        xi = np.r_[rng.uniform(0.5, 2.0, 3), shape, rng.uniform(-1.0, 1.0, 3), rng.uniform(-np.pi, np.pi, 3)]
+        sq = Superquadric.from_vector(xi)
+        origins, directions = [], []
+        for cam in trial.cameras:
+            b = bearings(cam, silhouette(sq, cam, 48)) @ cam.rotation.T
+            origins.append(np.broadcast_to(cam.center, b.shape))
+            directions.append(b)
+        n = sum(len(b) for b in directions)
+        rays = RaySet(np.concatenate(origins), np.concatenate(directions), np.full(n, CONTOUR), np.ones(n),
+                      np.zeros(n, dtype=int))
+        x0 = xi * np.r_[1.02, 0.98, 1.01, np.ones(8)]  # the rays still graze near the edges
+        _, J, d = ray_residuals(x0, rays, 0.0)
+        f = lambda x: ray_residuals(x, rays, 0.0)[0][:n]  # noqa: E731
+        num = central_difference(f, x0, h=1e-7)
+        R = Superquadric.from_vector(x0).rotation_matrix
+        near = np.abs((rays.origins + d[:, None] * rays.directions - x0[5:8]) @ R) / np.abs(x0[:3]) < 1e-6
+        assert (near.sum(axis=1) == 1).sum() >= 10  # the case at hand: many minimisers on one plane
+        kept = near.sum(axis=1) < 2
+        pose = slice(5, 11)
+        error = np.abs(J[:n][kept, pose] - num[kept, pose]).max(axis=0) / np.abs(num[kept, pose]).max(axis=0)
+        assert error.max() < 1e-2, error
+    finally:
+        backend.set_kernels(previous)
 
 
 def test_residual_sign_sees_both_sides(trial):
@@ -186,7 +232,8 @@ def test_posed_ray_residual_jacobian_matches_central_differences(trial, shape):
     smooth = np.all(np.abs(num - fine) < 1e-4 * max(1.0, np.abs(num).max()), axis=1)
     assert smooth.mean() > 0.7
     assert np.abs(J[:len(rays), 11:]).max() > 1e-2  # the rotation columns are not trivially zero
-    np.testing.assert_allclose(J[smooth], num[smooth], atol=1e-5 * max(1.0, np.abs(num).max()))
+    tol = 1e-3 if shape[1] > KINKY_E2 else 1e-5
+    np.testing.assert_allclose(J[smooth], num[smooth], atol=tol * max(1.0, np.abs(num).max()))
 
 
 def test_posed_residuals_at_zero_correction_are_the_plain_ones(trial):

@@ -135,7 +135,7 @@ from .._checks import check_shape
 from .restarts import N_SCREEN_CONTOUR, screen_rays, symmetric_candidates
 from .backend import compiled
 from .line_gauge import solver_args
-from .raycost import RAY_BOUNDS, batch_ray_residuals, ray_bounds, ray_kind
+from .raycost import CROSSING_ARGS, RAY_BOUNDS, batch_ray_residuals, ray_bounds, ray_kind
 from .grazing import (POSE_NOISE_TRIGGER_DEG, SilhouetteFit, describe_values, minimise, offset_groups,
                       outline_rays, shifted_rays, silhouette_fit)
 from .costs import ObservationSet
@@ -258,7 +258,8 @@ def batch_levenberg_marquardt(X0, rays, iterations, weight=C.PENALTY_ANALYTIC, p
     if kernels is not None:  # the same loop, compiled (sqfit.fitting.screen_kernels.screen_lm)
         with np.errstate(all="ignore"):
             return kernels.screen_lm(X, rays.origins, rays.directions, rays.weights, ray_kind(rays), int(iterations),
-                                     *solver_args(SCREEN_RTOL, SCREEN_MAX_NEWTON), float(weight), *bounds,
+                                     *solver_args(SCREEN_RTOL, SCREEN_MAX_NEWTON), *CROSSING_ARGS, float(weight),
+                                     *bounds,
                                      _LAMBDA0, _LAMBDA_MAX, -1 if prune_after is None else int(prune_after),
                                      float(prune_ratio))
     with np.errstate(all="ignore"):

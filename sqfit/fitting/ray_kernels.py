@@ -5,8 +5,9 @@ The same formulas as the numpy code, written per ray / per point: :func:`gauge_m
 with the ray solve fused in, :func:`posed_rows` is :func:`sqfit.fitting.raycost.posed_ray_residuals`,
 :func:`radial_rows` is ``sqfit.fitting.costs._radial_core``, :func:`g5_rows` is
 :func:`sqfit.fitting.costs.g5_residuals` and :func:`log_gauge_rows` is
-:func:`sqfit.fitting.raycost.batch_log_gauge_jacobian`. Stage 3H's screen, a loop of these rows, is
-:mod:`sqfit.fitting.screen_kernels`. Same operations in the same order wherever the
+:func:`sqfit.fitting.raycost.batch_log_gauge_jacobian`; :func:`crossing_fix` is
+:func:`sqfit.fitting.raycost.crossing_correction` for one ray. Stage 3H's screen, a loop of these
+rows, is :mod:`sqfit.fitting.screen_kernels`. Same operations in the same order wherever the
 numpy code does not sum through BLAS, so the two agree to rounding (tests: residuals and
 Jacobians to 1e-12). No ``fastmath``: it would reorder them.
 
@@ -27,8 +28,8 @@ from numba import njit
 
 from .kernel_cache import refresh_for
 
-__all__ = ["nan_max", "nan_min", "ray_minimiser", "gauge_minima", "rotation", "log_gauge_point", "ray_block",
-           "penalty_rows", "ray_rows", "posed_rows", "radial_rows", "g5_rows", "log_gauge_rows"]
+__all__ = ["nan_max", "nan_min", "ray_minimiser", "gauge_minima", "rotation", "log_gauge_point", "crossing_fix",
+           "ray_block", "penalty_rows", "ray_rows", "posed_rows", "radial_rows", "g5_rows", "log_gauge_rows"]
 
 _TINY = 1e-300
 _LOGE2 = math.log(2.0)
@@ -366,13 +367,39 @@ def log_gauge_rows(X, points):
     return log_g, d_xi
 
 
+@njit(**_JIT)
+def crossing_fix(xi, R, dR, px, py, pz, bx, by, bz, out, tol, parallel):
+    """:func:`sqfit.fitting.raycost.crossing_correction` of one ray: ``out`` ``(11,)``, ``d log g / d xi``
+    at the ray's minimiser ``(px, py, pz)`` (world), corrected in place where that point lies on a
+    coordinate plane of the superquadric whose power is below 2; ``(bx, by, bz)`` the ray's world
+    direction."""
+    rx, ry, rz = px - xi[5], py - xi[6], pz - xi[7]
+    lx, ly, lz = _dot3(R, 0, bx, by, bz), _dot3(R, 1, bx, by, bz), _dot3(R, 2, bx, by, bz)
+    ax, ay, az = abs(xi[0]), abs(xi[1]), abs(xi[2])
+    reach = parallel * math.sqrt((lx / ax) ** 2 + (ly / ay) ** 2 + (lz / az) ** 2)
+    plane, planes, across = -1, 0, 0.0
+    for j in range(3):
+        a, lj = abs(xi[j]), (lx, ly, lz)[j]
+        if abs(_dot3(R, j, rx, ry, rz)) / a < tol:
+            planes += 1
+            if (xi[4] if j < 2 else xi[3]) > 1.0 and abs(lj) / a > reach:  # |y_j|^(2 / e), 2 / e < 2
+                plane, across = j, lj
+    if plane < 0 or planes > 1:  # off every plane, or on an axis (two planes): as it was
+        return
+    c = -(out[5] * bx + out[6] * by + out[7] * bz) / across  # the slope along the ray over d y_j / d d
+    for m in range(3):
+        out[5 + m] += c * R[m, plane]
+    for k in range(3):
+        out[8 + k] -= c * (rx * dR[k, plane] + ry * dR[k, 3 + plane] + rz * dR[k, 6 + plane])
+
+
 # ------------------------------------------------------------------------------------------------
 # 3G residuals (sqfit.fitting.raycost.batch_ray_residuals / posed_ray_residuals)
 
 
 @njit(**_JIT)
 def ray_block(xi, origins, directions, weights, kind, d0, warm, rtol, max_newton, max_warm, grid, znear,
-               warm_bracket, newton_power, r, J, d):
+               warm_bracket, newton_power, crossing_tol, crossing_parallel, r, J, d):
     """Weighted ray residuals of one superquadric into ``r`` ``(n,)``, their Jacobian into ``J``
     ``(n, 11)`` and the minimisers into ``d`` ``(n,)``.
 
@@ -397,8 +424,9 @@ def ray_block(xi, origins, directions, weights, kind, d0, warm, rtol, max_newton
                            ratio, xi[3], xi[4], d0[i] if warm else 0.0, warm, rtol, max_newton, max_warm, grid, znear,
                            warm_bracket, newton_power)
         d[i] = di
-        log_m = log_gauge_point(xi, log_a, R, dR, origins[i, 0] + di * bx, origins[i, 1] + di * by,
-                                 origins[i, 2] + di * bz, J[i], d_g3, d_point)
+        px, py, pz = origins[i, 0] + di * bx, origins[i, 1] + di * by, origins[i, 2] + di * bz
+        log_m = log_gauge_point(xi, log_a, R, dR, px, py, pz, J[i], d_g3, d_point)
+        crossing_fix(xi, R, dR, px, py, pz, bx, by, bz, J[i], crossing_tol, crossing_parallel)
         if log_m < 0:
             phi, dphi = math.exp(nan_min(log_m, 0.0)) - 1.0, math.exp(nan_min(log_m, 0.0))
         else:
@@ -421,7 +449,7 @@ def penalty_rows(xi, weight, lower, upper, r, J, row):
 
 @njit(**_JIT)
 def ray_rows(X, origins, directions, weights, kind, d0, warm, rtol, max_newton, max_warm, grid, znear, warm_bracket,
-             newton_power, weight, lower, upper):
+             newton_power, crossing_tol, crossing_parallel, weight, lower, upper):
     """:func:`sqfit.fitting.raycost.batch_ray_residuals`: ``X`` ``(b, 11)``, rays ``(n, 3)``, ``d0``
     ``(b, n)`` (read only if ``warm``) -> ``r`` ``(b, n + 11)``, ``J`` ``(b, n + 11, 11)``, ``d``
     ``(b, n)``."""
@@ -429,15 +457,16 @@ def ray_rows(X, origins, directions, weights, kind, d0, warm, rtol, max_newton, 
     r, J, d = np.empty((b, n + 11)), np.zeros((b, n + 11, 11)), np.empty((b, n))
     for s in range(b):
         ray_block(X[s], origins, directions, weights, kind, d0[s] if warm else d[s], warm, rtol, max_newton,
-                   max_warm, grid, znear, warm_bracket, newton_power, r[s], J[s], d[s])
+                   max_warm, grid, znear, warm_bracket, newton_power, crossing_tol, crossing_parallel, r[s], J[s],
+                   d[s])
         penalty_rows(X[s], weight, lower, upper, r[s], J[s], n)
     return r, J, d
 
 
 @njit(**_JIT)
 def posed_rows(x, origins, directions, offsets, weights, radii, kind, view, group, n_pose, d0, warm, rtol,
-               max_newton, max_warm, grid, znear, warm_bracket, newton_power, weight, lower, upper, sigma,
-               offset_prior):
+               max_newton, max_warm, grid, znear, warm_bracket, newton_power, crossing_tol, crossing_parallel, weight,
+               lower, upper, sigma, offset_prior):
     """:func:`sqfit.fitting.raycost.posed_ray_residuals`: ``x`` ``(11 + p + g,)`` (``n_pose = p``, 0 or
     ``3 v``; ``g`` outline offsets, prior rows ``offset_prior @ o``, ``(g, g)``), ``offsets`` ``(n, 3)``,
     ``radii`` ``(n,)``, ``view`` and ``group`` ``(n,) int64`` -> ``r`` ``(n + 11 + p + g,)``, ``J``
@@ -462,7 +491,7 @@ def posed_rows(x, origins, directions, offsets, weights, radii, kind, view, grou
     r, J, d = np.empty(n + k + m), np.zeros((n + k + m, k + m)), np.empty(n)
     block = np.empty((n, k))
     ray_block(x[:k], origins, turned, weights, kind, d0, warm, rtol, max_newton, max_warm, grid, znear,
-               warm_bracket, newton_power, r, block, d)
+               warm_bracket, newton_power, crossing_tol, crossing_parallel, r, block, d)
     for i in range(n):
         for j in range(k):
             J[i, j] = block[i, j]

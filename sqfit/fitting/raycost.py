@@ -34,6 +34,24 @@ effect: the object may reach past there, unseen). ``INSIDE`` rays are the same e
 The minimiser ``d*`` is found for all rays at once by a safeguarded Newton iteration on ``g`` (convex
 along a line) inside a bracket from the bounding geometry (:func:`sqfit.fitting.line_gauge.ray_minima`).
 
+Where ``d*`` lies on a coordinate plane of the superquadric (``y_j = 0``) whose power ``2 / e`` is
+below 2 (``e2 > 1`` for ``x`` and ``y``, ``e1 > 1`` for ``z``), the envelope theorem holds in exact
+arithmetic but not at the minimiser the solver returns: ``|y_j|^(2 / e)`` has a slope ``~ |y_j|^(2 /
+e - 1)`` that vanishes so slowly (``e = 1.8``: ``|y_j|^0.11``, still 0.1 at 1e-9) that no minimiser
+within rounding of the plane has a slope near 0 along the ray, and the derivative at that fixed
+point missed the minimiser's motion with the plane: on such rays the Jacobian of a ray residual in
+the position and rotation was off by up to 60 % (finite differences as the reference), where
+diamond-like sections graze their outline at their corners. :func:`crossing_correction` adds that
+motion: there ``y_j`` dominates the curvature along the ray, so ``dd* / dxi = -(dy_j / dxi) / (dy_j /
+dd)`` and ``dm / dxi = dg / dxi + (dg / dd) dd* / dxi`` (the derivative of ``g`` at the plane's
+crossing of the ray). A ray counts as on the plane when ``|y_j| / a_j`` is below
+:data:`CROSSING_TOL` and it is not within :data:`CROSSING_PARALLEL` of parallel to the plane;
+elsewhere, and on every superquadric with ``e1, e2 <= 1``, nothing changes. A minimiser on two
+planes at once (on an axis: a ray through a pointed tip, which an outline ray of a mask passes at a
+fraction of a pixel rather than through it) is left as it was. Solvers that stopped
+on such rays, the graph's (iSAM2, Levenberg-Marquardt) above all, went on there (docs/slam-history.md,
+"Issue 23, twenty-seventh pass").
+
 Outline offset (:func:`posed_ray_residuals`): the residual is relative, ``phi ~ e / h`` for a ray
 ``e`` px off a silhouette whose points lie ``h`` px from its centre along the normal. An offset
 ``o`` that moves every ray by ``-o`` px along the normal while the superquadric grows by as much
@@ -61,17 +79,72 @@ from .._checks import check_shape
 from .backend import compiled
 from .costs import LOWER_BOUNDS, UPPER_BOUNDS, batch_radial_terms, penalty, penalty_jacobian
 from .line_gauge import D_RTOL, MAX_NEWTON, batch_ray_minima, ray_minima, solver_args
+from ..geometry.superquadric import rotation_and_derivatives
 from ..views.rays import RaySet
 
 __all__ = ["ray_residuals", "batch_ray_residuals", "posed_ray_residuals",
            "log_gauge_jacobian", "batch_log_gauge_jacobian", "gauge_phi", "ray_kind",
-           "offset_groups_of", "RAY_BOUNDS", "ray_bounds"]
+           "offset_groups_of", "RAY_BOUNDS", "ray_bounds", "crossing_correction", "CROSSING_TOL",
+           "CROSSING_PARALLEL", "CROSSING_ARGS"]
 
 _TINY = 1e-300
 _NO_WARM = np.zeros(1)
 #: Soft bounds of the 3G penalty rows: those of eq. 7 but with ``C.SILHOUETTE_SHAPE_BOUNDS``.
 RAY_BOUNDS = (np.r_[LOWER_BOUNDS[:3], [C.SILHOUETTE_SHAPE_BOUNDS[0]] * 2, LOWER_BOUNDS[5:]],
                np.r_[UPPER_BOUNDS[:3], [C.SILHOUETTE_SHAPE_BOUNDS[1]] * 2, UPPER_BOUNDS[5:]])
+
+#: A ray's minimiser lies on a coordinate plane of the superquadric when its distance from it,
+#: relative to that half-axis, is below this (module docstring): the solver's tolerance puts such
+#: minimisers within ~1e-8 of it; a minimiser 1e-6 off the plane is already one of its own, where
+#: the slope along the ray is ~0 and the correction vanishes with it.
+CROSSING_TOL = 1e-6
+#: ... and the ray is not parallel to that plane: the ray's direction across it, relative to its
+#: whole direction (both in half-axis units), is above this.
+CROSSING_PARALLEL = 1e-3
+#: The compiled kernels' arguments for :func:`crossing_correction` (``crossing_tol, crossing_parallel``).
+CROSSING_ARGS = (CROSSING_TOL, CROSSING_PARALLEL)
+
+
+def crossing_correction(X, points, directions, d_xi, tol=CROSSING_TOL, parallel=CROSSING_PARALLEL):
+    """``d log g / d xi`` at the rays' minimisers, with the motion of a minimiser that lies on a
+    coordinate plane of its superquadric (module docstring); in place.
+
+    Parameters
+    ----------
+    X : (b, 11) float
+    points : (b, n, 3) float
+        The rays' minimisers (world).
+    directions : (n, 3) or (b, n, 3) float
+        The rays' world directions.
+    d_xi : (b, n, 11) float
+        ``d log g / d xi`` at ``points`` (:func:`batch_log_gauge_jacobian`); corrected in place.
+    tol, parallel : float
+        :data:`CROSSING_TOL` and :data:`CROSSING_PARALLEL`.
+
+    Returns
+    -------
+    d_xi : (b, n, 11) float
+    """
+    directions = np.broadcast_to(directions, points.shape)
+    for s in range(len(X)):
+        xi = X[s]
+        R, dR = rotation_and_derivatives(xi[8:11])
+        rel = points[s] - xi[5:8]
+        a = np.abs(xi[:3])
+        with np.errstate(invalid="ignore", divide="ignore"):
+            on, across = np.abs(rel @ R) / a < tol, (directions[s] @ R) / a
+            eligible = on & (np.abs(across) > parallel * np.sqrt((across * across).sum(axis=1))[:, None]) & (
+                np.array([xi[4], xi[4], xi[3]]) > 1.0)
+        # on one plane only (on two: an axis, left as it was)
+        rows = np.flatnonzero((on.sum(axis=1) == 1) & eligible.any(axis=1))
+        if not len(rows):
+            continue
+        j = np.argmax(eligible[rows], axis=1)
+        # the slope of log g along the ray over d y_j / d d (d log g / d p = -(d log g / d point))
+        c = -np.einsum("ij,ij->i", d_xi[s, rows, 5:8], directions[s, rows]) / (across[rows, j] * a[j])
+        d_xi[s, rows, 5:8] += c[:, None] * R[:, j].T
+        d_xi[s, rows, 8:11] -= c[:, None] * np.einsum("kmi,im->ik", dR[:, :, j], rel[rows])
+    return d_xi
 
 
 def ray_bounds(size_min=C.SIZE_MIN, bounds=RAY_BOUNDS):
@@ -106,7 +179,8 @@ def _compiled_rows(kernels, X, rays, weight, d0, rtol=D_RTOL, max_newton=MAX_NEW
     warm = d0 is not None
     return kernels.ray_rows(f(X, dtype=np.float64), f(rays.origins), f(rays.directions), f(rays.weights),
                             ray_kind(rays), f(d0, dtype=np.float64).reshape(len(X), len(rays)) if warm else
-                            _NO_WARM[None], warm, *solver_args(rtol, max_newton), float(weight), *bounds)
+                            _NO_WARM[None], warm, *solver_args(rtol, max_newton), *CROSSING_ARGS, float(weight),
+                            *bounds)
 
 
 def gauge_phi(log_m):
@@ -136,7 +210,9 @@ def _ray_terms(xi, rays, directions, d0, d=None):
     (``d`` given: the minimisers are known, e.g. from :func:`batch_ray_minima`)."""
     if d is None:
         d, _ = ray_minima(xi, rays.origins, directions, d0)
-    log_m, d_log_m = log_gauge_jacobian(xi, rays.origins + d[:, None] * directions)
+    points = rays.origins + d[:, None] * directions
+    log_m, d_log_m = log_gauge_jacobian(xi, points)
+    crossing_correction(xi[None], points[None], directions, d_log_m[None])
     phi, dphi = gauge_phi(log_m)
     scale = rays.weights
     hinge_in, hinge_out = rays._hinge_in, rays._hinge_out
@@ -218,6 +294,7 @@ def batch_ray_residuals(X, rays, weight=C.PENALTY_ANALYTIC, d0=None, rtol=D_RTOL
     J = np.zeros((b, n + k, k))
     points = rays.origins[None] + d[:, :, None] * rays.directions[None]
     log_m, d_log_m = batch_log_gauge_jacobian(X, points)
+    crossing_correction(X, points, rays.directions, d_log_m)
     phi, dphi = gauge_phi(log_m)
     scale = np.broadcast_to(rays.weights, (b, n))
     hinge_in, hinge_out = rays._hinge_in, rays._hinge_out
@@ -332,7 +409,7 @@ def posed_ray_residuals(x, rays, sigma_rad, weight=C.PENALTY_ANALYTIC, d0=None, 
         return kernels.posed_rows(f(x), f(rays.origins), f(rays.directions), f(rays.offsets), f(rays.weights),
                                   f(rays.radii), ray_kind(rays), f(rays.view), groups, p,
                                   f(d0, dtype=np.float64) if warm else _NO_WARM,
-                                  warm, *solver_args(D_RTOL, MAX_NEWTON), float(weight), *bounds,
+                                  warm, *solver_args(D_RTOL, MAX_NEWTON), *CROSSING_ARGS, float(weight), *bounds,
                                   float(sigma_rad), f(prior, dtype=np.float64).reshape(g, g))
     xi, w, o = x[:k], x[k:k + p].reshape(-1, 3), x[k + p:]
     b = rays.directions + o[groups][:, None] * rays.offsets if g else rays.directions

@@ -24,7 +24,6 @@ _JIT = dict(cache=True, error_model="numpy", nogil=True)
 
 
 
-
 @njit(**_JIT)
 def _normal(J, r, H, g):
     m, k = J.shape
@@ -51,14 +50,15 @@ def _all_finite(A):
 
 @njit(**_JIT)
 def screen_lm(X0, origins, directions, weights, kind, iterations, rtol, max_newton, max_warm, grid, znear,
-              warm_bracket, newton_power, weight, lower, upper, lambda0, lambda_max, prune_after, prune_ratio):
+              warm_bracket, newton_power, crossing_tol, crossing_parallel, weight, lower, upper, lambda0, lambda_max,
+              prune_after, prune_ratio):
     """:func:`sqfit.fitting.axis_screen.batch_levenberg_marquardt` (``prune_after < 0``: never) -> best
     points ``(b, 11)`` and costs ``(b,)``. Each start is solved on its own (the numpy code solves
     the active starts' ``11 x 11`` systems as one stack)."""
     b, n, k = X0.shape[0], origins.shape[0], 11
     X = X0.copy()
     r, J, d = ray_rows(X, origins, directions, weights, kind, X, False, rtol, max_newton, max_warm, grid, znear,
-                       warm_bracket, newton_power, weight, lower, upper)
+                       warm_bracket, newton_power, crossing_tol, crossing_parallel, weight, lower, upper)
     cost, lam, nu = np.empty(b), np.empty(b), np.full(b, 2.0)
     ok = np.empty(b, dtype=np.bool_)
     H, g = np.empty((b, k, k)), np.empty((b, k))
@@ -92,7 +92,7 @@ def screen_lm(X0, origins, directions, weights, kind, iterations, rtol, max_newt
                 if not finite:
                     dx[j] = 0.0
             ray_block(trial, origins, directions, weights, kind, d[s], True, rtol, max_newton, max_warm, grid, znear,
-                       warm_bracket, newton_power, r_new, J_new, d_new)
+                       warm_bracket, newton_power, crossing_tol, crossing_parallel, r_new, J_new, d_new)
             penalty_rows(trial, weight, lower, upper, r_new, J_new, n)
             cost_new = 0.5 * np.dot(r_new, r_new)
             Jdx[:] = J[s] @ dx

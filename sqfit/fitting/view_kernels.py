@@ -22,7 +22,7 @@ import math
 import numpy as np
 from numba import njit
 
-from .ray_kernels import log_gauge_point, nan_max, nan_min, ray_minimiser, rotation
+from .ray_kernels import crossing_fix, log_gauge_point, nan_max, nan_min, ray_minimiser, rotation
 
 __all__ = ["silhouette_rows"]
 
@@ -39,13 +39,15 @@ def _clip(x, lo, hi):
 
 @njit(**_JIT)
 def silhouette_rows(T_world_camera, T_world_sq, shape, directions, weights, hinge_in, hinge_out, two_sided, lower,
-                    upper, rtol, max_newton, max_warm, grid, znear, warm_bracket, newton_power):
+                    upper, rtol, max_newton, max_warm, grid, znear, warm_bracket, newton_power, crossing_tol,
+                    crossing_parallel):
     """:func:`sqfit.graph.landmark.batch_silhouette_residuals` (no offset, no warm start).
 
     ``T_world_camera``, ``T_world_sq`` ``(k, 4, 4)``; ``shape`` ``(k, 5)``, clipped to ``[lower,
     upper]`` (zero Jacobian columns where clipped); ``directions`` ``(k, n, 3)`` camera-frame
     bearings; ``weights`` ``(k, n)``; ``hinge_in``, ``hinge_out``, ``two_sided`` ``(k, n)`` bool;
-    the solver's constants as :func:`sqfit.fitting.line_gauge.solver_args` gives them. Returns ``r``
+    the solver's constants as :func:`sqfit.fitting.line_gauge.solver_args` gives them, then
+    :func:`sqfit.fitting.raycost.crossing_correction`'s two tolerances. Returns ``r``
     ``(k, n)``, ``J_camera``, ``J_landmark`` ``(k, n, 6)``, ``J_shape`` ``(k, n, 5)``, ``d``
     ``(k, n)``.
     """
@@ -84,6 +86,7 @@ def silhouette_rows(T_world_camera, T_world_sq, shape, directions, weights, hing
             d[f, i] = di
             yx, yy, yz = t_sc[0] + di * lx, t_sc[1] + di * ly, t_sc[2] + di * lz
             log_m = log_gauge_point(xi, log_a, R0, dR0, yx, yy, yz, d_xi, d_g3, d_point)
+            crossing_fix(xi, R0, dR0, yx, yy, yz, lx, ly, lz, d_xi, crossing_tol, crossing_parallel)
             if log_m < 0:  # sqfit.fitting.raycost.gauge_phi
                 m = math.exp(log_m)
                 phi, dphi = m - 1.0, m

@@ -38,7 +38,7 @@ from ..views.observation import Observation
 from ..fitting.stages import to_superquadric
 from ..fitting.backend import compiled
 from ..fitting.line_gauge import gauge_minima, solver_args
-from ..fitting.raycost import gauge_phi, batch_log_gauge_jacobian, ray_residuals
+from ..fitting.raycost import CROSSING_ARGS, crossing_correction, gauge_phi, batch_log_gauge_jacobian, ray_residuals
 from ..views.rays import contour_rays
 from ..geometry.superquadric import Superquadric
 
@@ -241,7 +241,8 @@ def batch_silhouette_residuals(T_world_camera, T_world_sq, shape, rays, d0=None,
         return kernels.silhouette_rows(f(T_world_camera, dtype=np.float64), f(T_world_sq, dtype=np.float64),
                                        f(shape, dtype=np.float64), f(rays.directions, dtype=np.float64),
                                        f(rays.weights, dtype=np.float64), f(rays.hinge_in), f(rays.hinge_out),
-                                       f(rays.two_sided), EVAL_LOWER, EVAL_UPPER, *solver_args(start=start))
+                                       f(rays.two_sided), EVAL_LOWER, EVAL_UPPER, *solver_args(start=start),
+                                       *CROSSING_ARGS)
     R_c, t_c = T_world_camera[:, :3, :3], T_world_camera[:, :3, 3]
     R_l, t_l = T_world_sq[:, :3, :3], T_world_sq[:, :3, 3]
     R_sc = np.einsum("kji,kjl->kil", R_l, R_c)  # R_l^T R_c
@@ -272,6 +273,7 @@ def batch_silhouette_residuals(T_world_camera, T_world_sq, shape, rays, d0=None,
         xi = np.zeros((1, C.N_PARAMS))
         xi[0, :N_SHAPE] = sj
         lm, dlm = batch_log_gauge_jacobian(xi, y[rows].reshape(1, -1, 3))
+        crossing_correction(xi, y[rows].reshape(1, -1, 3), ul[rows].reshape(1, -1, 3), dlm)
         log_m[rows], d_log_m[rows] = lm.reshape(len(rows), n), dlm.reshape(len(rows), n, C.N_PARAMS)
     phi, dphi = gauge_phi(log_m)
     active = np.where(rays.hinge_in, phi > 0, np.where(rays.hinge_out, (phi < 0) & rays.two_sided, True))
