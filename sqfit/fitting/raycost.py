@@ -40,7 +40,7 @@ arithmetic but not at the minimiser the solver returns: ``|y_j|^(2 / e)`` has a 
 e - 1)`` that vanishes so slowly (``e = 1.8``: ``|y_j|^0.11``, still 0.1 at 1e-9) that no minimiser
 within rounding of the plane has a slope near 0 along the ray, and the derivative at that fixed
 point missed the minimiser's motion with the plane: on such rays the Jacobian of a ray residual in
-the position and rotation was off by up to 60 % (finite differences as the reference), where
+the position and rotation was off by up to 70 % (finite differences as the reference), where
 diamond-like sections graze their outline at their corners. :func:`crossing_correction` adds that
 motion: there ``y_j`` dominates the curvature along the ray, so ``dd* / dxi = -(dy_j / dxi) / (dy_j /
 dd)`` and ``dm / dxi = dg / dxi + (dg / dd) dd* / dxi`` (the derivative of ``g`` at the plane's
@@ -48,9 +48,10 @@ crossing of the ray). A ray counts as on the plane when ``|y_j| / a_j`` is below
 :data:`CROSSING_TOL` and it is not within :data:`CROSSING_PARALLEL` of parallel to the plane;
 elsewhere, and on every superquadric with ``e1, e2 <= 1``, nothing changes. A minimiser on two
 planes at once (on an axis: a ray through a pointed tip, which an outline ray of a mask passes at a
-fraction of a pixel rather than through it) is left as it was. Solvers that stopped
-on such rays, the graph's (iSAM2, Levenberg-Marquardt) above all, went on there (docs/slam-history.md,
-"Issue 23, twenty-seventh pass").
+fraction of a pixel rather than through it) is left as it was. Without the correction the graph's
+Levenberg-Marquardt and iSAM2 stopped part way along its flattest direction, the map's scale, where
+such landmarks' linearisation promised decreases that did not come (docs/slam-history.md, "Issue 23,
+twenty-seventh pass").
 
 Outline offset (:func:`posed_ray_residuals`): the residual is relative, ``phi ~ e / h`` for a ray
 ``e`` px off a silhouette whose points lie ``h`` px from its centre along the normal. An offset

@@ -23,7 +23,6 @@ __all__ = ["screen_lm"]
 _JIT = dict(cache=True, error_model="numpy", nogil=True)
 
 
-
 @njit(**_JIT)
 def _normal(J, r, H, g):
     m, k = J.shape
