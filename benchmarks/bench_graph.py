@@ -80,11 +80,13 @@ def _row(method, result, seq):
     return row
 
 
-def scene_sequence(path, seed, index=0, frames=None, laps=None):
+def scene_sequence(path, seed, index=0, frames=None, laps=None, lap_pattern=None):
     """Sequence ``index`` of ``seed`` of a sequence scene, with observations as ``sqsim slam`` makes them;
     ``frames``: the trajectory's frame count instead of the scene's (same path, denser or sparser);
     ``laps``: an orbit's turns instead of the scene's (``trajectory.laps``; with ``frames`` growing as
-    the laps, the same step per frame on a longer run)."""
+    the laps, the same step per frame on a longer run); ``lap_pattern``: how its radius, height and
+    gaze cycles run over the laps instead of the scene's (``trajectory.lap_pattern``; ``"lap"``: each
+    run the one of fewer laps plus laps like it, :mod:`sqsim.world.trajectory`)."""
     from dataclasses import replace
     from types import SimpleNamespace
 
@@ -96,8 +98,10 @@ def scene_sequence(path, seed, index=0, frames=None, laps=None):
     scene = load_scene(path)
     if frames is not None:
         scene = replace(scene, trajectory=replace(scene.trajectory, frames=int(frames)))
-    if laps is not None:  # the scene's own checks: an orbit of full turns
-        scene = check_sequence_keys(replace(scene, trajectory=replace(scene.trajectory, laps=int(laps))))
+    if laps is not None or lap_pattern is not None:  # the scene's own checks: an orbit of full turns
+        trajectory = replace(scene.trajectory, laps=scene.trajectory.laps if laps is None else int(laps),
+                             lap_pattern=scene.trajectory.lap_pattern if lap_pattern is None else lap_pattern)
+        scene = check_sequence_keys(replace(scene, trajectory=trajectory))
     seq = simulate_sequence(scene, seed=seed, index=index)
     rng = np.random.default_rng(child_seed(trial_seed(seed, index), OBSERVATION_STREAM))
     observations = graph.observations_from_instances(seq.intrinsics, seq.odometry_poses, seq.images,
@@ -167,6 +171,10 @@ def main(argv=None):
     parser.add_argument("--scene-laps", type=int, default=None, help="with --scene: an orbit's turns instead of "
                         "the scene's (trajectory.laps); with --scene-frames growing as the laps: growth at the "
                         "same step per frame, the run longer, each lap revisiting the objects")
+    parser.add_argument("--scene-lap-pattern", choices=("run", "lap"), default=None, help="with --scene: how an "
+                        "orbit's radius, height and gaze cycles run over its laps instead of the scene's "
+                        "(trajectory.lap_pattern): 'lap' makes each run the one of fewer laps plus laps like it, "
+                        "the test of growth with length")
     parser.add_argument("--sequences", type=int, default=1, help="with --scene: sequences 0..N-1 of each seed")
     parser.add_argument("--perturb", type=int, default=1, help="runs per sequence with silhouette_sigma scaled by "
                         "1 + k 1e-9, k = 0..N-1: the spread of the results under a negligible change")
@@ -174,6 +182,8 @@ def main(argv=None):
     args = parser.parse_args(argv)
     if args.scene_laps is not None and (args.scene_laps < 1 or not args.scene):
         parser.error(f"--scene-laps must be >= 1 and needs --scene, got {args.scene_laps}")
+    if args.scene_lap_pattern is not None and not args.scene:
+        parser.error("--scene-lap-pattern needs --scene")
     for name in ("repeat", "sequences", "perturb"):
         if getattr(args, name) < 1:
             parser.error(f"--{name} must be >= 1, got {getattr(args, name)}")
@@ -184,7 +194,7 @@ def main(argv=None):
     for scene, seed, index in [(scene, seed, index) for scene in (args.scene or [None])
                                for seed in range(args.seed, args.seed + args.seeds)
                                for index in range(args.sequences if scene else 1)]:
-        seq = (scene_sequence(scene, seed, index, args.scene_frames, args.scene_laps) if scene
+        seq = (scene_sequence(scene, seed, index, args.scene_frames, args.scene_laps, args.scene_lap_pattern) if scene
                else synthetic_sequence(seed, args.frames, args.objects))
         given = base
         if scene:
@@ -203,6 +213,7 @@ def main(argv=None):
                              "repeat": args.repeat, **min(runs, key=lambda r: r["cpu_seconds"])})
     at = '' if args.scene_frames is None else f' at {args.scene_frames} frames'
     at += '' if args.scene_laps is None else f' in {args.scene_laps} laps'
+    at += '' if args.scene_lap_pattern is None else f' (lap pattern {args.scene_lap_pattern!r})'
     what = (f"{' + '.join(args.scene)}{at} (sequences 0..{args.sequences - 1} of each seed)" if args.scene
             else f"{args.frames} frames, {args.objects} objects")
     if args.perturb > 1:

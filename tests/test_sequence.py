@@ -85,6 +85,42 @@ def test_orbit_laps_revisit_from_other_places_and_gazes():
     np.testing.assert_array_equal(sequence_poses(scene(trajectory={"frames": 20, "laps": 1}).trajectory)[1], p1)
 
 
+
+@pytest.mark.parametrize("laps", [2, 3, 4])
+def test_orbit_laps_by_lap_extend_the_shorter_run(laps):
+    # lap_pattern = "lap": each lap a one-lap orbit of the same step, the cycles shifted lap by lap, so
+    # the first lap of any run is the one-lap orbit and a longer run is a shorter one plus laps like it
+    one = scene(trajectory={"frames": 20})
+    many = scene(trajectory={"frames": 20 * laps, "laps": laps, "lap_pattern": "lap"})
+    assert many.trajectory.lap_pattern == "lap" and one.trajectory.lap_pattern == "run"
+    p1, pn = sequence_poses(one.trajectory)[1], sequence_poses(many.trajectory)[1]
+    np.testing.assert_allclose(pn[:20], p1, atol=1e-12)
+    if laps in (2, 4):  # the sweep k * laps / frames is then exactly the one-lap orbit's k / 20
+        np.testing.assert_array_equal(pn[:20], p1)
+        half = sequence_poses(scene(trajectory={"frames": 20 * laps // 2, "laps": laps // 2,
+                                                "lap_pattern": "lap"}).trajectory)[1]
+        np.testing.assert_array_equal(pn[:len(half)], half)
+    c1, cn = p1[:, :3, 3], pn[:, :3, 3]
+    r1, rn = np.hypot(c1[:, 0], c1[:, 1]), np.hypot(cn[:, 0], cn[:, 1])
+    for lap in range(1, laps):
+        part = slice(20 * lap, 20 * (lap + 1))
+        # the same bearings, 18 degrees a frame ...
+        np.testing.assert_allclose(np.arctan2(cn[part, 1], cn[part, 0]), np.arctan2(c1[:, 1], c1[:, 0]), atol=1e-9)
+        # ... from other places and gazes than every lap before it
+        for before in range(lap):
+            other = slice(20 * before, 20 * (before + 1))
+            assert np.linalg.norm(cn[part] - cn[other], axis=1).max() > 0.5
+            assert angle_deg(np.einsum("kji,kjl->kil", pn[part, :3, :3], pn[other, :3, :3])).max() > 5.0
+        # each lap swings through the radius and height of one lap (within its samples' reach)
+        assert np.ptp(rn[part]) > 0.8 * np.ptp(r1) and np.ptp(cn[part, 2]) > 0.8 * np.ptp(c1[:, 2])
+    assert rn.min() >= 4.0 - 1e-9 and rn.max() <= 6.0 + 1e-9
+
+
+def test_orbit_lap_pattern_changes_nothing_on_one_lap():
+    p_run = sequence_poses(scene(trajectory={"frames": 20}).trajectory)[1]
+    p_lap = sequence_poses(scene(trajectory={"frames": 20, "lap_pattern": "lap"}).trajectory)[1]
+    np.testing.assert_array_equal(p_run, p_lap)
+
 def test_waypoints_interpolate_linearly_and_slerp(tmp_path):
     rows = [[0.0, 0, 0, 1, 0, 0, 0, 1], [2.0, 4, 0, 1, *Rotation.from_euler("z", 90, degrees=True).as_quat()],
             [3.0, 4, 2, 1, *Rotation.from_euler("z", 180, degrees=True).as_quat()]]
@@ -137,6 +173,10 @@ ORBIT_KEYS = {"radius_amplitude": None, "height_amplitude": None, "look_at_wande
     ({"trajectory": {"laps": 0}}, r"trajectory\.laps must be >= 1, got 0"),
     ({"trajectory": {"laps": 1.5}}, r"trajectory\.laps must be an integer"),
     ({"trajectory": {"laps": 2, "arc_deg": 300.0}}, r"trajectory\.laps > 1 needs full turns \(trajectory\.arc_deg = 360\)"),
+    ({"trajectory": {"laps": 2, "lap_pattern": "turn"}}, r"trajectory\.lap_pattern must be one of \['run', 'lap'\]"),
+    ({"trajectory": {"kind": "waypoints", **ORBIT_KEYS, "lap_pattern": "lap",
+                     "waypoints": [[0, 0, 0, 0, 0, 0, 0, 1], [1, 0, 0, 0, 0, 0, 0, 1]]}},
+     r"trajectory\.lap_pattern is only used with kind = \"orbit\""),
     ({"trajectory": {"kind": "waypoints", **ORBIT_KEYS, "laps": 2,
                      "waypoints": [[0, 0, 0, 0, 0, 0, 0, 1], [1, 0, 0, 0, 0, 0, 0, 1]]}},
      r"trajectory\.laps is only used with kind = \"orbit\""),
@@ -155,6 +195,7 @@ def test_bad_sequence_values_name_the_key(sections, match):
 @pytest.mark.parametrize("trajectory, noise, match", [
     ({"frames": 10}, {}, r"trajectory\.frames is only used by sequences"),
     ({"look_at_wander": 1.0}, {}, r"trajectory\.look_at_wander is only used by sequences"),
+    ({"lap_pattern": "lap"}, {}, r"trajectory\.lap_pattern is only used by sequences"),
     ({}, {"odometry_rotation_deg": 0.5}, r"noise\.odometry_rotation_deg is only used by sequences"),
 ])
 def test_sequence_keys_on_a_circle_scene(trajectory, noise, match):

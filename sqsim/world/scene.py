@@ -23,6 +23,7 @@ from sqfit.fitting.pipeline import OUTLINE_OFFSETS
 from sqfit.views.observation import POLYGON_KINDS, SAMPLING_METHODS
 
 from .objects import KEEPS_PROPORTIONS, PROPORTIONS, check_mesh_file
+from .trajectory import LAP_PATTERNS
 from .values import (boolean, catalogue, choice, integer, interval, nonempty_string, nonempty_strings, number,
                      optional_path, vector, waypoint_rows)
 
@@ -73,6 +74,7 @@ class TrajectoryConfig:
     frames: int | None = None
     frame_rate_hz: float | None = None
     laps: int | None = None
+    lap_pattern: str | None = None
     radius_amplitude: float | None = None
     height_amplitude: float | None = None
     look_at_wander: float | None = None
@@ -154,7 +156,7 @@ _CHECKS = {
     "trajectory": {"kind": choice(TRAJECTORIES), "radius": number(0, lo_open=True), "views": integer(1),
                    "height": number(), "arc_deg": number(0, 360, lo_open=True), "look_at": vector(3),
                    "start_deg": number(), "frames": integer(2), "frame_rate_hz": number(0, lo_open=True),
-                   "laps": integer(1),
+                   "laps": integer(1), "lap_pattern": choice(LAP_PATTERNS),
                    "radius_amplitude": number(0), "height_amplitude": number(0), "look_at_wander": number(0),
                    "waypoints": waypoint_rows, "waypoints_file": optional_path},
     "objects": {"count": integer(1), "kind": choice(OBJECT_KINDS), "size": interval(0, lo_open=True),

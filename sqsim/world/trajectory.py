@@ -7,17 +7,26 @@ Two sequence kinds (``[trajectory] kind``); the multi-view ``circle`` stays in `
     full turn, ``arc_deg = 360``, does not repeat the first pose), frame ``k`` at time
     ``k / frame_rate_hz`` seconds; with ``laps = L`` (> 1, full turns only) the camera goes round
     ``L`` times, ``360 L`` degrees over the ``frames``. With ``u`` the fraction of the sweep
-    (``k / frames`` for full turns, ``k / (frames - 1)`` otherwise; over all laps, so the radius,
-    height and gaze below vary over the whole run as over one turn, and no lap passes the objects
-    from the places and gazes of the one before: the gaze's first term never repeats a lap's, and the
-    radius (2 cycles) and the height (3 cycles) never both do: revisits, not repeated images), the
-    camera is at distance
+    (``k / frames`` for full turns, ``k / (frames - 1)`` otherwise), the camera is at distance
     ``radius + radius_amplitude * sin(2 pi * ORBIT_RADIUS_CYCLES * u)`` from the (wandering)
     centre in the horizontal plane, at height ``height + height_amplitude *
     sin(2 pi * ORBIT_HEIGHT_CYCLES * u)``, and looks at ``look_at + look_at_wander * w(u)`` with
     ``w(u) = (sin(2 pi u), sin(4 pi u), LOOK_AT_WANDER_Z * sin(6 pi u))`` (a Lissajous curve),
-    world +z up in the image. The path is the same for every trial of a scene (objects and
-    odometry noise are what a trial draws).
+    world +z up in the image. How ``u`` runs over several laps (``lap_pattern``):
+
+    - ``"run"`` (the default): over the whole run, so the radius, height and gaze vary over all
+      laps as over one turn, and no lap passes the objects from the places and gazes of the one
+      before (the gaze's first term never repeats a lap's, and the radius (2 cycles) and the height
+      (3 cycles) never both do: revisits, not repeated images).
+    - ``"lap"``: over each lap, each lap's ``u`` shifted by :data:`LAP_SHIFT` more than the lap's
+      before (``u = s - l + LAP_SHIFT * l`` in lap ``l = floor(s)`` of ``s = laps * k / frames``): every lap is a one-lap orbit of the same step, from other places and gazes (the
+      shift is irrational, so no two laps repeat each other's), and the first ``frames / laps``
+      frames of a run of ``laps`` laps are the one-lap orbit of that many frames. Runs of 1, 2, 4
+      ... laps then differ in length only, each the one before plus laps like it: what a test of
+      growth with length needs (with ``"run"`` the first lap of two is another path than one lap
+      alone: docs/slam-history.md, twenty-eighth pass).
+
+    The path is the same for every trial of a scene (objects and odometry noise are what a trial draws).
 ``waypoints``
     Poses given as TUM rows ``[t, tx, ty, tz, qx, qy, qz, qw]`` (camera -> world, as
     ``sqfit.formats.tum``), inline (``waypoints``) or in a TUM file (``waypoints_file``, relative
@@ -54,8 +63,14 @@ DEFAULT_FRAME_RATE_HZ = 10.0
 ORBIT_RADIUS_CYCLES, ORBIT_HEIGHT_CYCLES = 2, 3
 #: Vertical extent of the look-at wander, as a fraction of ``look_at_wander``.
 LOOK_AT_WANDER_Z = 0.25
+#: How an orbit's radius, height and gaze cycles run over several laps (module docstring).
+LAP_PATTERNS = ("run", "lap")
+#: With ``lap_pattern = "lap"``, the shift of each lap's cycles against the lap's before, as a
+#: fraction of the sweep: the golden ratio's conjugate, the irrational whose multiples modulo 1
+#: spread most evenly, so laps never repeat.
+LAP_SHIFT = (5.0 ** 0.5 - 1.0) / 2.0
 
-_ORBIT_ONLY = ("frame_rate_hz", "laps", "radius_amplitude", "height_amplitude", "look_at_wander")
+_ORBIT_ONLY = ("frame_rate_hz", "laps", "lap_pattern", "radius_amplitude", "height_amplitude", "look_at_wander")
 _WAYPOINTS_ONLY = ("waypoints", "waypoints_file")
 _SEQUENCE_NOISE = ("odometry_rotation_deg", "odometry_translation_m")
 _VIEW_NOISE = ("pose_rotation_deg", "pose_translation_m")
@@ -120,6 +135,7 @@ def check_sequence_keys(scene):
             if getattr(t, k) is not None:
                 raise ValueError(f"{src}: trajectory.{k} is only used with kind = \"waypoints\"")
         fill.update(frame_rate_hz=t.frame_rate_hz or DEFAULT_FRAME_RATE_HZ, laps=t.laps or 1,
+                    lap_pattern=t.lap_pattern or LAP_PATTERNS[0],
                     radius_amplitude=t.radius_amplitude or 0.0, height_amplitude=t.height_amplitude or 0.0,
                     look_at_wander=t.look_at_wander or 0.0)
         if fill["laps"] > 1 and t.arc_deg < 360.0:
@@ -186,6 +202,11 @@ def orbit_poses(t):
     k = np.arange(n)
     u = k / n if t.arc_deg >= 360.0 else k / (n - 1)
     theta = np.radians(t.start_deg + t.arc_deg * laps * u)
+    if laps > 1 and t.lap_pattern == "lap":
+        # k * laps / n exactly, so a lap starts at an exact integer and lap 0 is the one-lap orbit
+        sweep = k * laps / n
+        lap = np.floor(sweep)
+        u = sweep - lap + LAP_SHIFT * lap
     two_pi_u = 2 * np.pi * u
     wander = np.stack([np.sin(two_pi_u), np.sin(2 * two_pi_u), LOOK_AT_WANDER_Z * np.sin(3 * two_pi_u)], axis=1)
     targets = np.asarray(t.look_at, dtype=np.float64) + t.look_at_wander * wander
