@@ -28,7 +28,10 @@ failure counts and the spread, so that two versions are compared by distribution
 The machine may be shared:
 CPU time is the less distorted figure, and ``--repeat N`` runs every method N times per sequence and
 keeps the run of least CPU time (the methods are deterministic: the repeats' results are checked to
-agree). ``--json PATH`` writes the per-run rows. A last table gives issue 23's figures: object IoU
+agree). ``--prefix N`` also runs each method on the first N frames alone and compares those frames'
+ATE and their objects' IoU with the same frames inside the whole run (a test of growth with length
+that holds the frames fixed; with ``--scene-lap-pattern lap`` the first laps of a run are the run
+of fewer laps). ``--json PATH`` writes the per-run rows. A last table gives issue 23's figures: object IoU
 median and 10th percentile over every object of every run, the same after the map's scale is
 aligned (:func:`sqfit.graph.testing.scale_aligned_objects`: the objects scaled about the first
 camera by the trajectory's least-squares scale, what the map loses to all but the scale, which no
@@ -78,6 +81,39 @@ def _row(method, result, seq):
                    frame_cpu_ms_median=1e3 * float(np.median(result.frame_cpu_seconds)),
                    frame_cpu_ms_max=1e3 * float(np.max(result.frame_cpu_seconds)))
     return row
+
+
+def _prefix_row(method, result, seq, options, n):
+    """The fields of ``--prefix n``: ``method`` run on the first ``n`` frames of ``seq`` alone, against
+    ``result`` (the whole run) on those frames: ATE over frames ``0 .. n-1`` both ways, and the
+    median 3D IoU of the objects those frames see, both ways."""
+    if n >= len(seq.true_poses):
+        raise SystemExit(f"--prefix {n}: the sequence has only {len(seq.true_poses)} frames")
+    observations = {key: o for key, o in seq.observations.items() if key[0] < n}
+    alone = graph.run(seq.intrinsics, seq.odometry_poses[:n], observations, [method], options)[method]
+    seen = {oid: seq.objects[oid] for _, oid in observations if oid in seq.objects}
+    return {"prefix_frames": n, "ate_prefix_alone_m": position_rmse(alone.poses, seq.true_poses[:n]),
+            "ate_prefix_in_run_m": position_rmse(result.poses[:n], seq.true_poses[:n]),
+            "iou_prefix_alone": float(np.median(list(object_ious(alone.objects, seen).values()))) if seen else float("nan"),
+            "iou_prefix_in_run": float(np.median(list(object_ious(result.objects, seen).values()))) if seen else float("nan")}
+
+
+def _prefix_table(rows, methods, n):
+    """``--prefix``'s table: per method, the first ``n`` frames' ATE and their objects' median IoU
+    estimated alone and inside the whole run (means over runs), their paired difference and the
+    runs where the whole run is worse."""
+    print(f"\nthe first {n} frames alone and inside the whole run (means over runs; worse: runs where the whole "
+          "run's estimate of those frames is worse)")
+    print(f"{'method':12s} {'runs':>5s} {'ATE alone':>10s} {'ATE in run':>11s} {'diff [mm]':>10s} {'worse':>6s} "
+          f"{'IoU alone':>10s} {'IoU in run':>11s} {'worse':>6s}")
+    for m in methods:
+        sel = [r for r in rows if r["method"] == m and "prefix_frames" in r]
+        if not sel:
+            continue
+        a, b = (np.array([r[c] for r in sel]) for c in ("ate_prefix_alone_m", "ate_prefix_in_run_m"))
+        ia, ib = (np.array([r[c] for r in sel]) for c in ("iou_prefix_alone", "iou_prefix_in_run"))
+        print(f"{m:12s} {len(sel):5d} {a.mean():10.4f} {b.mean():11.4f} {1e3 * (b - a).mean():+10.2f} "
+              f"{int((b > a).sum()):6d} {np.nanmean(ia):10.3f} {np.nanmean(ib):11.3f} {int((ib < ia).sum()):6d}")
 
 
 def scene_sequence(path, seed, index=0, frames=None, laps=None, lap_pattern=None):
@@ -178,12 +214,17 @@ def main(argv=None):
     parser.add_argument("--sequences", type=int, default=1, help="with --scene: sequences 0..N-1 of each seed")
     parser.add_argument("--perturb", type=int, default=1, help="runs per sequence with silhouette_sigma scaled by "
                         "1 + k 1e-9, k = 0..N-1: the spread of the results under a negligible change")
+    parser.add_argument("--prefix", type=int, default=0, help="also run each method on the first N frames alone "
+                        "and compare those frames' ATE and their objects' IoU with the same frames inside the whole "
+                        "run: whether a longer run makes the estimate of the frames it shares with a shorter one worse")
     parser.add_argument("--json", default=None)
     args = parser.parse_args(argv)
     if args.scene_laps is not None and (args.scene_laps < 1 or not args.scene):
         parser.error(f"--scene-laps must be >= 1 and needs --scene, got {args.scene_laps}")
     if args.scene_lap_pattern is not None and not args.scene:
         parser.error("--scene-lap-pattern needs --scene")
+    if args.prefix < 0 or args.prefix == 1:
+        parser.error(f"--prefix must be 0 (none) or at least 2 frames, got {args.prefix}")
     for name in ("repeat", "sequences", "perturb"):
         if getattr(args, name) < 1:
             parser.error(f"--{name} must be >= 1, got {getattr(args, name)}")
@@ -204,13 +245,17 @@ def main(argv=None):
         for k in range(args.perturb):
             options = {**given, "silhouette_sigma": sigma * (1.0 + k * 1e-9)} if k else (given or None)
             for m in methods:
-                runs = [_row(m, graph.run(seq.intrinsics, seq.odometry_poses, seq.observations, [m], options)[m],
-                             seq) for _ in range(args.repeat)]
+                results = [graph.run(seq.intrinsics, seq.odometry_poses, seq.observations, [m], options)[m]
+                           for _ in range(args.repeat)]
+                runs = [_row(m, result, seq) for result in results]
                 if len({(repr(r["ate_m"]), repr(r["iou_median"])) for r in runs}) > 1:
                     raise RuntimeError(f"seed {seed}, {m}: repeated runs disagree: {runs}")
+                kept = min(range(len(runs)), key=lambda j: runs[j]["cpu_seconds"])
+                row = runs[kept]
+                if args.prefix and m != "odometry":
+                    row.update(_prefix_row(m, results[kept], seq, options, args.prefix))
                 rows.append({"scene": scene, "seed": seed, "sequence": index, "perturbation": k,
-                             "views": len(seq.observations),
-                             "repeat": args.repeat, **min(runs, key=lambda r: r["cpu_seconds"])})
+                             "views": len(seq.observations), "repeat": args.repeat, **row})
     at = '' if args.scene_frames is None else f' at {args.scene_frames} frames'
     at += '' if args.scene_laps is None else f' in {args.scene_laps} laps'
     at += '' if args.scene_lap_pattern is None else f' (lap pattern {args.scene_lap_pattern!r})'
@@ -237,6 +282,8 @@ def main(argv=None):
               f"{_fmt(np.median([r['iou_median'] for r in sel]), '11.3f')} "
               f"{sum(r['objects_failed'] for r in sel):19d} {_spread(sel, 'ate_m')[0]:11.4f}")
     _acceptance(rows, methods)
+    if args.prefix:
+        _prefix_table(rows, methods, args.prefix)
     graph_rows = [r for r in rows if r["method"] in ("graph", "graph-isam2")]
     if graph_rows:
         print("\nper run (targets: batch solve <= 5 s, iSAM2 update <= 100 ms per frame, median; CPU time)")
