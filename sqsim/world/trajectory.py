@@ -19,9 +19,10 @@ Two sequence kinds (``[trajectory] kind``); the multi-view ``circle`` stays in `
       before (the gaze's first term never repeats a lap's, and the radius (2 cycles) and the height
       (3 cycles) never both do: revisits, not repeated images).
     - ``"lap"``: over each lap, each lap's ``u`` shifted by :data:`LAP_SHIFT` more than the lap's
-      before (``u = s - l + LAP_SHIFT * l`` in lap ``l = floor(s)`` of ``s = laps * k / frames``): every lap is a one-lap orbit of the same step, from other places and gazes (the
-      shift is irrational, so no two laps repeat each other's), and the first ``frames / laps``
-      frames of a run of ``laps`` laps are the one-lap orbit of that many frames. Runs of 1, 2, 4
+      before (``u = s - l + LAP_SHIFT * l`` in lap ``l = floor(s)`` of ``s = laps * k / frames``):
+      every lap is a one-lap orbit of the same step, from other places and gazes (the shift is
+      irrational, so no two laps repeat each other's), and the first ``frames / laps`` frames of a
+      run of ``laps`` laps are the one-lap orbit of that many frames. Runs of 1, 2, 4
       ... laps then differ in length only, each the one before plus laps like it: what a test of
       growth with length needs (with ``"run"`` the first lap of two is another path than one lap
       alone: docs/slam-history.md, twenty-eighth pass).
@@ -35,7 +36,7 @@ Two sequence kinds (``[trajectory] kind``); the multi-view ``circle`` stays in `
     spherical linear interpolation (``scipy.spatial.transform.Slerp``) between the two waypoints
     around each timestamp, so a frame at a waypoint's time has that waypoint's pose.
 
-Keys used only by sequences (``frames``, ``frame_rate_hz``, ``laps``, ``*_amplitude``, ``look_at_wander``,
+Keys used only by sequences (``frames``, ``frame_rate_hz``, ``laps``, ``lap_pattern``, ``*_amplitude``, ``look_at_wander``,
 ``waypoints``, ``waypoints_file``, ``noise.odometry_*``) are an error on a ``circle`` scene, and the
 per-view ``noise.pose_*`` noise is an error on a sequence scene (sequences get odometry noise,
 ``sqsim.world.odometry``); every message names the key.
@@ -51,7 +52,8 @@ import numpy as np
 import sqfit
 from sqfit.formats.tum import read_tum, rows_to_poses
 
-__all__ = ["SEQUENCE_KINDS", "DEFAULT_FRAMES", "DEFAULT_FRAME_RATE_HZ", "is_sequence", "sequence_poses",
+__all__ = ["SEQUENCE_KINDS", "DEFAULT_FRAMES", "DEFAULT_FRAME_RATE_HZ", "LAP_PATTERNS", "LAP_SHIFT", "is_sequence",
+           "sequence_poses",
            "orbit_poses", "waypoint_poses", "check_waypoint_rows", "check_sequence_keys"]
 
 SEQUENCE_KINDS = ("orbit", "waypoints")
