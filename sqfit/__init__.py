@@ -9,7 +9,8 @@ Quick start::
     obs = [sqfit.Observation.from_mask(cam, mask, rng=0) for cam, mask in zip(cams, masks)]
     result = sqfit.fit(obs, chain="1-2-3D-3A")   # result.superquadric, result.stages, ...
 
-Layers, each importing only from those before it (README, "Development"): :mod:`sqfit.geometry`,
+Layers, each importing only from those before it (README, "Development"): :mod:`sqfit.kernels`
+(compiled loops, numba imported lazily), :mod:`sqfit.geometry`,
 :mod:`sqfit.formats`, :mod:`sqfit.views`, :mod:`sqfit.fitting`, then :mod:`sqfit.metrics`,
 :mod:`sqfit.limit`, :mod:`sqfit.recording`, :mod:`sqfit.testing`, :mod:`sqfit.graph` (needs gtsam)
 and :mod:`sqfit.cli`.

@@ -203,7 +203,8 @@ def test_ray_minimiser_budget_is_honoured():
 
 @pytest.mark.parametrize("kernels", ["numba", "numpy"])
 def test_the_screen_penalises_shapes_below_its_own_bound(kernels, request):
-    from sqfit.fitting import axis_screen, backend
+    from sqfit.fitting import axis_screen
+    from sqfit.kernels import backend
 
     previous = backend.set_kernels(kernels)
     request.addfinalizer(lambda: backend.set_kernels(previous))

@@ -180,7 +180,7 @@ def test_batched_silhouette_residuals_equal_one_factor_at_a_time():
 @pytest.mark.parametrize("start", ["nearest", "grid"])
 def test_batched_silhouette_residuals_compiled_and_numpy_agree(start):
     pytest.importorskip("numba")
-    from sqfit.fitting import backend
+    from sqfit.kernels import backend
 
     cases = _factor_cases(8, seed=3)
     Tc, Tl, shapes = (np.array(c) for c in list(zip(*cases))[:3])

@@ -33,5 +33,5 @@ def test_first_fit_imports_numba_lazily():
     # the compiled kernels come in at the first fit that needs them, not with the package
     code = ("import sys, sqfit; from sqfit.testing import paper_trial; assert 'numba' not in sys.modules; "
             "sqfit.fit(paper_trial(0).observations); "
-            "import sqfit.fitting.backend as b; assert ('numba' in sys.modules) == (b.kernels_name() == 'numba')")
+            "import sqfit.kernels.backend as b; assert ('numba' in sys.modules) == (b.kernels_name() == 'numba')")
     subprocess.run([sys.executable, "-c", code], check=True)

@@ -1,5 +1,5 @@
 """numba's cache of the compiled kernels follows changes of the kernels they call in another file
-(sqfit.fitting.kernel_cache): a checkout whose ``ray_kernels.py`` changed must not keep running
+(sqfit.kernels.kernel_cache): a checkout whose ``ray_kernels.py`` changed must not keep running
 silhouette factors compiled against the old one."""
 
 import os
@@ -10,7 +10,7 @@ import sys
 import pytest
 
 import sqfit
-from sqfit.fitting import kernel_cache
+from sqfit.kernels import kernel_cache
 
 pytest.importorskip("numba")
 
@@ -19,7 +19,8 @@ PROBE = """
 import sys
 sys.path.insert(0, sys.argv[1])
 import numpy as np
-from sqfit.fitting import line_gauge, raycost, view_kernels
+from sqfit.fitting import line_gauge, raycost
+from sqfit.kernels import view_kernels
 camera, landmark = np.eye(4)[None].copy(), np.eye(4)[None].copy()
 landmark[0, 2, 3] = 5.0
 shape = np.array([[0.5, 0.4, 0.3, 1.0, 1.0]])
@@ -69,7 +70,7 @@ def test_refresh_removes_the_kernel_modules_cache_files_when_a_source_changes(tm
 
 def test_a_change_of_the_ray_kernels_reaches_the_cached_silhouette_kernel(tmp_path):
     """The numba cache alone keeps the silhouette kernel compiled against the old ray kernels (this
-    test fails without :mod:`sqfit.fitting.kernel_cache`); with it, the change takes effect."""
+    test fails without :mod:`sqfit.kernels.kernel_cache`); with it, the change takes effect."""
     package = os.path.dirname(sqfit.__file__)
     shutil.copytree(package, tmp_path / "sqfit", ignore=shutil.ignore_patterns("__pycache__"))
     probe = tmp_path / "probe.py"
@@ -83,7 +84,7 @@ def test_a_change_of_the_ray_kernels_reaches_the_cached_silhouette_kernel(tmp_pa
 
     before = run()
     assert run() == before  # from the cache
-    kernels = tmp_path / "sqfit" / "fitting" / "ray_kernels.py"
+    kernels = tmp_path / "sqfit" / "kernels" / "ray_kernels.py"
     text = kernels.read_text()
     line = "    return math.log(rnorm) - math.log(S_)\n"
     assert text.count(line) == 1

@@ -1,4 +1,4 @@
-"""The compiled kernels (sqfit.fitting.ray_kernels) against the numpy code they replace (sqfit.fitting.backend).
+"""The compiled kernels (sqfit.kernels.ray_kernels) against the numpy code they replace (sqfit.kernels.backend).
 
 Problems with known answers: the same residuals, Jacobians, ray minima and fits from both paths.
 Jacobians agree to 1e-12 where they are well conditioned; at points close to a coordinate plane of
@@ -15,7 +15,8 @@ import numpy as np
 import pytest
 
 import sqfit
-from sqfit.fitting import axis_screen, backend, costs, line_gauge, raycost
+from sqfit.fitting import axis_screen, costs, line_gauge, raycost
+from sqfit.kernels import backend
 from sqfit.views.rays import contour_rays
 from sqfit.testing import paper_trial
 from _helpers import stage
@@ -231,14 +232,14 @@ def test_set_kernels_rejects_unknown_names():
 
 
 def test_environment_variable_is_checked():
-    code = "import sqfit.fitting.backend as b; b.compiled()"
+    code = "import sqfit.kernels.backend as b; b.compiled()"
     env = dict(os.environ, SQFIT_KERNELS="fortran")
     out = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True)
     assert out.returncode != 0 and "SQFIT_KERNELS must be one of" in out.stderr
 
 
 def test_environment_variable_selects_numpy():
-    code = "import sqfit.fitting.backend as b, sys; print(b.kernels_name(), 'numba' in sys.modules)"
+    code = "import sqfit.kernels.backend as b, sys; print(b.kernels_name(), 'numba' in sys.modules)"
     env = dict(os.environ, SQFIT_KERNELS="numpy")
     out = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, check=True)
     assert out.stdout.split() == ["numpy", "False"]
@@ -247,13 +248,13 @@ def test_environment_variable_selects_numpy():
 def test_compiled_path_is_the_default_when_numba_is_installed():
     # CI installs numba (a core dependency): the suite must run the compiled path unless told not to
     if os.environ.get(backend.ENV_VAR, "auto") in ("auto", "numba"):
-        code = "import sqfit.fitting.backend as b; print(b.kernels_name())"
+        code = "import sqfit.kernels.backend as b; print(b.kernels_name())"
         out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
         assert out.stdout.strip() == "numba"
 
 
 # ------------------------------------------------------------------------------------------------
-# R-IOU-M: silhouettes, convex IoU and hulls (sqfit.fitting.silhouette_kernels)
+# R-IOU-M: silhouettes, convex IoU and hulls (sqfit.kernels.silhouette_kernels)
 
 
 def _perturbed_starts(seed, count=4):
@@ -331,7 +332,7 @@ def test_r_iou_m_of_partly_seen_views_agrees(kernels, seed):
 
 def _silhouette_kernels():
     """The compiled R-IOU-M kernels, or skip the test (numba not selected)."""
-    from sqfit.fitting.backend import compiled
+    from sqfit.kernels.backend import compiled
 
     k = compiled("silhouettes")
     if k is None:
@@ -517,8 +518,8 @@ def test_contour_r_iou_agrees(kernels, seed):
 
 
 def test_compiled_parts_load_lazily():
-    code = ("import sys, sqfit.fitting.backend as b; b.compiled(); print('silhouette_kernels' in str(sys.modules)); "
-            "b.compiled('silhouettes'); print('sqfit.fitting.silhouette_kernels' in sys.modules)")
+    code = ("import sys, sqfit.kernels.backend as b; b.compiled(); print('silhouette_kernels' in str(sys.modules)); "
+            "b.compiled('silhouettes'); print('sqfit.kernels.silhouette_kernels' in sys.modules)")
     env = dict(os.environ, SQFIT_KERNELS="numba")
     out = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, check=True)
     assert out.stdout.split() == ["False", "True"]

@@ -9,7 +9,7 @@ from sqfit.fitting.raycost import posed_ray_residuals, ray_residuals
 from sqfit.views.rays import CONTOUR, INSIDE, OUTSIDE, RaySet, contour_rays, outward_normals
 from sqfit.geometry.superquadric import Superquadric, implicit
 from sqfit.testing import paper_trial
-from sqfit.fitting import backend
+from sqfit.kernels import backend
 from sqfit.geometry.camera import bearings
 from sqfit.geometry.silhouette import silhouette
 from _helpers import turned_pose

@@ -133,7 +133,7 @@ import numpy as np
 from .. import constants as C
 from .._checks import check_shape
 from .restarts import N_SCREEN_CONTOUR, screen_rays, symmetric_candidates
-from .backend import compiled
+from ..kernels.backend import compiled
 from .line_gauge import solver_args
 from .raycost import CROSSING_ARGS, RAY_BOUNDS, batch_ray_residuals, ray_bounds, ray_kind
 from .grazing import (POSE_NOISE_TRIGGER_DEG, SilhouetteFit, describe_values, minimise, offset_groups,
@@ -255,7 +255,7 @@ def batch_levenberg_marquardt(X0, rays, iterations, weight=C.PENALTY_ANALYTIC, p
     if int(iterations) != iterations or iterations < 0:
         raise ValueError(f"iterations must be an integer >= 0, got {iterations}")
     kernels = compiled("screen")
-    if kernels is not None:  # the same loop, compiled (sqfit.fitting.screen_kernels.screen_lm)
+    if kernels is not None:  # the same loop, compiled (sqfit.kernels.screen_kernels.screen_lm)
         with np.errstate(all="ignore"):
             return kernels.screen_lm(X, rays.origins, rays.directions, rays.weights, ray_kind(rays), int(iterations),
                                      *solver_args(SCREEN_RTOL, SCREEN_MAX_NEWTON), *CROSSING_ARGS, float(weight),

@@ -6,7 +6,7 @@ shapely intersected each silhouette with its mask contour: ~70 us per pair on ho
 twice for a view cut by the image border (first with the image, then with the contour), with the
 contour made valid again at every call; that was over half of a household sequence's batch time.
 A silhouette is convex, so the contour clipped by each of its edges (Sutherland-Hodgman) is the
-intersection, whatever the contour's shape: :func:`sqfit.fitting.silhouette_kernels.contour_overlaps`
+intersection, whatever the contour's shape: :func:`sqfit.kernels.silhouette_kernels.contour_overlaps`
 (compiled) does that where the silhouette is convex and the contour simple, and shapely the rest.
 """
 
@@ -14,12 +14,12 @@ from __future__ import annotations
 
 import numpy as np
 
-from .backend import compiled
+from ..kernels.backend import compiled
 
 __all__ = ["CONVEX_TOL", "contour_ious"]
 
 
-#: :func:`sqfit.fitting.silhouette_kernels.contour_overlaps`: a silhouette vertex may turn the wrong
+#: :func:`sqfit.kernels.silhouette_kernels.contour_overlaps`: a silhouette vertex may turn the wrong
 #: way by this much (relative to its edges' lengths: rounding on nearly collinear vertices) and
 #: still count as convex.
 CONVEX_TOL = 1e-9

@@ -37,7 +37,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from .. import constants as C
-from .backend import compiled
+from ..kernels.backend import compiled
 from ..geometry.camera import bearings
 from ..views.observation import Observation
 from ..geometry.polygon import MIN_EDGE, batch_iou, convex_iou_jacobian, half_planes
@@ -153,7 +153,7 @@ class ObservationSet:
         return self._shapes
 
     def contour_arrays(self):
-        """The mask contours for :func:`sqfit.fitting.silhouette_kernels.contour_overlaps`:
+        """The mask contours for :func:`sqfit.kernels.silhouette_kernels.contour_overlaps`:
         ``(stacked, starts, simple, areas)``, the contours ``(M, 2)`` one after the other (view ``t``'s
         at ``starts[t]:starts[t + 1]``), whether each is a simple polygon (valid as it is: its own
         area is its valid geometry's) and each one's area (of :meth:`contour_shapes`)."""
@@ -225,7 +225,7 @@ def _compiled_hidden_counts(kernels):
 def _hull(observation):
     """Convex hull of the samples, CCW: the same polygon as ``Observation.polygon("hull")`` (up to
     collinear points and the first vertex), by the compiled monotone chain
-    (:func:`sqfit.fitting.silhouette_kernels.convex_hull`, ~5 us) or qhull (~0.1 ms; both ~50x faster
+    (:func:`sqfit.kernels.silhouette_kernels.convex_hull`, ~5 us) or qhull (~0.1 ms; both ~50x faster
     than the pure-Python hull there); collinear samples fall back to that hull."""
     samples = np.ascontiguousarray(observation.samples, dtype=np.float64)
     kernels = compiled("silhouettes")
@@ -359,8 +359,8 @@ def hidden_at(xi, obs, polygon="hull", n_directions=DEFAULT_DIRECTIONS, tol=NEWT
 def silhouettes(xi, obs):
     """Silhouette polygons ``(b, v, K, 2)`` and ``valid`` ``(b, v)`` of parameter vectors ``xi``
     ``(b, 11)`` in the cameras of ``obs``, as :func:`sqfit.geometry.silhouette.batch_silhouettes` with
-    its defaults (no warm start): compiled (:func:`sqfit.fitting.silhouette_kernels.silhouettes`) when
-    the kernels are (:mod:`sqfit.fitting.backend`)."""
+    its defaults (no warm start): compiled (:func:`sqfit.kernels.silhouette_kernels.silhouettes`) when
+    the kernels are (:mod:`sqfit.kernels.backend`)."""
     xi = np.ascontiguousarray(np.atleast_2d(xi), dtype=np.float64)
     kernels = compiled("silhouettes")
     if kernels is None:

@@ -7,14 +7,14 @@ exactly inside, convex along a line for ``e <= 2``) and ``log g`` there. This mo
 all rays at once: a bracket from the bounding geometry, a start (a grid over the bracket, the
 line's point nearest the centre, or a warm start from a nearby solution), then safeguarded Newton
 steps (:func:`ray_minima`, :func:`batch_ray_minima`, :func:`gauge_minima`); the compiled kernels of
-:mod:`sqfit.fitting.ray_kernels` take the same constants (:func:`solver_args`).
+:mod:`sqfit.kernels.ray_kernels` take the same constants (:func:`solver_args`).
 """
 
 from __future__ import annotations
 
 import numpy as np
 
-from .backend import compiled
+from ..kernels.backend import compiled
 from .costs import rotation_and_derivatives
 from ..geometry.silhouette import ZNEAR
 
@@ -178,7 +178,7 @@ def gauge_minima(q0, u, rel0, ul, ratio, e1, e2, d0, rtol=D_RTOL, max_newton=MAX
     bracket: ``g`` is unimodal along a line, so Newton and bisection reach the same minimum from
     there, with one evaluation instead of the grid's :data:`_GRID` (the factor graph's cold solves,
     :func:`sqfit.graph.landmark.batch_silhouette_residuals`). Runs the compiled kernel
-    (:func:`sqfit.fitting.ray_kernels.gauge_minima`) unless :mod:`sqfit.fitting.backend` chose numpy.
+    (:func:`sqfit.kernels.ray_kernels.gauge_minima`) unless :mod:`sqfit.kernels.backend` chose numpy.
     """
     if start not in STARTS:
         raise ValueError(f"start must be one of {STARTS}, got {start!r}")

@@ -77,7 +77,7 @@ import numpy as np
 
 from .. import constants as C
 from .._checks import check_shape
-from .backend import compiled
+from ..kernels.backend import compiled
 from .costs import LOWER_BOUNDS, UPPER_BOUNDS, batch_radial_terms, penalty, penalty_jacobian
 from .line_gauge import D_RTOL, MAX_NEWTON, batch_ray_minima, ray_minima, solver_args
 from ..geometry.superquadric import rotation_and_derivatives
@@ -175,7 +175,7 @@ def ray_kind(rays):
 
 
 def _compiled_rows(kernels, X, rays, weight, d0, rtol=D_RTOL, max_newton=MAX_NEWTON, bounds=RAY_BOUNDS):
-    """:func:`batch_ray_residuals` by :func:`sqfit.fitting.ray_kernels.ray_rows`."""
+    """:func:`batch_ray_residuals` by :func:`sqfit.kernels.ray_kernels.ray_rows`."""
     f = np.ascontiguousarray
     warm = d0 is not None
     return kernels.ray_rows(f(X, dtype=np.float64), f(rays.origins), f(rays.directions), f(rays.weights),

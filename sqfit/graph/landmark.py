@@ -36,7 +36,7 @@ from .._checks import check_shape
 from ..fitting.costs import LOWER_BOUNDS, UPPER_BOUNDS
 from ..views.observation import Observation
 from ..fitting.stages import to_superquadric
-from ..fitting.backend import compiled
+from ..kernels.backend import compiled
 from ..fitting.line_gauge import gauge_minima, solver_args
 from ..fitting.raycost import CROSSING_ARGS, crossing_correction, gauge_phi, batch_log_gauge_jacobian, ray_residuals
 from ..views.rays import contour_rays
@@ -236,7 +236,7 @@ def batch_silhouette_residuals(T_world_camera, T_world_sq, shape, rays, d0=None,
         ``d r / d δ`` (per px); only when ``offset`` is given.
     """
     kernels = compiled("views") if offset is None and d0 is None else None
-    if kernels is not None:  # the same numbers in one compiled loop (sqfit.fitting.view_kernels)
+    if kernels is not None:  # the same numbers in one compiled loop (sqfit.kernels.view_kernels)
         f = np.ascontiguousarray
         return kernels.silhouette_rows(f(T_world_camera, dtype=np.float64), f(T_world_sq, dtype=np.float64),
                                        f(shape, dtype=np.float64), f(rays.directions, dtype=np.float64),

@@ -1,6 +1,6 @@
 """Views of an object: what the fitter is given, per camera.
 
-Above :mod:`sqfit.geometry` and :mod:`sqfit.formats`, below :mod:`sqfit.fitting`.
+Above :mod:`sqfit.geometry`, :mod:`sqfit.formats` and :mod:`sqfit.kernels`, below :mod:`sqfit.fitting`.
 
 - :mod:`.observation` — :class:`Observation`: one camera and one binary mask, with samples,
   outline, hull and visibility labels;

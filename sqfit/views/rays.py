@@ -30,6 +30,7 @@ import numpy as np
 from .._checks import check_shape
 from ..geometry.camera import bearings
 from ..geometry.outline import outward_normals  # re-exported: the normals of 3G's band rays
+from ..kernels.backend import compiled
 from .observation import Observation, arc_lengths
 from .visibility import BACKGROUND, point_labels
 
@@ -274,22 +275,16 @@ def _contour_phase():
 def _view_points(observation, n_contour, band_px, n_inside, smooth_px):
     """Image points, modes, two-sidedness and outline normals (0 for interior samples) of one view."""
     contour = observation.contour
-    at, integral, perimeter = _arc_sampler(contour, observation.contour_arc)
-    arc = (_contour_phase() + np.arange(n_contour)) / n_contour * perimeter
-    half = min(NORMAL_ARC_PX, 0.25 * perimeter)
-    # sampled at once: the points (as sqfit.views.observation.polyline_points), the ends of their
-    # normals' chords, and the ends of the arcs they are averaged over
-    shifts = np.array([0.0, -half, half, -smooth_px, smooth_px] if smooth_px > 0 else [0.0, -half, half])
-    where = (arc[None, :] + shifts[:, None]).ravel()
-    points, edges = at(where)
-    if smooth_px > 0:  # the mean point of the outline over the arc
-        ends = integral(where[3 * n_contour:], points[3 * n_contour:], edges[3 * n_contour:])
-        on = (ends[n_contour:] - ends[:n_contour]) / (2.0 * smooth_px)
+    seg, cum = observation.contour_arc
+    half = min(NORMAL_ARC_PX, 0.25 * cum[-1])
+    kernels = compiled("outlines")
+    if kernels is not None:  # the same points, bit for bit, in one compiled loop
+        on, sided, normal_at = kernels.outline_samples(
+            np.ascontiguousarray(contour, dtype=np.float64), seg, cum,
+            np.ascontiguousarray(observation.contour_labels, dtype=np.int8), BACKGROUND, int(n_contour),
+            _contour_phase(), float(half), float(smooth_px))
     else:
-        on = points[:n_contour]
-    points = points.reshape(len(shifts), n_contour, 2)
-    sided = point_labels(observation.contour_labels, edges[:n_contour]) == BACKGROUND
-    normal_at = _chord_normals(points[2] - points[1])
+        on, sided, normal_at = _outline_samples(observation, n_contour, half, smooth_px)
     if band_px > 0:
         # Normals at the sample points: those of the nearest contour vertices.
         normals = outward_normals(observation.contour)
@@ -308,3 +303,24 @@ def _view_points(observation, n_contour, band_px, n_inside, smooth_px):
         two_sided.append(np.ones(len(inner), dtype=bool))
         normals.append(np.zeros((len(inner), 2)))
     return tuple(c[0] if len(c) == 1 else np.concatenate(c) for c in (points, modes, two_sided, normals))
+
+
+def _outline_samples(observation, n_contour, half, smooth_px):
+    """The outline points ``(n, 2)``, their two-sidedness ``(n,)`` and the outline's normals there
+    ``(n, 2)``, in numpy (:func:`sqfit.kernels.outline_kernels.outline_samples` computes the same)."""
+    contour = observation.contour
+    at, integral, perimeter = _arc_sampler(contour, observation.contour_arc)
+    arc = (_contour_phase() + np.arange(n_contour)) / n_contour * perimeter
+    # sampled at once: the points (as sqfit.views.observation.polyline_points), the ends of their
+    # normals' chords, and the ends of the arcs they are averaged over
+    shifts = np.array([0.0, -half, half, -smooth_px, smooth_px] if smooth_px > 0 else [0.0, -half, half])
+    where = (arc[None, :] + shifts[:, None]).ravel()
+    points, edges = at(where)
+    if smooth_px > 0:  # the mean point of the outline over the arc
+        ends = integral(where[3 * n_contour:], points[3 * n_contour:], edges[3 * n_contour:])
+        on = (ends[n_contour:] - ends[:n_contour]) / (2.0 * smooth_px)
+    else:
+        on = points[:n_contour]
+    points = points.reshape(len(shifts), n_contour, 2)
+    sided = point_labels(observation.contour_labels, edges[:n_contour]) == BACKGROUND
+    return on, sided, _chord_normals(points[2] - points[1])

@@ -3,9 +3,12 @@
 The ray minimisers and the 3G residuals and Jacobians (:mod:`sqfit.fitting.raycost`, used by stages 3G,
 3H, 3S and the factor graph) and the radial terms of G3-G5 (:mod:`sqfit.fitting.costs`) have two
 implementations that compute the same numbers: vectorised numpy, and per-ray loops compiled with
-numba (:mod:`sqfit.fitting.ray_kernels`; 3H's screen of them, :mod:`sqfit.fitting.screen_kernels`); so
-do the silhouettes, convex IoUs and hulls of R-IOU-M (:mod:`sqfit.fitting.silhouette_kernels`). Small arrays make numpy pay its per-call overhead dozens of
-times per evaluation; the compiled loops do not (README, "Fitter speed").
+numba (:mod:`sqfit.kernels.ray_kernels`; 3H's screen of them, :mod:`sqfit.kernels.screen_kernels`); so
+do the silhouettes, convex IoUs and hulls of R-IOU-M (:mod:`sqfit.kernels.silhouette_kernels`), the
+factor graph's silhouette residuals (:mod:`sqfit.kernels.view_kernels`) and the outline samples
+behind every view's rays (:mod:`sqfit.kernels.outline_kernels`, for :mod:`sqfit.views.rays`). Small
+arrays make numpy pay its per-call overhead dozens of times per evaluation; the compiled loops do
+not (README, "Fitter speed").
 
 Choice, first match wins:
 
@@ -15,7 +18,7 @@ Choice, first match wins:
 
 numba is imported lazily, at the first evaluation that needs it, never by ``import sqfit``; its
 kernels are cached on disk (``cache=True``) so only a process on an empty cache, or the first after
-a kernel source changed (:mod:`sqfit.fitting.kernel_cache`), compiles them.
+a kernel source changed (:mod:`sqfit.kernels.kernel_cache`), compiles them.
 """
 
 from __future__ import annotations
@@ -30,7 +33,7 @@ KERNELS = ("auto", "numba", "numpy")
 ENV_VAR = "SQFIT_KERNELS"
 
 #: The kernel modules by part, imported at first use.
-PARTS = ("rays", "screen", "silhouettes", "views")
+PARTS = ("rays", "screen", "silhouettes", "views", "outlines")
 
 _state = {"choice": None, "modules": {}, "resolved": None}
 
@@ -69,10 +72,11 @@ def _requested():
 def compiled(part="rays"):
     """A compiled kernels module, or None for the numpy path.
 
-    ``part``: ``"rays"`` (:mod:`sqfit.fitting.ray_kernels`), ``"screen"``
-    (:mod:`sqfit.fitting.screen_kernels`, stage 3H's), ``"silhouettes"``
-    (:mod:`sqfit.fitting.silhouette_kernels`) or ``"views"`` (:mod:`sqfit.fitting.view_kernels`, the
-    factor graph's); each is imported (and its kernels loaded) at the first call that asks for it.
+    ``part``: ``"rays"`` (:mod:`sqfit.kernels.ray_kernels`), ``"screen"``
+    (:mod:`sqfit.kernels.screen_kernels`, stage 3H's), ``"silhouettes"``
+    (:mod:`sqfit.kernels.silhouette_kernels`), ``"views"`` (:mod:`sqfit.kernels.view_kernels`, the
+    factor graph's) or ``"outlines"`` (:mod:`sqfit.kernels.outline_kernels`, the rays' outline
+    samples); each is imported (and its kernels loaded) at the first call that asks for it.
     """
     if _state["resolved"] is None:
         _state["resolved"] = _resolve(_requested())
@@ -88,6 +92,8 @@ def compiled(part="rays"):
             from . import silhouette_kernels as module
         elif part == "views":
             from . import view_kernels as module
+        elif part == "outlines":
+            from . import outline_kernels as module
         else:
             raise ValueError(f"part must be one of {PARTS}, got {part!r}")
         _state["modules"][part] = module

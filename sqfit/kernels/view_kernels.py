@@ -4,14 +4,14 @@
 outline offset: for ``k`` factors (a camera pose, a landmark pose and a size/shape vector each) and
 ``n`` camera-frame rays per factor, the 3G ray residuals and their Jacobians with respect to the
 camera pose, the landmark pose and the size/shape vector, each ray solved by
-:func:`sqfit.fitting.ray_kernels.ray_minimiser` and its gauge differentiated by
-:func:`sqfit.fitting.ray_kernels.log_gauge_point`, in one loop. The numpy code evaluates the same
+:func:`sqfit.kernels.ray_kernels.ray_minimiser` and its gauge differentiated by
+:func:`sqfit.kernels.ray_kernels.log_gauge_point`, in one loop. The numpy code evaluates the same
 formulas through a dozen vectorised calls (einsums, stackings, a Jacobian call per distinct shape),
 whose overhead on a graph's few thousand rays was two thirds of an evaluation; here one call. The
 same operations as the numpy code, but where numpy sums through an einsum the loop sums in
 index order, so the two agree to rounding (``tests/test_graph.py``: 1e-12).
 
-Importing this module imports numba; :mod:`sqfit.fitting.backend` does that lazily (part
+Importing this module imports numba; :mod:`sqfit.kernels.backend` does that lazily (part
 ``"views"``). Compiled on first use and cached next to this file.
 """
 

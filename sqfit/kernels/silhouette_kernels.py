@@ -28,7 +28,7 @@ compute the same numbers per view and per vertex:
   polygon, once per view of every observation set the factor graph's re-fits build.
 
 Sums run in index order (numpy's pairwise sums and BLAS may round differently: IoUs agree to
-1e-12). No ``fastmath``. Importing this module imports numba; :mod:`sqfit.fitting.backend` does that
+1e-12). No ``fastmath``. Importing this module imports numba; :mod:`sqfit.kernels.backend` does that
 lazily, and the kernels are cached next to this file (``cache=True``). Constants of the numpy code
 (tolerances, exponent range, minimum edge) are passed in as arguments, never copied here.
 """

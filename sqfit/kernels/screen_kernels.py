@@ -1,13 +1,13 @@
 """Compiled (numba) kernel of stage 3H's screen: Levenberg-Marquardt steps for several starts at once.
 
 :func:`screen_lm` is :func:`sqfit.fitting.axis_screen.batch_levenberg_marquardt`, each start solved
-on its own with the 3G rows of :mod:`sqfit.fitting.ray_kernels` (:func:`~sqfit.fitting.ray_kernels.ray_rows`,
-:func:`~sqfit.fitting.ray_kernels.ray_block`). The same damping, acceptance and pruning as the numpy
+on its own with the 3G rows of :mod:`sqfit.kernels.ray_kernels` (:func:`~sqfit.kernels.ray_kernels.ray_rows`,
+:func:`~sqfit.kernels.ray_kernels.ray_block`). The same damping, acceptance and pruning as the numpy
 code; the numpy code solves the active starts' ``11 x 11`` systems as one stack, so the two agree to
 rounding (``tests/test_kernels.py``).
 
-Importing this module imports numba; :mod:`sqfit.fitting.backend` does that lazily (part
-``"screen"``). Compiled on first use and cached next to this file; :mod:`sqfit.fitting.kernel_cache`
+Importing this module imports numba; :mod:`sqfit.kernels.backend` does that lazily (part
+``"screen"``). Compiled on first use and cached next to this file; :mod:`sqfit.kernels.kernel_cache`
 clears the cache when a kernel it calls changed.
 """
 

@@ -7,13 +7,13 @@ with the ray solve fused in, :func:`posed_rows` is :func:`sqfit.fitting.raycost.
 :func:`sqfit.fitting.costs.g5_residuals` and :func:`log_gauge_rows` is
 :func:`sqfit.fitting.raycost.batch_log_gauge_jacobian`; :func:`crossing_fix` is
 :func:`sqfit.fitting.raycost.crossing_correction` for one ray. Stage 3H's screen, a loop of these
-rows, is :mod:`sqfit.fitting.screen_kernels`. Same operations in the same order wherever the
+rows, is :mod:`sqfit.kernels.screen_kernels`. Same operations in the same order wherever the
 numpy code does not sum through BLAS, so the two agree to rounding (tests: residuals and
 Jacobians to 1e-12). No ``fastmath``: it would reorder them.
 
-Importing this module imports numba; :mod:`sqfit.fitting.backend` does that lazily. Every kernel is
+Importing this module imports numba; :mod:`sqfit.kernels.backend` does that lazily. Every kernel is
 compiled on first use and cached next to this file (``cache=True``), cleared when any kernel source
-changed (:mod:`sqfit.fitting.kernel_cache`: numba's own check sees only a kernel's own file). Arrays
+changed (:mod:`sqfit.kernels.kernel_cache`: numba's own check sees only a kernel's own file). Arrays
 in are C-contiguous float64 (``int64`` / ``bool`` where noted), so each kernel compiles one
 specialisation.
 Constants of the numpy code (bounds, tolerances) are passed in as arguments, never copied here.
@@ -532,5 +532,5 @@ def posed_rows(x, origins, directions, offsets, weights, radii, kind, view, grou
     return r, J, d
 
 
-# before any kernel here or in the modules importing from here runs (sqfit.fitting.kernel_cache)
+# before any kernel here or in the modules importing from here runs (sqfit.kernels.kernel_cache)
 refresh_for(nan_max)

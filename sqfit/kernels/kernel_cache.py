@@ -3,8 +3,8 @@
 numba invalidates a cached kernel when the file that defines it changes, not when a function it calls
 from another file does (numba's documentation, "Notes on Caching": changes to symbols defined in
 another file are not detected). The factor graph's silhouette kernel
-(:mod:`sqfit.fitting.view_kernels`) calls the ray minimiser of :mod:`sqfit.fitting.ray_kernels`, 3H's
-screen (:mod:`sqfit.fitting.screen_kernels`) its 3G rows, and the silhouette kernels its NaN-aware
+(:mod:`sqfit.kernels.view_kernels`) calls the ray minimiser of :mod:`sqfit.kernels.ray_kernels`, 3H's
+screen (:mod:`sqfit.kernels.screen_kernels`) its 3G rows, and the silhouette kernels its NaN-aware
 minimum and maximum. So after a change of ``ray_kernels.py``
 alone, a checkout kept loading the silhouette factors compiled against the old minimiser, while a fresh
 clone compiled them against the new one: the same code gave other results (found in issue 23's
@@ -13,7 +13,7 @@ was still used by the graph's silhouette factors a day later; docs/slam-history.
 
 :func:`refresh` keeps a digest of every kernel module's source next to numba's cache files; where it
 differs (or is missing), the cache files of all the kernel modules are removed, so each kernel is
-compiled again against the sources it calls. :mod:`sqfit.fitting.ray_kernels` calls
+compiled again against the sources it calls. :mod:`sqfit.kernels.ray_kernels` calls
 :func:`refresh_for` when it is imported; the other kernel modules import it first, and no kernel runs
 before. The cost: one digest of ~60 kB of source per process; a recompilation (about a minute on an
 empty cache) only after a kernel source changed.
@@ -26,8 +26,8 @@ import os
 
 __all__ = ["KERNEL_MODULES", "STAMP", "source_digest", "refresh", "refresh_for"]
 
-#: The modules of compiled kernels (in ``sqfit/fitting``), any of which may call another's kernels.
-KERNEL_MODULES = ("ray_kernels", "screen_kernels", "silhouette_kernels", "view_kernels")
+#: The modules of compiled kernels (in ``sqfit/kernels``), any of which may call another's kernels.
+KERNEL_MODULES = ("ray_kernels", "screen_kernels", "silhouette_kernels", "view_kernels", "outline_kernels")
 #: File in numba's cache directory holding the digest of the sources its kernel files were compiled from.
 STAMP = "sqfit-kernels.sha256"
 
