@@ -20,6 +20,7 @@ rebuild.)
 from __future__ import annotations
 
 from dataclasses import replace
+from functools import lru_cache
 from typing import NamedTuple
 
 import gtsam
@@ -65,7 +66,14 @@ def noise_models(options):
 
 def robust_noise(dim, sigma, k):
     """Huber on the factor's whitened norm; ``sigma`` and ``k`` per row (a factor of ``dim`` inlier
-    rows has a whitened norm of about ``sqrt(dim)``, so the threshold is ``k sqrt(dim)``)."""
+    rows has a whitened norm of about ``sqrt(dim)``, so the threshold is ``k sqrt(dim)``). Noise
+    models are immutable, so factors with the same three numbers share one (the graph makes one
+    per view of every frame, and the same few over and over)."""
+    return _robust_noise(int(dim), float(sigma), float(k))
+
+
+@lru_cache(maxsize=1024)
+def _robust_noise(dim, sigma, k):
     return gtsam.noiseModel.Robust.Create(gtsam.noiseModel.mEstimator.Huber.Create(k * np.sqrt(dim)),
                                           gtsam.noiseModel.Isotropic.Sigma(dim, sigma))
 

@@ -116,19 +116,23 @@ class RaySet:
     def _index_hinges(self):
         # Rays with a hinge residual (see the module docstring), as indices: computed once, not
         # per evaluation. One-sided CONTOUR rays act as INSIDE rays; one-sided OUTSIDE rays are dropped.
-        modes = self.modes
-        object.__setattr__(self, "_hinge_in", np.flatnonzero((modes == INSIDE) | ((modes == CONTOUR) & ~self.two_sided)))
-        object.__setattr__(self, "_hinge_out", np.flatnonzero(modes == OUTSIDE))
+        hinge_in, hinge_out = _hinges(self.modes, self.two_sided)
+        object.__setattr__(self, "_hinge_in", hinge_in)
+        object.__setattr__(self, "_hinge_out", hinge_out)
 
     @classmethod
-    def _made(cls, origins, directions, modes, weights, view, two_sided, offsets, radii):
+    def _made(cls, origins, directions, modes, weights, view, two_sided, offsets, radii, hinges=None):
         """A RaySet of arrays that :func:`contour_rays` made from checked observations (float64 and
         int64 arrays of the right shapes, finite, weights >= 0, radii > 0), without checking them
-        again: the graph makes one per view of every frame (the checks were a third of its cost)."""
+        again: the graph makes one per view of every frame (the checks were a third of its cost).
+        ``hinges``: the rays' hinge indices (:meth:`_index_hinges`) if already known."""
         rays = object.__new__(cls)
         rays.__dict__.update(origins=origins, directions=directions, modes=modes, weights=weights, view=view,
                              two_sided=two_sided, offsets=offsets, radii=radii)
-        rays._index_hinges()
+        if hinges is None:
+            rays._index_hinges()
+        else:
+            rays.__dict__.update(_hinge_in=hinges[0], _hinge_out=hinges[1])
         return rays
 
     def __len__(self):
@@ -246,23 +250,28 @@ def contour_rays(observations, n_contour=64, band_px=0.0, n_inside=0, smooth_px=
         if not isinstance(o, Observation):
             raise TypeError(f"observations[{i}] must be a sqfit.Observation, got {type(o).__name__}")
         # the image side depends on the pixels alone: once per mask, whatever the camera's pose
-        points, modes, two_sided, normals = o.derived(key, lambda: _view_points(o, *args))
-        radii = np.maximum(np.einsum("ij,ij->i", points - o.centroid, normals), MIN_RADIUS_PX)
-        if n_inside:  # interior samples: no outline, no offset
-            radii[len(points) - min(int(n_inside), len(o.samples)):] = np.inf
+        points, modes, two_sided, normals, radii, weights, *hinges = o.derived(key, lambda: _view_rays(o, *args))
         cam = o.camera
         rotation = cam.rotation
         directions = bearings(cam, points) @ rotation.T
         k = cam.intrinsics
         offsets = (normals * [-1.0 / k.fx, -1.0 / k.fy]) @ rotation[:, :2].T
-        weights = np.full(len(points), 1.0 / np.sqrt(len(points)))
-        parts.append((np.broadcast_to(cam.center, directions.shape), directions, modes, weights,
-                      np.full(len(points), i), two_sided, offsets, radii))
+        parts.append((cam.center, directions, modes, weights, i, two_sided, offsets, radii, hinges))
     if not parts:
         raise ValueError("observations must not be empty")
-    origins, *rest = parts[0] if len(parts) == 1 else [np.concatenate(col) for col in zip(*parts)]
     # the points come from checked observations: finite, with radii >= MIN_RADIUS_PX
-    return RaySet._made(np.ascontiguousarray(origins), *rest)
+    if len(parts) == 1:  # one view (the factor graph's rays): its hinge indices as they were cached
+        center, directions, modes, weights, _, two_sided, offsets, radii, hinges = parts[0]
+        origins = np.empty_like(directions)
+        origins[:] = center
+        return RaySet._made(origins, directions, modes, weights, np.zeros(len(directions), dtype=np.int64), two_sided,
+                            offsets, radii, hinges)
+    columns = list(zip(*parts))
+    sizes = [len(d) for d in columns[1]]
+    origins = np.repeat(np.array(columns[0], dtype=np.float64), sizes, axis=0)
+    view = np.repeat(np.arange(len(parts), dtype=np.int64), sizes)
+    directions, modes, weights, two_sided, offsets, radii = (np.concatenate(columns[j]) for j in (1, 2, 3, 5, 6, 7))
+    return RaySet._made(origins, directions, modes, weights, view, two_sided, offsets, radii)
 
 
 @cache
@@ -270,6 +279,22 @@ def _contour_phase():
     """Phase of the contour points: fixed (the first draw of seed 0), so the rays are a
     deterministic function of the mask; drawn once, not per view."""
     return float(np.random.default_rng(0).random())
+
+
+def _hinges(modes, two_sided):
+    """The indices of the rays with an inside hinge and with an outside hinge (:meth:`RaySet._index_hinges`)."""
+    return (np.flatnonzero((modes == INSIDE) | ((modes == CONTOUR) & ~two_sided)), np.flatnonzero(modes == OUTSIDE))
+
+
+def _view_rays(observation, n_contour, band_px, n_inside, smooth_px):
+    """What one view's rays take from its pixels alone (:func:`_view_points`, then the radii, the
+    weights and the two arrays of hinge indices), for :meth:`sqfit.views.observation.Observation.derived`."""
+    points, modes, two_sided, normals = _view_points(observation, n_contour, band_px, n_inside, smooth_px)
+    radii = np.maximum(np.einsum("ij,ij->i", points - observation.centroid, normals), MIN_RADIUS_PX)
+    if n_inside:  # interior samples: no outline, no offset
+        radii[len(points) - min(int(n_inside), len(observation.samples)):] = np.inf
+    weights = np.full(len(points), 1.0 / np.sqrt(len(points)))
+    return (points, modes, two_sided, normals, radii, weights) + _hinges(modes, two_sided)
 
 
 def _view_points(observation, n_contour, band_px, n_inside, smooth_px):
