@@ -4,7 +4,7 @@ Reads every module of ``sqfit`` and ``sqsim`` as text (nothing is imported), col
 lazy ones inside functions included, and checks the rules of the README's "Development" section:
 
 - every module sits in a layer, and imports only from its own layer or lower ones
-  (``sqfit``: base < geometry < formats < views < fitting < metrics/limit/recording/testing < graph < cli;
+  (``sqfit``: base < kernels/geometry < formats < views < fitting < metrics/limit/recording/testing < graph < cli;
   every ``sqsim`` layer above every ``sqfit`` one: world < imaging < data < reports < runs < cli);
 - no two modules import each other, directly or through a loop;
 - no module takes a private name (``_x``) from another;
@@ -24,7 +24,7 @@ MAX_TOP_MODULES = 10
 #: module-name prefix -> layer; the longest matching prefix wins.
 LAYERS = {
     "sqfit": 0, "sqfit.constants": 0, "sqfit._checks": 0,
-    "sqfit.geometry": 1,
+    "sqfit.geometry": 1, "sqfit.kernels": 1,
     "sqfit.formats": 2,
     "sqfit.views": 3,
     "sqfit.fitting": 4,
