@@ -7,8 +7,8 @@ side), whether each point is two-sided (its edge's larger end label is backgroun
 :func:`sqfit.views.visibility.point_labels`), and the outline's unit outward normal there (that of
 the chord ``half`` px of arc before and after). The numpy code samples the polygon through a dozen
 vectorised calls on a few hundred values; the factor graph makes the rays of about a thousand masks
-and ray counts per sequence, and those calls were ~5 % of its batch (issue 23, twenty-ninth pass).
-Here one call per mask, ~10x faster.
+and ray counts per sequence, and those calls were ~7 % of its batch in a py-spy profile (issue 23,
+twenty-ninth pass). Here one call per mask, 3-7x faster (two measurements).
 
 The same operations in the same order as the numpy code (its ``np.mod``, ``searchsorted(side=
 "right")`` and the cumulative sum run in the same order here), so the two give the same points bit for bit
