@@ -200,6 +200,33 @@ def test_batched_silhouette_residuals_compiled_and_numpy_agree(start):
     assert np.all(out["numba"][3][5, :, 0] == 0)
 
 
+@pytest.mark.parametrize("kernels", ["numba", "numpy"])
+def test_batched_silhouette_residuals_read_their_rows_of_a_larger_stack(kernels):
+    # a graph's factors keep their rays stacked once; an evaluation names its factors' rows there
+    if kernels == "numba":
+        pytest.importorskip("numba")
+    from sqfit.kernels import backend
+
+    cases = _factor_cases(8, seed=5)
+    Tc, Tl, shapes = (np.array(c) for c in list(zip(*cases))[:3])
+    pool = landmark.stack_rays([c[3] for c in cases])
+    rows = np.array([6, 1, 3])
+    previous = backend.set_kernels(kernels)
+    try:
+        got = landmark.batch_silhouette_residuals(Tc[rows], Tl[rows], shapes[rows], pool, rows=rows)
+        want = landmark.batch_silhouette_residuals(Tc[rows], Tl[rows], shapes[rows],
+                                                   landmark.stack_rays([cases[i][3] for i in rows]))
+        with pytest.raises(ValueError, match=r"rows must be 3 indices into the 8 factors of rays, got \[6, 1, 8\]"):
+            landmark.batch_silhouette_residuals(Tc[rows], Tl[rows], shapes[rows], pool, rows=[6, 1, 8])
+        with pytest.raises(ValueError, match="rows must be 3 indices into the 8 factors"):
+            landmark.batch_silhouette_residuals(Tc[rows], Tl[rows], shapes[rows], pool)
+    finally:
+        backend.set_kernels(previous)
+    assert np.abs(want[0]).max() > 1e-3
+    for a, b in zip(got, want):
+        np.testing.assert_array_equal(a, b)
+
+
 def test_stack_rays_checks_its_input():
     with pytest.raises(ValueError, match="ray_sets must not be empty"):
         landmark.stack_rays([])

@@ -54,7 +54,7 @@ class SilhouetteFactors:
 
     def __init__(self, variable=PLAIN):
         self.variable = variable  # the size/shape variable (sqfit.graph.shapevar)
-        self._keys, self._rays, self._units, self._stacked = [], [], [], {}
+        self._keys, self._rays, self._units = [], [], []
         self._bounds = []  # per factor: its rays' residual bound (inf: none; bounded_residuals)
         self._key_set = set()  # every factor's keys (holds)
         # Each variable's distinct values so far, by exact bytes (cheap to compare), numbered: a
@@ -178,7 +178,8 @@ class SilhouetteFactors:
             offset = None if n_keys == 3 else np.array([read[self._keys[i][3]][0] for i in idx]) * unit
             with np.errstate(all="ignore"):
                 # no warm start: the rows must depend on the variables alone (module docstring)
-                out = batch_silhouette_residuals(Tc, Tl, shape, self._stack(idx), None, offset)
+                pool, rows = self._stack(idx)
+                out = batch_silhouette_residuals(Tc, Tl, shape, pool, None, offset, rows=rows)
             finite = np.logical_and.reduce([np.isfinite(a).reshape(len(idx), -1).all(axis=1)
                                             for j, a in enumerate(out) if j != 4])
             r, Jc, Jl, Js = out[:4]
@@ -201,18 +202,10 @@ class SilhouetteFactors:
         self.evaluations += 1
 
     def _stack(self, idx):
-        key = tuple(idx)
-        if key not in self._stacked:
-            # the stale sets repeat (all factors in a batch solve, those of the relinearised
-            # variables in iSAM2): keep the last few stackings
-            if len(self._stacked) > 8:
-                self._stacked.pop(next(iter(self._stacked)))
-            self._stacked[key] = self._gather(idx)
-        return self._stacked[key]
-
-    def _gather(self, idx):
-        """The rays of factors ``idx`` (all with the same ray count) from the pool of that count,
-        stacked once per factor as factors are added, not per evaluation."""
+        """``(pool, rows)``: the stacked rays of every factor with the ray count of factors ``idx``
+        (all the same) and their rows in it, for :func:`batch_silhouette_residuals`, which reads
+        the rows in place. Each factor's rays are stacked once, as factors are added, never per
+        evaluation."""
         n = len(self._rays[idx[0]])
         new = [i for i in self._unpooled if len(self._rays[i]) == n]
         if new:
@@ -223,8 +216,7 @@ class SilhouetteFactors:
                 np.concatenate([getattr(pool, f.name), getattr(added, f.name)]) for f in fields(StackedRays)))
             for j, i in enumerate(new):
                 self._row[i] = rows + j
-        rows, pool = np.array([self._row[i] for i in idx]), self._pool[n]
-        return StackedRays(*(getattr(pool, f.name)[rows] for f in fields(StackedRays)))
+        return self._pool[n], np.array([self._row[i] for i in idx], dtype=np.int64)
 
 
 def _read(values, key, pose):

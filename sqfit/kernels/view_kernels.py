@@ -38,20 +38,22 @@ def _clip(x, lo, hi):
 
 
 @njit(**_JIT)
-def silhouette_rows(T_world_camera, T_world_sq, shape, directions, weights, hinge_in, hinge_out, two_sided, lower,
-                    upper, rtol, max_newton, max_warm, grid, znear, warm_bracket, newton_power, crossing_tol,
+def silhouette_rows(T_world_camera, T_world_sq, shape, rows, directions, weights, hinge_in, hinge_out, two_sided,
+                    lower, upper, rtol, max_newton, max_warm, grid, znear, warm_bracket, newton_power, crossing_tol,
                     crossing_parallel):
     """:func:`sqfit.graph.landmark.batch_silhouette_residuals` (no offset, no warm start).
 
     ``T_world_camera``, ``T_world_sq`` ``(k, 4, 4)``; ``shape`` ``(k, 5)``, clipped to ``[lower,
-    upper]`` (zero Jacobian columns where clipped); ``directions`` ``(k, n, 3)`` camera-frame
-    bearings; ``weights`` ``(k, n)``; ``hinge_in``, ``hinge_out``, ``two_sided`` ``(k, n)`` bool;
+    upper]`` (zero Jacobian columns where clipped); ``rows`` ``(k,)`` int64, each factor's row in the
+    ray arrays, which may hold more factors (``(m, n, ...)``, ``m >= k``: a graph's pool, so no
+    evaluation copies the rays of the factors it evaluates); ``directions`` ``(m, n, 3)`` camera-frame
+    bearings; ``weights`` ``(m, n)``; ``hinge_in``, ``hinge_out``, ``two_sided`` ``(m, n)`` bool;
     the solver's constants as :func:`sqfit.fitting.line_gauge.solver_args` gives them, then
     :func:`sqfit.fitting.raycost.crossing_correction`'s two tolerances. Returns ``r``
     ``(k, n)``, ``J_camera``, ``J_landmark`` ``(k, n, 6)``, ``J_shape`` ``(k, n, 5)``, ``d``
     ``(k, n)``.
     """
-    k, n = directions.shape[0], directions.shape[1]
+    k, n = rows.shape[0], directions.shape[1]
     r, d = np.empty((k, n)), np.empty((k, n))
     J_camera, J_landmark, J_shape = np.empty((k, n, 6)), np.empty((k, n, 6)), np.empty((k, n, 5))
     R0, dR0 = rotation(np.zeros(3))  # the landmark at the identity pose of its own frame
@@ -75,8 +77,9 @@ def silhouette_rows(T_world_camera, T_world_sq, shape, directions, weights, hing
         ratio = nan_max(nan_max(ax, ay), az) / nan_min(nan_min(ax, ay), az)
         e1, e2 = clipped[3], clipped[4]
         log_a = np.log(np.abs(xi[0:3]))
+        g = rows[f]
         for i in range(n):
-            bx, by, bz = directions[f, i, 0], directions[f, i, 1], directions[f, i, 2]
+            bx, by, bz = directions[g, i, 0], directions[g, i, 1], directions[g, i, 2]
             lx = R_sc[0, 0] * bx + R_sc[0, 1] * by + R_sc[0, 2] * bz
             ly = R_sc[1, 0] * bx + R_sc[1, 1] * by + R_sc[1, 2] * bz
             lz = R_sc[2, 0] * bx + R_sc[2, 1] * by + R_sc[2, 2] * bz
@@ -92,13 +95,13 @@ def silhouette_rows(T_world_camera, T_world_sq, shape, directions, weights, hing
                 phi, dphi = m - 1.0, m
             else:
                 phi, dphi = log_m, 1.0
-            if hinge_in[f, i]:
+            if hinge_in[g, i]:
                 active = phi > 0
-            elif hinge_out[f, i]:
-                active = phi < 0 and two_sided[f, i]
+            elif hinge_out[g, i]:
+                active = phi < 0 and two_sided[g, i]
             else:
                 active = True
-            scale = weights[f, i] * (1.0 if active else 0.0)
+            scale = weights[g, i] * (1.0 if active else 0.0)
             r[f, i] = scale * phi
             w = scale * dphi
             # d r / d y (moving the centre by p moves every point by -p)
