@@ -228,8 +228,8 @@ def batch_silhouette_residuals(T_world_camera, T_world_sq, shape, rays, d0=None,
     rows : (k,) int, optional
         The factors' rows in ``rays``, which then holds ``m >= k`` factors (a graph's rays, stacked
         once: :class:`sqfit.graph.factors.SilhouetteFactors`); default: ``rays`` holds exactly the
-        ``k`` factors. The compiled kernel reads the rows in place; gathering them was ~3 % of the
-        factor graph's batch time.
+        ``k`` factors. The compiled kernel reads the rows in place; gathering them per evaluation
+        cost the factor graph's batch about 6 % of its CPU (docs/slam-history.md, thirtieth pass).
 
     Returns
     -------
