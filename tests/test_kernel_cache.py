@@ -26,7 +26,8 @@ landmark[0, 2, 3] = 5.0
 shape = np.array([[0.5, 0.4, 0.3, 1.0, 1.0]])
 bearings = np.array([[[0.1, 0.0, 1.0], [0.0, 0.09, 1.0], [-0.1, 0.0, 1.0], [0.0, -0.09, 1.0]]])
 off, on = np.zeros((1, 4), dtype=bool), np.ones((1, 4), dtype=bool)
-r = view_kernels.silhouette_rows(camera, landmark, shape, bearings, np.ones((1, 4)), off, off, on,
+rows = np.zeros(1, dtype=np.int64)
+r = view_kernels.silhouette_rows(camera, landmark, shape, rows, bearings, np.ones((1, 4)), off, off, on,
                                  np.array([0.01] * 3 + [0.1] * 2), np.array([10.0] * 3 + [1.9] * 2),
                                  *line_gauge.solver_args(start="nearest"), *raycost.CROSSING_ARGS)[0]
 print(repr(float(r.sum())))
