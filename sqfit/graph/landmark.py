@@ -240,10 +240,8 @@ def batch_silhouette_residuals(T_world_camera, T_world_sq, shape, rays, d0=None,
     J_offset : (k, n) float
         ``d r / d δ`` (per px); only when ``offset`` is given.
     """
-    k = len(T_world_camera)
-    if rows is None:
-        rows = np.arange(len(rays))
-    rows = np.asarray(rows, dtype=np.int64)
+    k, gather = len(T_world_camera), rows is not None
+    rows = np.asarray(rows if gather else np.arange(len(rays)), dtype=np.int64)
     if rows.shape != (k,) or (k and (rows.min() < 0 or rows.max() >= len(rays))):
         raise ValueError(f"rows must be {k} indices into the {len(rays)} factors of rays, got {rows.tolist()}")
     kernels = compiled("views") if offset is None and d0 is None else None
@@ -254,7 +252,7 @@ def batch_silhouette_residuals(T_world_camera, T_world_sq, shape, rays, d0=None,
                                        f(rays.weights, dtype=np.float64), f(rays.hinge_in), f(rays.hinge_out),
                                        f(rays.two_sided), EVAL_LOWER, EVAL_UPPER, *solver_args(start=start),
                                        *CROSSING_ARGS)
-    if len(rows) != len(rays) or np.any(rows != np.arange(len(rays))):
+    if gather:
         rays = StackedRays(*(getattr(rays, field.name)[rows] for field in fields(StackedRays)))
     R_c, t_c = T_world_camera[:, :3, :3], T_world_camera[:, :3, 3]
     R_l, t_l = T_world_sq[:, :3, :3], T_world_sq[:, :3, 3]
