@@ -116,10 +116,53 @@ def test_orbit_laps_by_lap_extend_the_shorter_run(laps):
     assert rn.min() >= 4.0 - 1e-9 and rn.max() <= 6.0 + 1e-9
 
 
+def test_a_lap_pattern_set_in_code_is_checked_too():
+    # scene files are checked as they are read; a scene changed in code (dataclasses.replace, as
+    # benchmarks/bench_graph.py does) must not fall back to "run" silently
+    from dataclasses import replace
+
+    from sqsim.world.trajectory import check_sequence_keys
+
+    s = scene(trajectory={"frames": 40, "laps": 2})
+    with pytest.raises(ValueError, match=r"trajectory\.lap_pattern must be one of \['run', 'lap', 'revisit'\], got 'turn'"):
+        check_sequence_keys(replace(s, trajectory=replace(s.trajectory, lap_pattern="turn")))
+
+
 def test_orbit_lap_pattern_changes_nothing_on_one_lap():
     p_run = sequence_poses(scene(trajectory={"frames": 20}).trajectory)[1]
-    p_lap = sequence_poses(scene(trajectory={"frames": 20, "lap_pattern": "lap"}).trajectory)[1]
-    np.testing.assert_array_equal(p_run, p_lap)
+    for pattern in ("lap", "revisit"):
+        p_lap = sequence_poses(scene(trajectory={"frames": 20, "lap_pattern": pattern}).trajectory)[1]
+        np.testing.assert_array_equal(p_run, p_lap)
+
+
+@pytest.mark.parametrize("laps", [2, 3, 4])
+def test_orbit_laps_revisit_one_path_between_the_earlier_frames(laps):
+    # lap_pattern = "revisit": every lap the one-lap orbit's path, its frames shifted along it, so a
+    # longer run is a shorter one plus laps over the same places, never on an earlier frame
+    p1 = sequence_poses(scene(trajectory={"frames": 20}).trajectory)[1]
+    pn = sequence_poses(scene(trajectory={"frames": 20 * laps, "laps": laps, "lap_pattern": "revisit"}).trajectory)[1]
+    np.testing.assert_array_equal(pn[:20], p1)
+    if laps == 4:
+        np.testing.assert_array_equal(pn[:40], sequence_poses(scene(trajectory={
+            "frames": 40, "laps": 2, "lap_pattern": "revisit"}).trajectory)[1])
+    # the one-lap path, densely: each frame of every lap lies on it, with its gaze
+    dense = sequence_poses(scene(trajectory={"frames": 20 * 500}).trajectory)[1]
+    for k in range(20, 20 * laps):
+        gap = np.linalg.norm(dense[:, :3, 3] - pn[k, :3, 3], axis=1)
+        j = int(np.argmin(gap))
+        assert gap[j] < 5e-3
+        assert angle_deg(dense[j, :3, :3].T @ pn[k, :3, :3]) < 0.5
+    # 18 degrees a frame within each lap, and each lap's frames off every earlier lap's
+    centres = pn[:, :3, 3]
+    bearing = np.unwrap(np.arctan2(centres[:, 1], centres[:, 0]))
+    for lap in range(1, laps):
+        part = slice(20 * lap, 20 * (lap + 1))
+        np.testing.assert_allclose(np.degrees(np.diff(bearing[part])), 18.0, atol=1e-9)
+        shift = np.mod(np.degrees(bearing[part] - bearing[:20]), 360.0) / 18.0
+        assert np.ptp(shift) < 1e-9 and 0.1 < shift[0] < 0.9
+        for before in range(lap):
+            other = slice(20 * before, 20 * (before + 1))
+            assert np.min(np.linalg.norm(centres[part, None] - centres[None, other], axis=2)) > 0.1
 
 def test_waypoints_interpolate_linearly_and_slerp(tmp_path):
     rows = [[0.0, 0, 0, 1, 0, 0, 0, 1], [2.0, 4, 0, 1, *Rotation.from_euler("z", 90, degrees=True).as_quat()],
@@ -173,7 +216,7 @@ ORBIT_KEYS = {"radius_amplitude": None, "height_amplitude": None, "look_at_wande
     ({"trajectory": {"laps": 0}}, r"trajectory\.laps must be >= 1, got 0"),
     ({"trajectory": {"laps": 1.5}}, r"trajectory\.laps must be an integer"),
     ({"trajectory": {"laps": 2, "arc_deg": 300.0}}, r"trajectory\.laps > 1 needs full turns \(trajectory\.arc_deg = 360\)"),
-    ({"trajectory": {"laps": 2, "lap_pattern": "turn"}}, r"trajectory\.lap_pattern must be one of \['run', 'lap'\]"),
+    ({"trajectory": {"laps": 2, "lap_pattern": "turn"}}, r"trajectory\.lap_pattern must be one of \['run', 'lap', 'revisit'\]"),
     ({"trajectory": {"kind": "waypoints", **ORBIT_KEYS, "lap_pattern": "lap",
                      "waypoints": [[0, 0, 0, 0, 0, 0, 0, 1], [1, 0, 0, 0, 0, 0, 0, 1]]}},
      r"trajectory\.lap_pattern is only used with kind = \"orbit\""),

@@ -26,6 +26,12 @@ Two sequence kinds (``[trajectory] kind``); the multi-view ``circle`` stays in `
       ... laps then differ in length only, each the one before plus laps like it: what a test of
       growth with length needs (with ``"run"`` the first lap of two is another path than one lap
       alone: docs/slam-history.md, twenty-eighth pass).
+    - ``"revisit"``: every lap the one-lap orbit's path, the same places and gazes at the same
+      bearings, each lap's frames :data:`LAP_SHIFT` ``* l`` (modulo 1) of a step further along it
+      (``s = laps * k / frames + (LAP_SHIFT * l mod 1) * laps / frames``, ``u = s - l``, and the
+      bearing from ``s``): a camera patrolling one loop, frames between the earlier laps' frames,
+      never on them. As with ``"lap"``, the first laps of a run are the run of fewer laps, so runs
+      differ in length only, but here every lap passes the objects as the first did.
 
     The path is the same for every trial of a scene (objects and odometry noise are what a trial draws).
 ``waypoints``
@@ -66,10 +72,11 @@ ORBIT_RADIUS_CYCLES, ORBIT_HEIGHT_CYCLES = 2, 3
 #: Vertical extent of the look-at wander, as a fraction of ``look_at_wander``.
 LOOK_AT_WANDER_Z = 0.25
 #: How an orbit's radius, height and gaze cycles run over several laps (module docstring).
-LAP_PATTERNS = ("run", "lap")
+LAP_PATTERNS = ("run", "lap", "revisit")
 #: With ``lap_pattern = "lap"``, the shift of each lap's cycles against the lap's before, as a
-#: fraction of the sweep: the golden ratio's conjugate, the irrational whose multiples modulo 1
-#: spread most evenly, so laps never repeat.
+#: fraction of the sweep; with ``"revisit"``, of each lap's frames along the path, as a fraction of
+#: a step. The golden ratio's conjugate, the irrational whose multiples modulo 1 spread most
+#: evenly, so laps never repeat.
 LAP_SHIFT = (5.0 ** 0.5 - 1.0) / 2.0
 
 _ORBIT_ONLY = ("frame_rate_hz", "laps", "lap_pattern", "radius_amplitude", "height_amplitude", "look_at_wander")
@@ -140,6 +147,9 @@ def check_sequence_keys(scene):
                     lap_pattern=t.lap_pattern or LAP_PATTERNS[0],
                     radius_amplitude=t.radius_amplitude or 0.0, height_amplitude=t.height_amplitude or 0.0,
                     look_at_wander=t.look_at_wander or 0.0)
+        if fill["lap_pattern"] not in LAP_PATTERNS:  # a scene file's is checked as it is read; one set in code here
+            raise ValueError(f"{src}: trajectory.lap_pattern must be one of {list(LAP_PATTERNS)}, got "
+                             f"{fill['lap_pattern']!r}")
         if fill["laps"] > 1 and t.arc_deg < 360.0:
             raise ValueError(f"{src}: trajectory.laps > 1 needs full turns (trajectory.arc_deg = 360), got "
                              f"laps = {fill['laps']} with arc_deg = {t.arc_deg}")
@@ -204,11 +214,16 @@ def orbit_poses(t):
     k = np.arange(n)
     u = k / n if t.arc_deg >= 360.0 else k / (n - 1)
     theta = np.radians(t.start_deg + t.arc_deg * laps * u)
-    if laps > 1 and t.lap_pattern == "lap":
+    if laps > 1 and t.lap_pattern in ("lap", "revisit"):
         # k * laps / n exactly, so a lap starts at an exact integer and lap 0 is the one-lap orbit
         sweep = k * laps / n
         lap = np.floor(sweep)
-        u = sweep - lap + LAP_SHIFT * lap
+        if t.lap_pattern == "lap":
+            u = sweep - lap + LAP_SHIFT * lap
+        else:
+            sweep = sweep + np.mod(LAP_SHIFT * lap, 1.0) * laps / n
+            u = sweep - lap
+            theta = np.radians(t.start_deg + t.arc_deg * sweep)
     two_pi_u = 2 * np.pi * u
     wander = np.stack([np.sin(two_pi_u), np.sin(2 * two_pi_u), LOOK_AT_WANDER_Z * np.sin(3 * two_pi_u)], axis=1)
     targets = np.asarray(t.look_at, dtype=np.float64) + t.look_at_wander * wander
