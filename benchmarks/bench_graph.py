@@ -210,9 +210,9 @@ def main(argv=None):
                         "same step per frame, the run longer, each lap revisiting the objects")
     parser.add_argument("--scene-lap-pattern", choices=("run", "lap", "revisit"), default=None,
                         help="with --scene: how an orbit's radius, height and gaze cycles run over its laps instead "
-                        "of the scene's (trajectory.lap_pattern): 'lap' makes each run the one of fewer laps plus laps like it, "
-                        "the test of growth with length; 'revisit' the same, every lap over the first lap's path, "
-                        "its frames between the earlier laps' frames")
+                        "of the scene's (trajectory.lap_pattern): 'lap' makes each run the one of fewer laps plus "
+                        "laps like it, the test of growth with length; 'revisit' the same, every lap over the first "
+                        "lap's path, its frames between the earlier laps' frames")
     parser.add_argument("--sequences", type=int, default=1, help="with --scene: sequences 0..N-1 of each seed")
     parser.add_argument("--perturb", type=int, default=1, help="runs per sequence with silhouette_sigma scaled by "
                         "1 + k 1e-9, k = 0..N-1: the spread of the results under a negligible change")

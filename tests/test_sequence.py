@@ -164,6 +164,7 @@ def test_orbit_laps_revisit_one_path_between_the_earlier_frames(laps):
             other = slice(20 * before, 20 * (before + 1))
             assert np.min(np.linalg.norm(centres[part, None] - centres[None, other], axis=2)) > 0.1
 
+
 def test_waypoints_interpolate_linearly_and_slerp(tmp_path):
     rows = [[0.0, 0, 0, 1, 0, 0, 0, 1], [2.0, 4, 0, 1, *Rotation.from_euler("z", 90, degrees=True).as_quat()],
             [3.0, 4, 2, 1, *Rotation.from_euler("z", 180, degrees=True).as_quat()]]
