@@ -31,7 +31,9 @@ keeps the run of least CPU time (the methods are deterministic: the repeats' res
 agree). ``--prefix N`` also runs each method on the first N frames alone and compares those frames'
 ATE and their objects' IoU with the same frames inside the whole run (a test of growth with length
 that holds the frames fixed; with ``--scene-lap-pattern lap`` the first laps of a run are the run
-of fewer laps). ``--json PATH`` writes the per-run rows. A last table gives issue 23's figures: object IoU
+of fewer laps). ``--exact-odometry`` gives the methods the true poses as their odometry (the
+graph's odometry sigmas unchanged), so that what the odometry's noise costs is told from what the masks,
+the floor and the method lose on their own. ``--json PATH`` writes the per-run rows. A last table gives issue 23's figures: object IoU
 median and 10th percentile over every object of every run, the same after the map's scale is
 aligned (:func:`sqfit.graph.testing.scale_aligned_objects`: the objects scaled about the first
 camera by the trajectory's least-squares scale, what the map loses to all but the scale, which no
@@ -48,6 +50,7 @@ half the odometry's, the per-sequence spreads of the ATE and of the median objec
 from __future__ import annotations
 
 import argparse
+import copy
 import json
 import os
 import platform
@@ -147,6 +150,14 @@ def scene_sequence(path, seed, index=0, frames=None, laps=None, lap_pattern=None
                            objects=seq.objects, observations=observations, scene=scene)
 
 
+def _exact_odometry(seq):
+    """``seq`` with its true poses as its odometry (``--exact-odometry``): every row's odometry
+    columns then describe the odometry the methods were given (ATE 0, scale 1)."""
+    exact = copy.copy(seq)
+    exact.odometry_poses = np.array(seq.true_poses, dtype=np.float64)
+    return exact
+
+
 def _spread(rows, key):
     """Largest and median (max - min) of ``key`` over each sequence's runs."""
     by_seq = {}
@@ -219,6 +230,9 @@ def main(argv=None):
     parser.add_argument("--prefix", type=int, default=0, help="also run each method on the first N frames alone "
                         "and compare those frames' ATE and their objects' IoU with the same frames inside the whole "
                         "run: whether a longer run makes the estimate of the frames it shares with a shorter one worse")
+    parser.add_argument("--exact-odometry", action="store_true", help="give the methods the true poses as their "
+                        "odometry (the graph's odometry sigmas unchanged): what the odometry's noise costs, as against "
+                        "what the masks, the floor and the method lose on their own")
     parser.add_argument("--json", default=None)
     args = parser.parse_args(argv)
     if args.scene_laps is not None and (args.scene_laps < 1 or not args.scene):
@@ -239,6 +253,8 @@ def main(argv=None):
                                for index in range(args.sequences if scene else 1)]:
         seq = (scene_sequence(scene, seed, index, args.scene_frames, args.scene_laps, args.scene_lap_pattern) if scene
                else synthetic_sequence(seed, args.frames, args.objects))
+        if args.exact_odometry:
+            seq = _exact_odometry(seq)
         given = base
         if scene:
             from sqsim.runs.slam import scene_graph_options
@@ -263,6 +279,8 @@ def main(argv=None):
     at += '' if args.scene_lap_pattern is None else f' (lap pattern {args.scene_lap_pattern!r})'
     what = (f"{' + '.join(args.scene)}{at} (sequences 0..{args.sequences - 1} of each seed)" if args.scene
             else f"{args.frames} frames, {args.objects} objects")
+    if args.exact_odometry:
+        what += ", the true poses as odometry"
     if args.perturb > 1:
         what += f", {args.perturb} runs per sequence (silhouette_sigma x (1 + k 1e-9))"
     print(f"{what}, seeds {args.seed}..{args.seed + args.seeds - 1}, mean views {np.mean([r['views'] for r in rows]):.0f} "

@@ -1,4 +1,4 @@
-"""benchmarks/bench_graph.py: the growth test's --prefix and --scene-lap-pattern options."""
+"""benchmarks/bench_graph.py: the growth test's --prefix and --scene-lap-pattern options, --exact-odometry."""
 
 import importlib.util
 import json
@@ -49,3 +49,20 @@ def test_growth_options_are_checked(bench, argv, match, capsys):
     with pytest.raises(SystemExit):
         bench.main(argv)
     assert re.search(match, capsys.readouterr().err)
+
+
+def test_exact_odometry_gives_the_methods_the_true_poses(bench, tmp_path, capsys):
+    out = tmp_path / "rows.json"
+    bench.main(["--seeds", "1", "--frames", "8", "--objects", "2", "--methods", "odometry,graph", "--exact-odometry",
+                "--json", str(out)])
+    odometry, batch = json.loads(out.read_text())
+    # the odometry the methods were given is the truth: its own ATE and the rows' odometry columns are 0
+    assert odometry["ate_m"] == pytest.approx(0.0, abs=1e-12)
+    assert batch["ate_odometry_m"] == pytest.approx(0.0, abs=1e-12)
+    # and the graph ran from it: the same as graph.run given the true poses as odometry
+    seq = synthetic_sequence(0, 8, 2)
+    exact = graph.run(seq.intrinsics, seq.true_poses, seq.observations, ["graph"])["graph"]
+    assert batch["ate_m"] == pytest.approx(position_rmse(exact.poses, seq.true_poses), rel=1e-9)
+    noisy = graph.run(seq.intrinsics, seq.odometry_poses, seq.observations, ["graph"])["graph"]
+    assert batch["ate_m"] != pytest.approx(position_rmse(noisy.poses, seq.true_poses), rel=1e-6)
+    assert "the true poses as odometry" in capsys.readouterr().out
