@@ -179,7 +179,45 @@ def test_no_tighter_floor_when_no_landmark_fits_well_enough():
     np.testing.assert_array_equal(none.poses, zero.poses)
 
 
+def test_the_last_solves_hold_frame_0_at_its_tighter_prior():
+    # frame 0 defines the world frame the floor is given in: in the last solves it is held at
+    # final_prior_sigma_* (0.1 mm, 0.001 deg by default), so the map cannot slide along its scale
+    # about a point on the floor
+    seq = synthetic_sequence(0, n_frames=12, n_objects=2)
+    base = {"odometry_sigma_m": 0.03, "floor_z": 0.0}
+    runs = {key: graph.run(seq.intrinsics, seq.odometry_poses, seq.observations, ["graph"], {**base, **given})["graph"]
+            for key, given in (("default", {}), ("loose", {"final_prior_sigma_m": None, "final_prior_sigma_deg": None}))}
+    assert all(r.ok for r in runs.values())
+    moved = {key: np.abs(r.poses[0][:3, 3] - seq.odometry_poses[0][:3, 3]).max() for key, r in runs.items()}
+    assert moved["default"] < 1e-6 < moved["loose"], moved
+
+
+def test_first_pose_prior_is_replaced_and_the_other_factors_shared():
+    from gtsam.symbol_shorthand import X
+
+    from sqfit.graph.growth import noise_models, with_first_pose_prior
+
+    noise = noise_models(graph.GraphOptions())
+    g = gtsam.NonlinearFactorGraph()
+    g.add(gtsam.PriorFactorPose3(X(0), gtsam.Pose3(), noise["prior"]))
+    g.add(gtsam.PriorFactorPose3(L(0), gtsam.Pose3(), noise["prior"]))  # a landmark's prior stays
+    g.add(gtsam.BetweenFactorPose3(X(0), X(1), gtsam.Pose3(), noise["odometry"]))
+    T = np.eye(4)
+    T[:3, 3] = (0.1, -0.2, 1.5)
+    out = with_first_pose_prior(g, T, noise["final_prior"])
+    assert out.size() == 3
+    priors = [out.at(k) for k in range(out.size())
+              if isinstance(out.at(k), gtsam.PriorFactorPose3) and tuple(out.at(k).keys()) == (X(0),)]
+    assert len(priors) == 1
+    np.testing.assert_allclose(priors[0].prior().matrix(), T)
+    np.testing.assert_allclose(priors[0].noiseModel().sigmas(), np.r_[[np.radians(0.001)] * 3, [1e-4] * 3])
+    assert any(tuple(out.at(k).keys()) == (L(0),) for k in range(out.size()))
+
+
 @pytest.mark.parametrize("options, match", [
+    ({"final_prior_sigma_m": 0.0}, "final_prior_sigma_m must be a positive number or None"),
+    ({"final_prior_sigma_deg": float("nan")}, "final_prior_sigma_deg must be a positive number or None"),
+    ({"final_prior_sigma_m": "1"}, "final_prior_sigma_m must be a positive number or None"),
     ({"final_floor_misfit": -1.0}, "final_floor_misfit"),
     ({"floor_z": float("nan")}, "floor_z must be a finite height or None"),
     ({"floor_sigma_m": 0.0}, "floor_sigma_m must be a finite number > 0"),

@@ -37,7 +37,7 @@ from .problem import observation_at
 from .shapevar import shape_variable
 
 __all__ = ["LandmarkFit", "Growth", "noise_models", "robust_noise", "pose_factors", "pose_matrices", "skip_object",
-           "initial_fit", "landmark_fit", "add_landmark", "shape_prior", "view_factor", "silhouette_noise", "offset_key",
+           "with_first_pose_prior", "initial_fit", "landmark_fit", "add_landmark", "shape_prior", "view_factor", "silhouette_noise", "offset_key",
            "landmark_keys"]
 
 
@@ -55,12 +55,16 @@ class LandmarkFit(NamedTuple):
 
 
 def noise_models(options):
-    """``{"odometry", "prior"}``: the diagonal noise models of the odometry steps and of frame 0's prior."""
+    """``{"odometry", "prior", "final_prior"}``: the diagonal noise models of the odometry steps, of
+    frame 0's prior and of frame 0's prior in the batch's last solves (``final_prior_sigma_*``)."""
     rot, pos = np.radians(options.odometry_sigma_deg), options.odometry_sigma_m
     prot, ppos = np.radians(options.prior_sigma_deg), options.prior_sigma_m
+    frot = prot if options.final_prior_sigma_deg is None else np.radians(options.final_prior_sigma_deg)
+    fpos = ppos if options.final_prior_sigma_m is None else options.final_prior_sigma_m
     return {
         "odometry": gtsam.noiseModel.Diagonal.Sigmas(np.array([rot] * 3 + [pos] * 3)),
         "prior": gtsam.noiseModel.Diagonal.Sigmas(np.array([prot] * 3 + [ppos] * 3)),
+        "final_prior": gtsam.noiseModel.Diagonal.Sigmas(np.array([frot] * 3 + [fpos] * 3)),
     }
 
 
@@ -88,6 +92,18 @@ def pose_factors(problem, noise, frames):
             delta = gtsam.Pose3(np.linalg.inv(poses[i - 1]) @ poses[i])
             graph.add(gtsam.BetweenFactorPose3(X(i - 1), X(i), delta, noise["odometry"]))
     return graph
+
+
+def with_first_pose_prior(graph, pose, noise):
+    """A copy of ``graph`` whose prior on frame 0's pose (the ``PriorFactorPose3`` on ``X(0)``) is
+    replaced by one at ``pose`` ((4, 4)) with ``noise``; the other factors are shared."""
+    out = gtsam.NonlinearFactorGraph()
+    for k in range(graph.size()):
+        factor = graph.at(k)
+        if not (isinstance(factor, gtsam.PriorFactorPose3) and tuple(factor.keys()) == (X(0),)):
+            out.add(factor)
+    out.add(gtsam.PriorFactorPose3(X(0), gtsam.Pose3(pose), noise))
+    return out
 
 
 def pose_matrices(values, n):

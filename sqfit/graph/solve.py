@@ -21,7 +21,8 @@ Methods (every one returns a :class:`sqfit.graph.problem.SlamResult`):
   ``batch_window`` frames, each solve from the previous solution and the new frames chained by the
   odometry); then the re-fit of landmarks in poor minima, the move to the best scale
   (:mod:`sqfit.graph.scale`) and a last solve to ``final_relative_tolerance``, its floor factors at
-  ``final_floor_sigma_m`` for the landmarks that fit their masks (``final_floor_misfit``), after
+  ``final_floor_sigma_m`` for the landmarks that fit their masks (``final_floor_misfit``) and frame
+  0's prior at ``final_prior_sigma_deg`` and ``final_prior_sigma_m``, after
   which the landmarks are tested again (every landmark's axes, ``axis_check_frames``; overlap; the
   misfit, up to ``misfit_sigma``, only without the axis test) and, where one changed, the graph
   solved once more; with a floor, a solution from iSAM2 far from the
@@ -50,7 +51,7 @@ from ..fitting.grazing import OFFSET_UNIT_PX
 from .factors import box_factor, with_floor_factors
 from .fixedlag import condition_on_past
 from .growth import (Growth, initial_fit, landmark_keys, noise_models, pose_factors, pose_matrices, robust_noise,
-                     skip_object)
+                     skip_object, with_first_pose_prior)
 from .landmark import N_SHAPE, landmark_to_superquadric
 from .options import GraphOptions
 from .problem import SlamResult, check_inputs, error_line
@@ -275,6 +276,8 @@ def _batch_from(problem, options, start, scales=None):
         silhouettes = growth.batch
         if options.final_n_contour and options.final_n_contour != options.n_contour:
             graph, silhouettes = growth.resampled(graph, options.final_n_contour)
+        if options.final_prior_sigma_deg is not None or options.final_prior_sigma_m is not None:
+            graph = with_first_pose_prior(graph, problem.odometry_poses[0], growth.noise["final_prior"])
         cap = options.misfit_sigma if options.misfit_sigma > 0 else np.inf  # 0: no outline is the model's
         for check in (False, True):
             # the last solve moves the poses and far along the scale valley: its landmarks are tested
