@@ -37,8 +37,8 @@ from .problem import observation_at
 from .shapevar import shape_variable
 
 __all__ = ["LandmarkFit", "Growth", "noise_models", "robust_noise", "pose_factors", "pose_matrices", "skip_object",
-           "with_first_pose_prior", "initial_fit", "landmark_fit", "add_landmark", "shape_prior", "view_factor", "silhouette_noise", "offset_key",
-           "landmark_keys"]
+           "with_first_pose_prior", "initial_fit", "landmark_fit", "add_landmark", "shape_prior", "view_factor",
+           "silhouette_noise", "offset_key", "landmark_keys"]
 
 
 class LandmarkFit(NamedTuple):
