@@ -215,6 +215,7 @@ def test_first_pose_prior_is_replaced_and_the_other_factors_shared():
 
 
 @pytest.mark.parametrize("options, match", [
+    ({"final_first_view_sigma_scale": 0.0}, "final_first_view_sigma_scale"),
     ({"final_prior_sigma_m": 0.0}, "final_prior_sigma_m must be a positive number or None"),
     ({"final_prior_sigma_deg": float("nan")}, "final_prior_sigma_deg must be a positive number or None"),
     ({"final_prior_sigma_m": "1"}, "final_prior_sigma_m must be a positive number or None"),
@@ -270,3 +271,40 @@ def test_isam2_keeps_the_last_solves_floor_throughout(monkeypatch):
         sigmas = _floor_sigmas(graphs[-1], sorted(r.objects))
         assert sorted(sigmas) == sorted(r.objects)
         assert all(v == pytest.approx(expected) for v in sigmas.values()), (method, final, sigmas)
+
+
+def test_resampled_weighs_frame_0s_views_of_the_landmarks_that_fit():
+    # frame 0's view ties the known first pose to the landmarks the floor holds: in the last
+    # solves its silhouettes of the landmarks that fit their masks get final_first_view_sigma_scale
+    from sqfit.graph.growth import Growth
+    from sqfit.graph.problem import SlamResult, check_inputs
+
+    seq = synthetic_sequence(0, n_frames=6, n_objects=2)
+    options = graph.GraphOptions.coerce({"floor_z": 0.0})
+    problem = check_inputs(seq.intrinsics, seq.odometry_poses, seq.observations)
+    growth = Growth(problem, options, SlamResult("graph", problem.odometry_poses.copy()))
+    g = gtsam.NonlinearFactorGraph()
+    for i in range(problem.n_frames):
+        new, _ = growth.add([i])
+        g.push_back(new)
+    assert len(growth.added) == 2
+    first, other = sorted(growth.added)
+    growth.bounded.add(other)  # as if its initial fit had left the grazing cost: keeps its weight
+
+    def sigmas(graph_):
+        out = {}
+        for k in range(graph_.size()):
+            f = graph_.at(k)
+            keys = f.keys()
+            if len(keys) >= 3 and keys[1] in (L(first), L(other)) and gtsam.Symbol(keys[0]).chr() == ord("x"):
+                out[gtsam.Symbol(keys[0]).index(), gtsam.Symbol(keys[1]).index()] = \
+                    float(f.noiseModel().noise().sigmas()[0])
+        return out
+
+    same, _ = growth.resampled(g, options.final_n_contour, 1.0)
+    scaled, _ = growth.resampled(g, options.final_n_contour, 0.5)
+    a, b = sigmas(same), sigmas(scaled)
+    assert (0, first) in a and (0, other) in a and any(f > 0 and oid == first for f, oid in a)
+    assert b[0, first] == pytest.approx(0.5 * a[0, first])
+    assert b[0, other] == pytest.approx(a[0, other])
+    assert all(b[key] == pytest.approx(a[key]) for key in a if key[0] > 0)

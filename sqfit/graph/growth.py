@@ -377,14 +377,16 @@ class Growth:
         return with_floor_factors(graph, grazing, robust_noise(1, self.options.floor_sigma_m, self.options.huber_k),
                                   self.options.floor_z, self.batch.variable)
 
-    def resampled(self, graph, n_contour):
+    def resampled(self, graph, n_contour, first_view_scale=1.0):
         """``(graph', evaluator)``: ``graph`` with the silhouette factors of this growth's evaluator
         made again by a new :class:`SilhouetteFactors`, which it returns, those of the landmarks
-        that fit their masks with ``n_contour`` rays (``GraphOptions.final_n_contour``), the others
-        as they were; the other factors are shared. A landmark fits unless its silhouette factors
-        are bounded (its initial fit left the grazing cost) or its noise is scaled by its misfit
-        (:mod:`sqfit.graph.weighting`): there the outline's misfit is the model's, not noise, and
-        denser rays would only weigh the wrong outline more."""
+        that fit their masks with ``n_contour`` rays (``GraphOptions.final_n_contour``) and, in
+        frame 0, their noise scaled by ``first_view_scale``
+        (``GraphOptions.final_first_view_sigma_scale``), the others as they were; the other factors
+        are shared. A landmark fits unless its silhouette factors are bounded (its initial fit left
+        the grazing cost) or its noise is scaled by its misfit (:mod:`sqfit.graph.weighting`): there
+        the outline's misfit is the model's, not noise, and denser rays or more weight would only
+        weigh the wrong outline more."""
         dense = replace(self.options, n_contour=int(n_contour))
         batch, rays, out = SilhouetteFactors(self.batch.variable), {}, gtsam.NonlinearFactorGraph()
         for k in range(graph.size()):
@@ -396,6 +398,8 @@ class Growth:
             frame, oid = gtsam.Symbol(keys[0]).index(), gtsam.Symbol(keys[1]).index()
             scale = self.scales.get(oid, 1.0)
             fits = oid not in self.bounded and scale == 1.0
+            if fits and frame == 0:
+                scale = float(first_view_scale)
             out.add(view_factor(self.problem, frame, oid, dense if fits else self.options, batch,
                                 rays if fits else self.rays, oid in self.bounded, scale))
         return out, batch

@@ -21,8 +21,9 @@ Methods (every one returns a :class:`sqfit.graph.problem.SlamResult`):
   ``batch_window`` frames, each solve from the previous solution and the new frames chained by the
   odometry); then the re-fit of landmarks in poor minima, the move to the best scale
   (:mod:`sqfit.graph.scale`) and a last solve to ``final_relative_tolerance``, its floor factors at
-  ``final_floor_sigma_m`` for the landmarks that fit their masks (``final_floor_misfit``) and frame
-  0's prior at ``final_prior_sigma_deg`` and ``final_prior_sigma_m``, after
+  ``final_floor_sigma_m`` for the landmarks that fit their masks (``final_floor_misfit``), frame
+  0's prior at ``final_prior_sigma_deg`` and ``final_prior_sigma_m`` and frame 0's silhouettes at
+  ``final_first_view_sigma_scale``, after
   which the landmarks are tested again (every landmark's axes, ``axis_check_frames``; overlap; the
   misfit, up to ``misfit_sigma``, only without the axis test) and, where one changed, the graph
   solved once more; with a floor, a solution from iSAM2 far from the
@@ -274,8 +275,9 @@ def _batch_from(problem, options, start, scales=None):
             graph = with_floor_factors(graph, floored, robust_noise(1, options.final_floor_sigma_m, options.huber_k),
                                        options.floor_z, growth.batch.variable)
         silhouettes = growth.batch
-        if options.final_n_contour and options.final_n_contour != options.n_contour:
-            graph, silhouettes = growth.resampled(graph, options.final_n_contour)
+        final_n_contour = options.final_n_contour or options.n_contour
+        if final_n_contour != options.n_contour or options.final_first_view_sigma_scale != 1.0:
+            graph, silhouettes = growth.resampled(graph, final_n_contour, options.final_first_view_sigma_scale)
         if options.final_prior_sigma_deg is not None or options.final_prior_sigma_m is not None:
             graph = with_first_pose_prior(graph, problem.odometry_poses[0], growth.noise["final_prior"])
         cap = options.misfit_sigma if options.misfit_sigma > 0 else np.inf  # 0: no outline is the model's
