@@ -77,9 +77,11 @@ class GraphOptions(Options):
         laps over one path, seeds 5-24: the map's scale error grew from 3.2e-4 at 40 frames to
         4.5e-4 at 160, the ATE by 0.67 mm on average). With frame 0 at 0.1 mm and 0.001 deg in the
         last solves: 2.1e-4 to 3.1e-4, the ATE by 0.25 mm, and every length better than before (ATE
-        medians 5.9 / 6.2 / 6.2 mm at 40 / 80 / 160 frames against 6.1 / 7.3 / 6.8). Only in the last
-        solves: throughout the graph it also tightened iSAM2's, and one evaluation sequence's iSAM2
-        runs 1e-9 apart then parted by 6 mm (docs/slam-history.md, thirty-second pass).
+        medians 5.9 / 6.2 / 6.2 mm at 40 / 80 / 160 frames against 6.1 / 7.3 / 6.8; with
+        ``final_first_view_sigma_scale`` too, 6.1 / 6.1 / 6.0 mm, no longer worse with length). Only
+        in the last solves: throughout the graph it also tightened iSAM2's, and one evaluation
+        sequence's iSAM2 runs 1e-9 apart then parted by 6 mm (docs/slam-history.md, thirty-second
+        pass).
     final_first_view_sigma_scale : float
         The silhouette noise of frame 0's views, of the landmarks that fit their masks, in the batch's
         last solves, as a multiple of the others', > 0 (1: as the others). With the floor, frame 0's
