@@ -97,11 +97,9 @@ def pose_factors(problem, noise, frames):
 def with_first_pose_prior(graph, pose, noise):
     """A copy of ``graph`` whose prior on frame 0's pose (the ``PriorFactorPose3`` on ``X(0)``) is
     replaced by one at ``pose`` ((4, 4)) with ``noise``; the other factors are shared."""
-    out = gtsam.NonlinearFactorGraph()
-    for k in range(graph.size()):
-        factor = graph.at(k)
-        if not (isinstance(factor, gtsam.PriorFactorPose3) and tuple(factor.keys()) == (X(0),)):
-            out.add(factor)
+    drop = {k for k in range(graph.size())
+            if isinstance(graph.at(k), gtsam.PriorFactorPose3) and tuple(graph.at(k).keys()) == (X(0),)}
+    out = _without(graph, drop)
     out.add(gtsam.PriorFactorPose3(X(0), gtsam.Pose3(pose), noise))
     return out
 
