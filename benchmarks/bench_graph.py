@@ -35,9 +35,9 @@ of fewer laps). ``--exact-odometry`` gives the methods the true poses as their o
 graph's odometry sigmas unchanged), so that what the odometry's noise costs is told from what the
 masks, the floor and the method lose on their own. ``--json PATH`` writes the per-run rows. A last
 table gives issue 23's figures: object IoU median and 10th percentile over every object of every
-run, the same after the map's scale is aligned (:func:`sqfit.graph.testing.scale_aligned_objects`: the objects scaled about the first
-camera by the trajectory's least-squares scale, what the map loses to all but the scale, which no
-silhouette measures), the object IoU of the true map moved by the odometry's own scale error
+run, the same after the map's scale is aligned (:func:`sqfit.graph.testing.scale_aligned_objects`:
+the objects scaled about the first camera by the trajectory's least-squares scale, what the map
+loses to all but the scale, which no silhouette measures), the object IoU of the true map moved by the odometry's own scale error
 (:func:`sqfit.graph.testing.odometry_scale_ious`: what a perfect map at the odometry's scale scores,
 the IoU's counterpart of the scale bound below), the runs with ATE <= 0.015 m, the median
 scale-free ATE (after the best scale about the first camera: the trajectory's shape), the median
