@@ -290,14 +290,16 @@ def offset_prior(sigma_px, ray_residuals_, groups=1, view_sigma_px=0.0):
     return np.linalg.inv(np.linalg.cholesky(cov)) * noise
 
 
-def minimise(rays, x0, options, sigma, offset_sigma=0.0, groups=None, pose_scale=None):
+def minimise(rays, x0, options, sigma, offset_sigma=0.0, groups=None, pose_scale=None, shape_min=None):
     """LM on the 3G residuals of ``rays`` (:func:`sqfit.views.rays.contour_rays`) from ``x0``:
     ``(11,)`` if ``sigma == offset_sigma == 0``, else ``(11 + p + g,)`` with ``3 v`` pose corrections
     (prior scale ``sigma``, radians; none if 0) and one outline offset per group of ``groups`` (a
     Gaussian prior of ``offset_sigma`` px, :func:`offset_prior` at ``x0``; none if 0), as
     :func:`sqfit.fitting.raycost.posed_ray_residuals`; the offsets are optimised in units of
     :data:`OFFSET_UNIT_PX`. ``pose_scale`` (with ``sigma > 0``; cost units per radian): the pose
-    prior rows are ``pose_scale w`` instead of ``w / sigma`` (:func:`pose_prior_scale`). Returns the
+    prior rows are ``pose_scale w`` instead of ``w / sigma`` (:func:`pose_prior_scale`). ``shape_min``:
+    the shape exponents' lower bound instead of ``constants.SILHOUETTE_SHAPE_BOUNDS[0]`` (3H's plain
+    run, :data:`sqfit.fitting.axis_screen.PLAIN_SHAPE_MIN`). Returns the
     :class:`sqfit.fitting.lm.LMResult` (``x`` in pixels); used by 3G and by 3S
     (:mod:`sqfit.fitting.restarts`) to screen candidates on its own rays."""
     x0 = np.asarray(x0, dtype=np.float64)
@@ -308,6 +310,10 @@ def minimise(rays, x0, options, sigma, offset_sigma=0.0, groups=None, pose_scale
     unit = np.ones(len(x0))
     unit[len(x0) - g:] = OFFSET_UNIT_PX if g else 1.0
     bounds = ray_bounds(options.size_min_m)
+    if shape_min is not None:
+        lower = bounds[0].copy()
+        lower[C.SHAPE] = float(shape_min)
+        bounds = (lower, bounds[1])
     warm = {}
 
     def model(y):
