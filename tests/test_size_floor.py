@@ -27,6 +27,16 @@ def test_ray_bounds_sets_the_size_floor_only():
     assert ray_bounds(C.SIZE_MIN) is RAY_BOUNDS
 
 
+def test_ray_bounds_sets_the_shape_floor_on_request():
+    lower, upper = ray_bounds(C.SIZE_MIN, shape_min=0.011)
+    np.testing.assert_array_equal(lower[C.SHAPE], 0.011)
+    np.testing.assert_array_equal(np.delete(lower, [3, 4]), np.delete(RAY_BOUNDS[0], [3, 4]))
+    assert RAY_BOUNDS[0][3] == C.SILHOUETTE_SHAPE_BOUNDS[0]  # a copy
+    lower, _ = ray_bounds(0.01, shape_min=0.011)
+    np.testing.assert_array_equal(lower[C.SIZE], 0.01)
+    assert ray_bounds(C.SIZE_MIN, shape_min=C.SILHOUETTE_SHAPE_BOUNDS[0]) is RAY_BOUNDS
+
+
 @pytest.mark.parametrize("value", [0.0, -0.1, np.nan, np.inf])
 def test_size_floor_must_be_positive(value):
     with pytest.raises(ValueError, match="size_min_m must be a finite number > 0"):

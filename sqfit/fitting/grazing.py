@@ -309,11 +309,7 @@ def minimise(rays, x0, options, sigma, offset_sigma=0.0, groups=None, pose_scale
     g = len(x0) - k - p if offset_sigma > 0 else 0
     unit = np.ones(len(x0))
     unit[len(x0) - g:] = OFFSET_UNIT_PX if g else 1.0
-    bounds = ray_bounds(options.size_min_m)
-    if shape_min is not None:
-        lower = bounds[0].copy()
-        lower[C.SHAPE] = float(shape_min)
-        bounds = (lower, bounds[1])
+    bounds = ray_bounds(options.size_min_m, shape_min=shape_min)
     warm = {}
 
     def model(y):
