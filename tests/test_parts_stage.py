@@ -1,6 +1,5 @@
 """Stage 3TP (sqfit.fitting.parts): stage 3T's fit, kept only where what it lets go is a part seen in several views."""
 
-import tomllib
 from pathlib import Path
 
 import numpy as np
@@ -13,31 +12,17 @@ from sqfit.testing import paper_trial
 SCENES = Path(__file__).resolve().parents[1] / "scenes"
 
 
-def _household(kind, seed, index):
-    """Trial ``index`` of ``scenes/household.toml`` restricted to ``kind``: the object and its observations."""
-    from sqsim.imaging.trial import observations, simulate_trial
-    from sqsim.world.scene import parse_scene
-
-    with open(SCENES / "household.toml", "rb") as f:
-        d = tomllib.load(f)
-    d["objects"]["catalogue"] = [kind]
-    d["experiment"].update(seed=seed, limit=False)
-    scene = parse_scene(d, source=f"household {kind}")
-    sim = simulate_trial(scene, index)
-    return sim.objects[0], observations(sim, sim.objects[0].id, scene)
-
-
-def test_the_default_ends_with_3tp_and_tolerant_with_ungated_3t():
-    assert sqfit.DEFAULT_CHAIN == "1-2M-3H-3R-3TP"
+def test_the_default_ends_with_3v_and_tolerant_with_ungated_3t():
+    assert sqfit.DEFAULT_CHAIN == "1-2M-3H-3R-3V"  # 3V runs 3TP first (tests/test_least_volume.py)
     assert sqfit.fitting.pipeline.TOLERANT_CHAIN == "1-2M-3H-3RH-3T"
     assert (parts.PART_RAYS, parts.PART_VIEWS) == (8, 2)
 
 
-def test_a_household_table_becomes_its_top():
+def test_a_household_table_becomes_its_top(household):
     """scenes/household.toml, tables only, seed 0, trial 1: the legs drag the default's 3G fit (3D IoU 0.11
     against the mesh); 3T's fit is the top (0.76) and leaves the legs out in all four views."""
-    table, obs = _household("table", 0, 1)
-    before, default = sqfit.fit(obs, "1-2M-3H-3R"), sqfit.fit(obs)
+    table, obs = household("table", 0, 1)
+    before, default = sqfit.fit(obs, "1-2M-3H-3R"), sqfit.fit(obs, "1-2M-3H-3R-3TP")
     assert [s.name for s in default.stages][-1] == "3TP"
     assert "kept 3T's fit" in default.stages[-1].message, default.stages[-1].message
     assert iou_3d_mesh(default.superquadric, table.mesh) > iou_3d_mesh(before.superquadric, table.mesh) + 0.4
@@ -55,7 +40,8 @@ def test_noisy_masks_keep_the_input_where_3t_alone_would_not(monkeypatch):
     sim = simulate_trial(scene, 69, get_renderer(scene.masks.renderer, scene.intrinsics))
     obs = observations(sim, sim.objects[0].id, scene)
     truth = sim.objects[0].superquadric
-    before, default, ungated = sqfit.fit(obs, "1-2M-3H-3R"), sqfit.fit(obs), sqfit.fit(obs, "1-2M-3H-3R-3T")
+    gated = "1-2M-3H-3R-3TP"
+    before, default, ungated = sqfit.fit(obs, "1-2M-3H-3R"), sqfit.fit(obs, gated), sqfit.fit(obs, "1-2M-3H-3R-3T")
     assert before.cost > outline.TRIGGER_COST and "G2 on the contours" in ungated.stages[-1].message
     assert "0 outlier rays in stretches" in default.stages[-1].message, default.stages[-1].message
     assert "kept the input" in default.stages[-1].message
@@ -63,7 +49,7 @@ def test_noisy_masks_keep_the_input_where_3t_alone_would_not(monkeypatch):
     assert iou_3d(ungated.superquadric, truth) < iou_3d(default.superquadric, truth) - 0.1
     monkeypatch.setattr(parts, "PART_RAYS", 0)
     monkeypatch.setattr(parts, "PART_VIEWS", 0)
-    np.testing.assert_array_equal(sqfit.fit(obs).superquadric.to_vector(), ungated.superquadric.to_vector())
+    np.testing.assert_array_equal(sqfit.fit(obs, gated).superquadric.to_vector(), ungated.superquadric.to_vector())
 
 
 def test_below_3ts_trigger_3tp_is_3t():

@@ -30,7 +30,7 @@ def _mug_observations(seed=0):
 def test_a_mug_lets_its_handle_go():
     body, obs = _mug_observations()
     plain, default, tolerant = sqfit.fit(obs, "1-2M-3H"), sqfit.fit(obs), sqfit.fit(obs, "tolerant")
-    assert [s.name for s in default.stages][-2:] == ["3R", "3TP"] and [s.name for s in tolerant.stages][-2:] == ["3RH", "3T"]
+    assert [s.name for s in default.stages][-2:] == ["3R", "3V"] and [s.name for s in tolerant.stages][-2:] == ["3RH", "3T"]
     assert trimmed.MIN_COST < plain.stages[-1].cost <= sqfit.fitting.outline.TRIGGER_COST
     assert "kept it" in default.stages[-2].message, default.stages[-2].message
     assert iou_3d(default.superquadric, body) > iou_3d(plain.superquadric, body) + 0.05
@@ -136,7 +136,7 @@ def test_clean_superquadrics_pass_unchanged():
         obs = paper_trial(seed).observations
         plain, default = sqfit.fit(obs, "1-2M-3H"), sqfit.fit(obs)
         np.testing.assert_array_equal(plain.superquadric.to_vector(), default.superquadric.to_vector())
-        assert [s.name for s in default.stages][-2:] == ["3R", "3TP"]
+        assert [s.name for s in default.stages][-2:] == ["3R", "3V"]
         assert all("kept the input" in s.message for s in default.stages[-2:])
 
 

@@ -73,8 +73,10 @@ def add_arguments(parser):
     parser.add_argument("--chain", default=DEFAULT_CHAIN,
                         help="stages joined by '-', e.g. 1-2-3D-3A; or 'default', 'hull' (the visual-hull baseline), "
                              "'tolerant' (the default with 3R also re-fitted from the visual hull's fit, slower where it "
-                             "acts, and 3T without the part gate). The default ends with 3TP: G2 on the mask contours where no superquadric grazes "
-                             "the outline and what that fit leaves out is a part seen in several views (legs, stands)")
+                             "acts, and 3T without the part gate). The default ends with 3V: where no superquadric "
+                             "grazes the outline, G2 on the mask contours, also from a fit of the masks with thin parts "
+                             "opened away, each kept only where what it leaves out is a part seen in several views (legs, "
+                             "stands); of the fits that match the contours alike, the one of least volume")
     parser.add_argument("--samples", type=int, default=C.DEFAULT_SAMPLES, help="samples N per observation")
     parser.add_argument("--sampling", default="uniform", choices=SAMPLING_METHODS)
     parser.add_argument("--polygon", default="hull", choices=POLYGON_KINDS,

@@ -2,8 +2,9 @@
 
 Above :mod:`sqfit.views`. Stages are registered by name in :data:`STAGES` (paper codes: ``1``,
 ``2``, ``3A``-``3F`` in :mod:`.stages`; ``3G`` in :mod:`.grazing`; ``3S`` in :mod:`.restarts`;
-``3H`` in :mod:`.axis_screen`; ``2M`` in :mod:`.moments`; ``3T`` in :mod:`.outline`; ``3TP`` in :mod:`.parts`; ``3R`` in :mod:`.trimmed`; ``HULL`` in
-:mod:`.hull`), and a chain is a dash-joined list of them (``"1-2M-3H"``).
+``3H`` in :mod:`.axis_screen`; ``2M`` in :mod:`.moments`; ``3T`` in :mod:`.outline`; ``3TP`` in :mod:`.parts`;
+``3V`` in :mod:`.least_volume`; ``3R`` in :mod:`.trimmed`; ``HULL`` in :mod:`.hull`), and a chain is a
+dash-joined list of them (``"1-2M-3H"``).
 
 - :mod:`.costs` — the paper's costs: R-IOU (G2), the analytic G3-G5, penalty, bounds;
 - :mod:`.line_gauge` — where a ray comes closest to a superquadric: the gauge's minimum along lines;
@@ -13,9 +14,11 @@ Above :mod:`sqfit.views`. Stages are registered by name in :data:`STAGES` (paper
 - :mod:`.moments` — stage 2M: stage 2's ellipsoid from the masks' exact moments;
 - :mod:`.grazing` — stage 3G: the superquadric that grazes every outline ray;
 - :mod:`.restarts` — stage 3S: symmetric restarts of 3G;
-- :mod:`.axis_screen` — stage 3H (the default's last stage): choose the axes, then 3G;
+- :mod:`.axis_screen` — stage 3H: choose the axes, then 3G;
 - :mod:`.outline` — stage 3T: G2 on the mask contours where 3G's cost is not met;
-- :mod:`.parts` — stage 3TP (the default's last stage): 3T, kept only where what it lets go is a part (legs, a stand);
+- :mod:`.parts` — stage 3TP: 3T, kept only where what it lets go is a part (legs, a stand);
+- :mod:`.least_volume` — stage 3V (the default's last stage): 3TP, then of the fits that match the contours alike
+  (3TP's, one of the masks with thin parts opened away) the one of least volume;
 - :mod:`.trimmed` — stages 3R (default chain) and 3RH (chain ``tolerant``, which also ends in 3T without 3TP's gate: 3R, then from the visual hull's fit):
   3G without the outline rays no superquadric grazes;
 - :mod:`.pointcloud` — an outlier-tolerant superquadric fit to a point cloud (EMS);
@@ -23,7 +26,8 @@ Above :mod:`sqfit.views`. Stages are registered by name in :data:`STAGES` (paper
 - :mod:`.pipeline` — options, results and :func:`fit`.
 """
 
-from . import axis_screen, grazing, hull, moments, outline, parts, restarts, trimmed  # noqa: F401  (register 3H, 3G, HULL, 2M, 3T, 3TP, 3S, 3R, 3RH)
+from . import axis_screen, grazing, hull, least_volume, moments, outline, parts, restarts, trimmed  # noqa: F401
+# (they register 3H, 3G, HULL, 3V, 2M, 3T, 3TP, 3S, 3R, 3RH)
 from .pipeline import (CHAIN_ALIASES, DEFAULT_CHAIN, HULL_CHAIN, PAPER_CHAINS, FitOptions, FitResult, StageRecord, fit,
                        parse_chain)
 from .stages import STAGES

@@ -40,8 +40,10 @@ PAPER_CHAINS = ("3A", "3B", "1-3A", "1-2-3A", "1-2-3B", "3E", "1-3E", "1-2-3C", 
 #: :mod:`sqfit.fitting.trimmed`, 3G without a stretch of outline rays that sticks out of the fit (a handle, a
 #: bottle's neck), acting only where 3H's cost is moderate and the misfit is such a stretch; 3TP:
 #: :mod:`sqfit.fitting.parts`, G2 on the mask contours where 3G's cost is high (stage 3T), kept only where
-#: what it lets go is such a stretch in several views (a table's legs, a monitor's stand) (README "Real objects").
-DEFAULT_CHAIN = "1-2M-3H-3R-3TP"
+#: what it lets go is such a stretch in several views (a table's legs, a monitor's stand); 3V:
+#: :mod:`sqfit.fitting.least_volume`, 3TP, then, where 3T's trigger holds, of 3TP's fit and fits of the masks
+#: with their thin parts opened away that match the contours alike, the one of least volume (README "Real objects").
+DEFAULT_CHAIN = "1-2M-3H-3R-3V"
 #: Chain of :func:`fit` when a starting superquadric is given (``initial=``) and no chain is: a
 #: local refinement from it.
 INITIAL_CHAIN = "3G"
@@ -50,7 +52,7 @@ INITIAL_CHAIN = "3G"
 #: (G2 on the mask contours wherever 3G's cost is high: monitors, chairs and laptops gain a little more,
 #: noisy masks of true superquadrics can lose); opt-in (the carving runs wherever 3R keeps nothing),
 #: measured in the README ("Real objects").
-TOLERANT_CHAIN = DEFAULT_CHAIN.replace("-3R-", "-3RH-").removesuffix("-3TP") + "-3T"
+TOLERANT_CHAIN = DEFAULT_CHAIN.replace("-3R-", "-3RH-").removesuffix("-3V") + "-3T"
 #: Names that stand for a whole chain wherever a chain is given (:func:`parse_chain`); ``hull`` is the
 #: visual-hull baseline (:data:`sqfit.fitting.hull.HULL_CHAIN`), ``tolerant`` :data:`TOLERANT_CHAIN`.
 CHAIN_ALIASES = {"default": DEFAULT_CHAIN, "hull": HULL_CHAIN, "tolerant": TOLERANT_CHAIN}
@@ -427,7 +429,7 @@ def fit(observations, chain=None, *, initial=None, rng=None, options=None):
     chain : str or list of str, optional
         Stage names joined by ``-`` (see :mod:`sqfit.fitting.stages`), e.g. ``"1-2-3D-3A"``, or a name of
         :data:`CHAIN_ALIASES` (``"default"``, ``"hull"``: the visual-hull baseline, ``"tolerant"``: the
-        default with stage 3RH in place of 3R and 3T in place of 3TP). Default
+        default with stage 3RH in place of 3R and 3T in place of 3V). Default
         :data:`DEFAULT_CHAIN`, or :data:`INITIAL_CHAIN` when ``initial`` is given.
     initial : Superquadric or (11,) float, optional
         Start of the first stage instead of the default guess (a unit sphere at the origin): e.g.

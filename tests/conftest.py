@@ -1,0 +1,27 @@
+"""Shared fixtures."""
+
+import tomllib
+from pathlib import Path
+
+import pytest
+
+SCENES = Path(__file__).resolve().parents[1] / "scenes"
+
+
+@pytest.fixture
+def household():
+    """``household(kind, seed, index)``: trial ``index`` of ``scenes/household.toml`` restricted to one
+    kind (no limit search): the object and its observations."""
+    from sqsim.imaging.trial import observations, simulate_trial
+    from sqsim.world.scene import parse_scene
+
+    def trial(kind, seed, index):
+        with open(SCENES / "household.toml", "rb") as f:
+            d = tomllib.load(f)
+        d["objects"]["catalogue"] = [kind]
+        d["experiment"].update(seed=seed, limit=False)
+        scene = parse_scene(d, source=f"household {kind}")
+        sim = simulate_trial(scene, index)
+        return sim.objects[0], observations(sim, sim.objects[0].id, scene)
+
+    return trial
