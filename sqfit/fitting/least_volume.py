@@ -80,18 +80,19 @@ def least_volume_stage(state, obs, options):
     """Stage 3V: stage 3TP, then, where 3T's trigger holds, the least-volume fit among those
     that match the mask contours alike (module docstring)."""
     base = outline_part_stage(state, obs, options)
-    base = replace(base, message="3V: " + base.message)
+    tp = base.message
+    base = replace(base, message="3V: " + tp)
     if state.cost is None or not state.cost > TRIGGER_COST:
         return base
     if r_iou_m([to_superquadric(state.xi)], obs, OUTLINE_POLYGON)[0] >= TRIGGER_R_IOU_M:
         return base
-    bulk = bulk_observations(obs)
-    if bulk is None:
-        return replace(base, message=base.message + "; no view has a thin part to open")
     try:
+        bulk = bulk_observations(obs)
+        if bulk is None:
+            return replace(base, message=base.message + "; no view has a thin part to open")
         bulk_fits = _bulk_candidates(obs, bulk, options)
-    except (StageError, *NUMERICAL_ERRORS) as exc:
-        return replace(base, message=base.message + f"; the bulk fit failed ({exc})")
+    except (StageError, *NUMERICAL_ERRORS) as exc:  # an opened outline (ValueError) or a fit that failed
+        return replace(base, message=base.message + f"; the bulk fit failed ({exc}): kept 3TP's fit")
     nfev = base.nfev + sum(fit.nfev for _, fit, _ in bulk_fits)
     gate = "; ".join(f"{name}: {ev.stretch} outlier rays in stretches of {ev.views} views" for name, _, ev in bulk_fits)
     candidates = [("3TP's fit", base)] + [(name, fit) for name, fit, ev in bulk_fits
@@ -106,6 +107,6 @@ def least_volume_stage(state, obs, options):
     detail = ", ".join(f"{name} {s:.3f} / {v:.3g}" for (name, _), s, v in zip(candidates, scores, volumes))
     message = f"3V: {gate}; contour R-IOU-M / volume: {detail}: kept {candidates[pick][0]}"
     if pick == 0:
-        return replace(base, nfev=nfev, message=f"{message}; {base.message}")
+        return replace(base, nfev=nfev, message=f"{message}; {tp}")
     kept = candidates[pick][1]  # its depths and outline offsets belong to the opened masks: not passed on
     return FitState(kept.xi, cost=kept.cost, status=kept.status, message=message, nfev=nfev)
