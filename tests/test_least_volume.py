@@ -32,7 +32,7 @@ def test_opening_removes_the_legs_and_keeps_the_top():
     assert top is not None and len(top.samples) == 80
     v = top.contour[:, 1]
     assert v.min() == pytest.approx(150.0, abs=1.0) and v.max() == pytest.approx(190.0, abs=1.0)  # legs gone
-    # the top, up to its four corners rounded by the disk (radius 0.15 * sqrt(area / pi) ~ 9 px)
+    # the top, up to its four corners rounded by the disk (radius 0.15 * sqrt(area / pi) ~ 8 px)
     assert 0.97 * 200 * 40 < polygon_area(top.contour) < 200 * 40
     assert np.all((top.samples[:, 1] > 149.5) & (top.samples[:, 1] < 190.5))
     np.testing.assert_array_equal(top.camera.rotation, obs.camera.rotation)
