@@ -25,10 +25,11 @@ A candidate counts only where what it leaves out of the outline is a part seen i
 :data:`~sqfit.fitting.parts.PART_VIEWS` views): on noisy masks of a true superquadric
 (``scenes/paper-noisy.toml``) the trigger holds on a few fits, and there 3A from the bulk fit
 scores higher on the contours and lies further from the truth (without the gate, with the first
-two candidates: 3 of 7 fits of seeds 0 and 2 worse, one by 0.26), leaving no such stretch. Of 3TP's fit and the candidates that
-count, those whose contour R-IOU-M lies within :data:`TIE` of the best tie, and the one of least
-volume is kept. Elsewhere 3V is 3TP, at no extra cost. README "Real objects", "Least volume", has
-the measurements. Deterministic (the opened masks' area samples are drawn from a fixed seed).
+two candidates: 3 of 7 fits of seeds 0 and 2 worse, one by 0.26), leaving no such stretch. Of
+3TP's fit and the candidates that count, those whose contour R-IOU-M lies within :data:`TIE` of
+the best tie, and the one of least volume is kept. Elsewhere 3V is 3TP, at no extra cost. README
+"Real objects", "Least volume", has the measurements. Deterministic (the opened masks' area
+samples are drawn from a fixed seed).
 """
 
 from __future__ import annotations
