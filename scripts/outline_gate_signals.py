@@ -94,8 +94,8 @@ def main(argv=None):
 
             rec = {"trial": index, "object": obj.id, "item": obj.to_dict().get("item", obj.to_dict().get("kind")),
                    "cost": state.cost, "iou_before": score(state.xi), "triggered": False}
-            if state.cost is not None and state.cost > outline.TRIGGER_COST:
-                before = outline._score(state, obs, options)
+            if outline.over_cost_trigger(state):
+                before = outline.contour_score(state, obs)
                 rec["r_iou_m_before"] = before
                 if before < outline.TRIGGER_R_IOU_M:
                     rec["triggered"] = True
@@ -104,7 +104,7 @@ def main(argv=None):
                     rec["seconds_3t"] = time.process_time() - t0
                     rec["message"] = new.message[:200]
                     rec["moved"] = not np.array_equal(new.xi, state.xi)
-                    rec["r_iou_m_after"] = outline._score(new, obs, options)
+                    rec["r_iou_m_after"] = outline.contour_score(new, obs)
                     rec["iou_after"] = score(new.xi)
                     rays = outline_rays(obs)
                     for tag, xi in (("before", state.xi), ("after", new.xi)):

@@ -40,8 +40,8 @@ import numpy as np
 
 from .costs import ObservationSet
 from .grazing import outline_rays
-from .outline import OUTLINE_POLYGON, TRIGGER_COST, TRIGGER_R_IOU_M
-from .parts import PART_RAYS, PART_VIEWS, outline_part_stage
+from .outline import OUTLINE_POLYGON, triggers
+from .parts import leaves_a_part, outline_part_stage
 from .stages import NUMERICAL_ERRORS, STAGES, FitState, StageError, default_state, r_iou_m, register, to_superquadric
 from .trimmed import stretches
 from ..geometry.superquadric import volume
@@ -91,9 +91,7 @@ def least_volume_stage(state, obs, options):
     base = outline_part_stage(state, obs, options)
     tp = base.message
     base = replace(base, message="3V: " + tp)
-    if state.cost is None or not state.cost > TRIGGER_COST:
-        return base
-    if r_iou_m([to_superquadric(state.xi)], obs, OUTLINE_POLYGON)[0] >= TRIGGER_R_IOU_M:
+    if not triggers(state, obs):
         return base
     try:
         bulk = bulk_observations(obs)
@@ -104,8 +102,7 @@ def least_volume_stage(state, obs, options):
         return replace(base, message=base.message + f"; the bulk fit failed ({exc}): kept 3TP's fit")
     nfev = base.nfev + sum(fit.nfev for _, fit, _ in bulk_fits)
     gate = "; ".join(f"{name}: {ev.stretch} outlier rays in stretches of {ev.views} views" for name, _, ev in bulk_fits)
-    candidates = [("3TP's fit", base)] + [(name, fit) for name, fit, ev in bulk_fits
-                                           if ev.stretch >= PART_RAYS and ev.views >= PART_VIEWS]
+    candidates = [("3TP's fit", base)] + [(name, fit) for name, fit, ev in bulk_fits if leaves_a_part(ev)]
     if len(candidates) == 1:
         return replace(base, nfev=nfev, message=f"{base.message}; {gate}: no part left out, kept 3TP's fit")
     sqs = [to_superquadric(fit.xi) for _, fit in candidates]

@@ -32,7 +32,8 @@ from dataclasses import replace
 
 from .stages import NUMERICAL_ERRORS, STAGES, StageError, r_iou_m, register, to_superquadric
 
-__all__ = ["TRIGGER_COST", "TRIGGER_R_IOU_M", "OUTLINE_POLYGON", "outline_stage"]
+__all__ = ["TRIGGER_COST", "TRIGGER_R_IOU_M", "OUTLINE_POLYGON", "outline_stage", "over_cost_trigger", "contour_score",
+           "triggers"]
 
 #: The input's 3G cost (``FitState.cost``) above which 3T looks at its outline overlap at all.
 TRIGGER_COST = 2e-2
@@ -45,22 +46,34 @@ OUTLINE_POLYGON = "contour"
 @register("3T")
 def outline_stage(state, obs, options):
     """Stage 3T: G2 against the mask contours where the input's silhouettes miss them (module docstring)."""
-    if state.cost is None or not state.cost > TRIGGER_COST:
+    if not over_cost_trigger(state):
         cost = "no 3G cost" if state.cost is None else f"3G cost {state.cost:.2e} <= {TRIGGER_COST:g}"
         return replace(state, message=f"3T: {cost}: kept the input")
-    before = _score(state, obs, options)
+    before = contour_score(state, obs)
     if before >= TRIGGER_R_IOU_M:
         return replace(state, message=f"3T: outline R-IOU-M {before:.3f} >= {TRIGGER_R_IOU_M}: kept the input")
     try:
         new = STAGES["3A"](state, obs, replace(options, polygon=OUTLINE_POLYGON))
     except (StageError, *NUMERICAL_ERRORS) as exc:
         return replace(state, message=f"3T: outline R-IOU-M {before:.3f}; G2 on the contours failed ({exc}): kept the input")
-    after = _score(new, obs, options)
+    after = contour_score(new, obs)
     if after > before:
         return replace(new, message=f"3T: outline R-IOU-M {before:.3f} -> {after:.3f} (G2 on the contours); {new.message}")
     return replace(state, nfev=state.nfev + new.nfev,
                    message=f"3T: outline R-IOU-M {before:.3f}, G2 on the contours reached {after:.3f}: kept the input")
 
 
-def _score(state, obs, options):
+def over_cost_trigger(state):
+    """Whether the input's 3G cost (``FitState.cost``) is above :data:`TRIGGER_COST` (False without one)."""
+    return state.cost is not None and state.cost > TRIGGER_COST
+
+
+def contour_score(state, obs):
+    """The state's R-IOU-M against the mask contours (:data:`OUTLINE_POLYGON`), 3T's measure."""
     return float(r_iou_m([to_superquadric(state.xi)], obs, OUTLINE_POLYGON)[0])
+
+
+def triggers(state, obs):
+    """Whether 3T acts on ``state``: its 3G cost above :data:`TRIGGER_COST` and its contour R-IOU-M
+    below :data:`TRIGGER_R_IOU_M` (the score is not evaluated below the cost trigger)."""
+    return over_cost_trigger(state) and contour_score(state, obs) < TRIGGER_R_IOU_M

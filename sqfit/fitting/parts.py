@@ -57,12 +57,18 @@ from .outline import outline_stage
 from .stages import register
 from .trimmed import STRETCH_RAYS, STRETCH_VIEWS, stretches
 
-__all__ = ["PART_RAYS", "PART_VIEWS", "outline_part_stage"]
+__all__ = ["PART_RAYS", "PART_VIEWS", "leaves_a_part", "outline_part_stage"]
 
 #: 3T's fit is kept when at least this many of its outlier rays lie in stretches ...
 PART_RAYS = STRETCH_RAYS
 #: ... of at least this many views.
 PART_VIEWS = STRETCH_VIEWS
+
+
+def leaves_a_part(ev):
+    """Whether a fit's misfit (:func:`sqfit.fitting.trimmed.stretches`) leaves a part out of the outline:
+    at least :data:`PART_RAYS` outlier rays in stretches of at least :data:`PART_VIEWS` views."""
+    return ev.stretch >= PART_RAYS and ev.views >= PART_VIEWS
 
 
 @register("3TP")
@@ -74,6 +80,6 @@ def outline_part_stage(state, obs, options):
         return replace(new, message="3TP: " + new.message)
     ev = stretches(np.asarray(new.xi, dtype=np.float64), outline_rays(obs, options.n_contour), options.penalty_analytic)
     detail = f"{ev.stretch} outlier rays in stretches of {ev.views} views"
-    if ev.stretch >= PART_RAYS and ev.views >= PART_VIEWS:
+    if leaves_a_part(ev):
         return replace(new, message=f"3TP: {detail}: kept 3T's fit; {new.message}")
     return replace(state, nfev=state.nfev + new.nfev, message=f"3TP: {detail}, no part left out: kept the input; {new.message}")
