@@ -8,6 +8,7 @@ import pytest
 import sqfit
 from sqfit.fitting import least_volume
 from sqfit.geometry.polygon import polygon_area
+from sqfit.geometry.slab import SLAB_ASPECT
 from sqfit.geometry.superquadric import volume
 from sqfit.metrics import iou_3d_mesh
 from sqfit.testing import paper_trial
@@ -134,7 +135,7 @@ def test_a_pinched_slab_is_made_square_at_equal_volume():
 ])
 def test_other_shapes_are_no_pinched_slab(size, shape):
     assert least_volume.squared_slab(_vector(size, shape)) is None
-    assert least_volume.SLAB_ASPECT == 0.5
+    assert SLAB_ASPECT == 0.5
 
 
 def test_a_monitor_screen_fitted_as_a_diamond_becomes_a_board(household):

@@ -290,7 +290,7 @@ def offset_prior(sigma_px, ray_residuals_, groups=1, view_sigma_px=0.0):
     return np.linalg.inv(np.linalg.cholesky(cov)) * noise
 
 
-def minimise(rays, x0, options, sigma, offset_sigma=0.0, groups=None, pose_scale=None, shape_min=None):
+def minimise(rays, x0, options, sigma, offset_sigma=0.0, groups=None, pose_scale=None, shape_min=None, bounds=None):
     """LM on the 3G residuals of ``rays`` (:func:`sqfit.views.rays.contour_rays`) from ``x0``:
     ``(11,)`` if ``sigma == offset_sigma == 0``, else ``(11 + p + g,)`` with ``3 v`` pose corrections
     (prior scale ``sigma``, radians; none if 0) and one outline offset per group of ``groups`` (a
@@ -299,7 +299,9 @@ def minimise(rays, x0, options, sigma, offset_sigma=0.0, groups=None, pose_scale
     :data:`OFFSET_UNIT_PX`. ``pose_scale`` (with ``sigma > 0``; cost units per radian): the pose
     prior rows are ``pose_scale w`` instead of ``w / sigma`` (:func:`pose_prior_scale`). ``shape_min``:
     the shape exponents' lower bound instead of ``constants.SILHOUETTE_SHAPE_BOUNDS[0]`` (3H's plain
-    run, :data:`sqfit.fitting.axis_screen.PLAIN_SHAPE_MIN`). Returns the
+    run, :data:`sqfit.fitting.axis_screen.PLAIN_SHAPE_MIN`). ``bounds``: the penalty rows' soft bounds
+    ``(lower, upper)``, ``(11,)`` each, instead of :func:`sqfit.fitting.raycost.ray_bounds`'s (3H's
+    plain run with a slab's thin section held square). Returns the
     :class:`sqfit.fitting.lm.LMResult` (``x`` in pixels); used by 3G and by 3S
     (:mod:`sqfit.fitting.restarts`) to screen candidates on its own rays."""
     x0 = np.asarray(x0, dtype=np.float64)
@@ -309,7 +311,8 @@ def minimise(rays, x0, options, sigma, offset_sigma=0.0, groups=None, pose_scale
     g = len(x0) - k - p if offset_sigma > 0 else 0
     unit = np.ones(len(x0))
     unit[len(x0) - g:] = OFFSET_UNIT_PX if g else 1.0
-    bounds = ray_bounds(options.size_min_m, shape_min=shape_min)
+    if bounds is None:
+        bounds = ray_bounds(options.size_min_m, shape_min=shape_min)
     warm = {}
 
     def model(y):

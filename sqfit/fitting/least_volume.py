@@ -59,10 +59,11 @@ from .outline import OUTLINE_POLYGON, triggers
 from .parts import leaves_a_part, outline_part_stage
 from .stages import NUMERICAL_ERRORS, STAGES, FitState, StageError, default_state, r_iou_m, register, to_superquadric
 from .trimmed import stretches
+from ..geometry.slab import thin_section
 from ..geometry.superquadric import volume
 from ..views.opening import opened
 
-__all__ = ["TIE", "BULK_CHAIN", "CANDIDATES", "SLAB_ASPECT", "SQUARE_SHAPE", "least_volume_stage", "bulk_observations",
+__all__ = ["TIE", "BULK_CHAIN", "CANDIDATES", "SQUARE_SHAPE", "least_volume_stage", "bulk_observations",
            "squared_slab"]
 
 #: Candidates whose mean silhouette IoU with the mask contours is within this of the best tie.
@@ -73,9 +74,6 @@ BULK_CHAIN = ("1", "2M", "3H")
 CANDIDATES = ("the bulk fit", "3A from the bulk fit", "3A on the opened masks")
 #: Seed of the opened masks' area samples.
 SEED = 0
-#: A fit is a slab where its thinnest half-axis is below this fraction of each of the others
-#: (:func:`squared_slab`).
-SLAB_ASPECT = 0.5
 #: The shape exponent :func:`squared_slab` gives a slab's pinched section: a board's (the paper's lower
 #: shape bound; the best superquadrics of 60 monitors have 0.17 there, median, 0.04-0.61 10th-90th
 #: percentile).
@@ -97,22 +95,19 @@ def squared_slab(xi):
     """A slab's pinched section made square at equal volume: ``(11,)`` float, or None where ``xi``
     is no pinched slab.
 
-    ``xi`` is a slab where its thinnest half-axis is below :data:`SLAB_ASPECT` of each of the others.
-    Its section across that axis (``x`` or ``y``: the ``xy`` section, shape exponent ``e2``; ``z``:
-    the sections through ``z``, ``e1``) is pinched where that exponent is above 1, a diamond or a
-    star. Four masks hardly see that section: it shows only along the slab's edges, a few px thick,
+    ``xi`` is a slab (:func:`sqfit.geometry.slab.thin_section`: its thinnest half-axis below
+    :data:`~sqfit.geometry.slab.SLAB_ASPECT` of each of the others). Its section across that axis is
+    pinched where the exponent that shapes it is above 1, a diamond or a star. Four masks hardly see that section: it shows only along the slab's edges, a few px thick,
     while at 2 its exponent halves the slab's volume. Such a fit is returned with that exponent at
     :data:`SQUARE_SHAPE` and the thin half-axis shrunk by the ratio of the volumes, the square slab
     of the same volume: a monitor's screen fitted as a diamond 0.08 thick becomes a board 0.044
     thick. The other exponent is the slab's face, which the masks show: it is kept.
     """
     x = np.array(xi, dtype=np.float64)
-    a = x[:3]
-    thin = int(np.argmin(a))
-    others = np.delete(a, thin)
-    exponent = 4 if thin < 2 else 3
-    if not (np.all(a[thin] < SLAB_ASPECT * others) and x[exponent] > 1.0):
+    section = thin_section(x)
+    if section is None or x[section[1]] <= 1.0:
         return None
+    thin, exponent = section
     before = volume(to_superquadric(x))
     x[exponent] = SQUARE_SHAPE
     x[thin] *= before / volume(to_superquadric(x))

@@ -10,7 +10,8 @@ The lowest layer of sqfit: pure functions over arrays, importing only :mod:`sqfi
 - :mod:`.outline` — objects given as outline polygons (a COCO file's): the region they bound (pixel-centre
   polygons grown half a pixel step), its outline, pixels and uniform samples;
 - :mod:`.silhouette` — the projected outline of a superquadric, batched and warm-started;
-- :mod:`.visible_iou` — IoU of outlines restricted to what a view can show.
+- :mod:`.visible_iou` — IoU of outlines restricted to what a view can show;
+- :mod:`.slab` — superquadrics thin along one axis, and the exponent of the section across it.
 """
 
 from .camera import Camera, Intrinsics, back_project, look_at, project
