@@ -139,9 +139,9 @@ def test_other_shapes_are_no_pinched_slab(size, shape):
 
 
 def test_a_monitor_screen_fitted_as_a_diamond_becomes_a_board(household):
-    """scenes/household.toml, monitors only, seed 0, trial 8: the fit 3V keeps is the screen, 0.087 thick
+    """scenes/household.toml, monitors only, seed 0, trial 8: the fit 3V keeps is the screen, of half-thickness 0.087
     with a diamond section (e2 1.9; 3D IoU 0.535); the masks match the board of the same volume as well,
-    0.046 thick (the screen's best superquadric: 0.05), and 3V returns it (0.642)."""
+    0.046 (the screen's best superquadric: 0.05), and 3V returns it (0.642)."""
     monitor, obs = household("monitor", 0, 8)
     fit = sqfit.fit(obs)
     assert "a pinched slab" in fit.stages[-1].message, fit.stages[-1].message

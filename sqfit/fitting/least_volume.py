@@ -37,14 +37,13 @@ hardly tell a diamond from a board, and the diamond has nearly half its volume. 
 the same volume replaces it where it matches the mask contours as well (within :data:`TIE`; the
 contour score does not single out the better one: on 15 monitors and tables of seeds 0 and 1 made
 square it moved by -0.020 to +0.004, whether the 3D IoU rose or fell). Measured per kind (20
-objects, seeds 0 / 1 / 2, median 3D IoU):
-monitors 0.491 / 0.454 / 0.554 -> 0.534 / 0.454 / 0.571, tables 0.536 / 0.473 / 0.405 -> 0.544 /
-0.497 / 0.467 (21 fits changed: 15 better by more than 0.01, up to 0.128; three worse, by 0.011,
-0.017 and 0.031); lamps, chairs, laptops and toys unchanged. Not where no candidate
-counted: there the masks may be of one pinched superquadric, noisy (squared there as well, one fit
-of 100 noisy paper masks lost 0.075 and three of 50 with 20 % dropout up to 0.045, while one
-monitor gained 0.022). README "Real objects", "Least volume", has the measurements. Deterministic
-(the opened masks' area samples are drawn from a fixed seed).
+objects, seeds 0 / 1 / 2, median 3D IoU): monitors 0.491 / 0.454 / 0.554 -> 0.534 / 0.454 / 0.571,
+tables 0.536 / 0.473 / 0.405 -> 0.544 / 0.497 / 0.467 (21 fits changed: 15 better by more than
+0.01, up to 0.128; three worse, by 0.011, 0.017 and 0.031); lamps, chairs, laptops and toys
+unchanged. Not where no candidate counted: there the masks may be of one pinched superquadric,
+noisy (squared there as well, one fit of 100 noisy paper masks lost 0.075 and three of 50 with
+20 % dropout up to 0.045, while one monitor gained 0.022). README "Real objects", "Least volume",
+has the measurements. Deterministic (the opened masks' area samples are drawn from a fixed seed).
 """
 
 from __future__ import annotations
@@ -97,11 +96,11 @@ def squared_slab(xi):
 
     ``xi`` is a slab (:func:`sqfit.geometry.slab.thin_section`: its thinnest half-axis below
     :data:`~sqfit.geometry.slab.SLAB_ASPECT` of each of the others). Its section across that axis is
-    pinched where the exponent that shapes it is above 1, a diamond or a star. Four masks hardly see that section: it shows only along the slab's edges, a few px thick,
-    while at 2 its exponent halves the slab's volume. Such a fit is returned with that exponent at
-    :data:`SQUARE_SHAPE` and the thin half-axis shrunk by the ratio of the volumes, the square slab
-    of the same volume: a monitor's screen fitted as a diamond 0.08 thick becomes a board 0.044
-    thick. The other exponent is the slab's face, which the masks show: it is kept.
+    pinched where the exponent that shapes it is above 1, a diamond or a star; at 2 that halves the
+    slab's volume. Such a fit is returned with that exponent at :data:`SQUARE_SHAPE` and the thin
+    half-axis shrunk by the ratio of the volumes, the square slab of the same volume: a monitor's
+    screen fitted as a diamond of half-thickness 0.084 becomes a board of 0.044. The other exponent
+    shapes the slab's face, which the masks show: it is kept.
     """
     x = np.array(xi, dtype=np.float64)
     section = thin_section(x)
