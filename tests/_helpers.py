@@ -101,3 +101,8 @@ def graph_values(poses, objects):
         values.insert(L(oid), gtsam.Pose3(T))
         values.insert(S(oid), shape)
     return values
+
+
+def sq_vector(size, shape):
+    """11 superquadric parameters with these half-axes and shape exponents, at a fixed pose."""
+    return np.r_[size, shape, 0.5, -1.0, 2.0, 0.1, -0.2, 0.3]

@@ -1,7 +1,5 @@
 """Stage 3V (sqfit.fitting.least_volume) and the opened masks it fits (sqfit.views.opening)."""
 
-from pathlib import Path
-
 import numpy as np
 import pytest
 
@@ -14,7 +12,8 @@ from sqfit.metrics import iou_3d_mesh
 from sqfit.testing import paper_trial
 from sqfit.views.opening import MIN_REMOVED, OPEN_FRACTION, opened
 
-SCENES = Path(__file__).resolve().parents[1] / "scenes"
+from _helpers import sq_vector
+
 CAMERA = paper_trial(0).observations[0].camera  # 640 x 480
 
 
@@ -76,54 +75,40 @@ def test_below_3ts_trigger_3v_is_3tp():
     assert least_volume.TIE == 0.02 and least_volume.BULK_CHAIN == ("1", "2M", "3H")
 
 
-def _paper_noisy(index):
-    from sqsim.imaging.render import get_renderer
-    from sqsim.imaging.trial import observations, simulate_trial
-    from sqsim.world.scene import load_scene
-
-    scene = load_scene(SCENES / "paper-noisy.toml")
-    sim = simulate_trial(scene, index, get_renderer(scene.masks.renderer, scene.intrinsics))
-    return sim.objects[0], observations(sim, sim.objects[0].id, scene)
-
-
-def test_noisy_masks_of_a_pinched_superquadric_stay_pinched():
+def test_noisy_masks_of_a_pinched_superquadric_stay_pinched(paper_noisy):
     """scenes/paper-noisy.toml, seed 0, trial 25: a superquadric slab (half-axes 0.79, 1.69, 0.17 m,
     e1 0.99) fitted pinched (e1 1.9, 3D IoU 0.675) where 3T's trigger holds; no candidate leaves a part
     of the outline out, so the masks may be of one superquadric: 3V does not make it square (that
     matched the contours within 0.01 and lost 0.075)."""
-    _, obs = _paper_noisy(25)
+    _, obs = paper_noisy(25)
     fit = sqfit.fit(obs)
     message = fit.stages[-1].message
     assert "no part left out" in message and "pinched slab" not in message, message
     assert least_volume.squared_slab(fit.superquadric.to_vector()) is not None
 
 
-def test_noisy_masks_of_a_superquadric_keep_3tps_fit():
+def test_noisy_masks_of_a_superquadric_keep_3tps_fit(paper_noisy):
     """scenes/paper-noisy.toml, seed 0, trial 69 (tests/test_parts_stage.py): 3T's trigger holds; 3A
     from the bulk fit scores higher on the contours (0.78 against 0.73) but leaves no part of the
     outline out, and without that gate 3V would keep it (3D IoU 0.33 against 0.58)."""
-    _, obs = _paper_noisy(69)
+    _, obs = paper_noisy(69)
     gated, default = sqfit.fit(obs, "1-2M-3H-3R-3TP"), sqfit.fit(obs)
     message = default.stages[-1].message
     assert "3A from the bulk fit: 0 outlier rays in stretches" in message and "kept 3TP's fit" in message, message
     np.testing.assert_array_equal(default.superquadric.to_vector(), gated.superquadric.to_vector())
 
 
-def _vector(size, shape):
-    return np.r_[size, shape, 0.5, -1.0, 2.0, 0.1, -0.2, 0.3]
-
-
 def test_a_pinched_slab_is_made_square_at_equal_volume():
     from sqfit.geometry import Superquadric
 
-    diamond = _vector([0.08, 1.6, 0.8], [0.1, 1.9])  # thin along x, its xy section a diamond (e2)
+    diamond = sq_vector([0.08, 1.6, 0.8], [0.1, 1.9])  # thin along x, its xy section a diamond (e2)
     board = least_volume.squared_slab(diamond)
     assert board[4] == least_volume.SQUARE_SHAPE and board[3] == diamond[3]  # the face's exponent kept
     assert 0.03 < board[0] < 0.05  # the diamond's volume in a board about half as thick
     np.testing.assert_array_equal(board[1:3], diamond[1:3])
     np.testing.assert_array_equal(board[5:], diamond[5:])
     assert volume(Superquadric.from_vector(board)) == pytest.approx(volume(Superquadric.from_vector(diamond)), rel=1e-9)
-    lid = least_volume.squared_slab(_vector([1.0, 0.9, 0.1], [1.5, 0.5]))  # thin along z: e1
+    lid = least_volume.squared_slab(sq_vector([1.0, 0.9, 0.1], [1.5, 0.5]))  # thin along z: e1
     assert lid[3] == least_volume.SQUARE_SHAPE and lid[4] == 0.5 and lid[2] < 0.1
 
 
@@ -134,7 +119,7 @@ def test_a_pinched_slab_is_made_square_at_equal_volume():
     ([0.5, 1.6, 0.8], [0.1, 1.9]),    # not thin enough
 ])
 def test_other_shapes_are_no_pinched_slab(size, shape):
-    assert least_volume.squared_slab(_vector(size, shape)) is None
+    assert least_volume.squared_slab(sq_vector(size, shape)) is None
     assert SLAB_ASPECT == 0.5
 
 

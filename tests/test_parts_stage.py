@@ -1,15 +1,11 @@
 """Stage 3TP (sqfit.fitting.parts): stage 3T's fit, kept only where what it lets go is a part seen in several views."""
 
-from pathlib import Path
-
 import numpy as np
 
 import sqfit
 from sqfit.fitting import outline, parts
 from sqfit.metrics import iou_3d, iou_3d_mesh
 from sqfit.testing import paper_trial
-
-SCENES = Path(__file__).resolve().parents[1] / "scenes"
 
 
 def test_the_default_ends_with_3v_and_tolerant_with_ungated_3t():
@@ -28,18 +24,12 @@ def test_a_household_table_becomes_its_top(household):
     assert iou_3d_mesh(default.superquadric, table.mesh) > iou_3d_mesh(before.superquadric, table.mesh) + 0.4
 
 
-def test_noisy_masks_keep_the_input_where_3t_alone_would_not(monkeypatch):
+def test_noisy_masks_keep_the_input_where_3t_alone_would_not(monkeypatch, paper_noisy):
     """scenes/paper-noisy.toml, seed 0, trial 69: 3T triggers (3G cost 0.024, contour R-IOU-M 0.724) and
     its G2 fit scores 0.764 on the contours but 0.349 3D IoU against 0.590; it leaves no stretch of
     outline rays out, so 3TP keeps the input."""
-    from sqsim.imaging.render import get_renderer
-    from sqsim.imaging.trial import observations, simulate_trial
-    from sqsim.world.scene import load_scene
-
-    scene = load_scene(SCENES / "paper-noisy.toml")
-    sim = simulate_trial(scene, 69, get_renderer(scene.masks.renderer, scene.intrinsics))
-    obs = observations(sim, sim.objects[0].id, scene)
-    truth = sim.objects[0].superquadric
+    obj, obs = paper_noisy(69)
+    truth = obj.superquadric
     gated = "1-2M-3H-3R-3TP"
     before, default, ungated = sqfit.fit(obs, "1-2M-3H-3R"), sqfit.fit(obs, gated), sqfit.fit(obs, "1-2M-3H-3R-3T")
     assert before.cost > outline.TRIGGER_COST and "G2 on the contours" in ungated.stages[-1].message

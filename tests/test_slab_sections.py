@@ -1,7 +1,6 @@
 """Slabs and the section across their thin axis (sqfit.geometry.slab), held square in 3H's plain run
 (sqfit.fitting.axis_screen.square_section_fit)."""
 
-import numpy as np
 import pytest
 
 import sqfit
@@ -10,9 +9,7 @@ from sqfit.fitting.axis_screen import PLAIN_SHAPE_MIN, SQUARE_SECTION_BELOW, squ
 from sqfit.geometry.slab import SLAB_ASPECT, thin_section
 from sqfit.metrics import iou_3d_mesh
 
-
-def _vector(size, shape):
-    return np.r_[size, shape, 0.5, -1.0, 2.0, 0.1, -0.2, 0.3]
+from _helpers import sq_vector
 
 
 @pytest.mark.parametrize("size, section", [
@@ -23,7 +20,7 @@ def _vector(size, shape):
     ([0.2, 0.3, 2.0], None),     # a beam: thin in two axes
 ])
 def test_thin_section(size, section):
-    assert thin_section(_vector(size, [0.5, 0.5])) == section
+    assert thin_section(sq_vector(size, [0.5, 0.5])) == section
     assert SLAB_ASPECT == 0.5
 
 
@@ -39,7 +36,7 @@ def test_square_section_fit_only_runs_on_slabs_with_a_nearly_square_section():
     for size, shape in [([1.0, 1.0, 1.0], [0.1, 0.1]),    # no slab
                         ([0.1, 1.0, 0.8], [0.5, 0.5]),    # a slab whose section (e2) is round
                         ([0.1, 1.0, 0.8], [0.1, 0.015])]:  # already square
-        assert square_section_fit(rays, _vector(size, shape), options) is None
+        assert square_section_fit(rays, sq_vector(size, shape), options) is None
     assert SQUARE_SECTION_BELOW == 0.2 and axis_screen.SQUARE_SECTION_KEEP == 1.05
 
 
