@@ -141,9 +141,10 @@ def test_clean_superquadrics_pass_unchanged():
 
 
 def test_3rh_starts_from_the_visual_hull_where_3r_keeps_nothing():
-    """scenes/household.toml, mugs only, seed 0, trial 0: 3H's fit turned towards the handle and none of
+    """scenes/household.toml, mugs only, seed 0, trial 3: 3H's fit turned towards the handle and none of
     3R's starts (the input, cylinders about its axes) leaves that basin; from the visual hull's fit the
-    trimmed re-fit finds the body (3D IoU 0.57 -> 0.89 against the mesh)."""
+    trimmed re-fit finds the body (3D IoU 0.65 -> 0.79 against the mesh). (Trial 0, where this was
+    0.57 -> 0.89, now has 3R keep a re-fit on the cameras turned by 3H's pose corrections, 0.58.)"""
     import tomllib
 
     from sqfit.metrics import iou_3d_mesh
@@ -155,13 +156,13 @@ def test_3rh_starts_from_the_visual_hull_where_3r_keeps_nothing():
     d["objects"]["catalogue"] = ["mug"]
     d["experiment"].update(seed=0, limit=False)
     scene = parse_scene(d, source="household mugs")
-    sim = simulate_trial(scene, 0)
+    sim = simulate_trial(scene, 3)
     mug = sim.objects[0]
     obs = observations(sim, mug.id, scene)
     default, hull = sqfit.fit(obs), sqfit.fit(obs, "1-2M-3H-3RH")
     assert "kept the input" in default.stages[-2].message, default.stages[-2].message
     assert "kept it" in hull.stages[-1].message and "visual hull" in hull.stages[-1].message, hull.stages[-1].message
-    assert iou_3d_mesh(hull.superquadric, mug.mesh) > iou_3d_mesh(default.superquadric, mug.mesh) + 0.2
+    assert iou_3d_mesh(hull.superquadric, mug.mesh) > iou_3d_mesh(default.superquadric, mug.mesh) + 0.1
     # where 3R keeps a re-fit, 3RH keeps the same one without carving
     body, obs = _mug_observations()
     np.testing.assert_array_equal(sqfit.fit(obs).superquadric.to_vector(),

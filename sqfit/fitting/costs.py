@@ -38,7 +38,8 @@ import numpy as np
 
 from .. import constants as C
 from ..kernels.backend import compiled
-from ..geometry.camera import bearings
+from .._checks import check_shape
+from ..geometry.camera import Camera, bearings
 from ..views.observation import Observation
 from ..geometry.polygon import MIN_EDGE, batch_iou, convex_iou_jacobian, half_planes
 from .contour_overlap import contour_ious
@@ -121,6 +122,21 @@ class ObservationSet:
 
     def __len__(self):
         return len(self.observations)
+
+    def turned(self, corrections):
+        """These observations with view ``v``'s camera -> world rotation turned to ``exp([w_v]x) R_v``
+        about its centre, ``w_v`` row ``v`` of ``corrections`` ``(v, 3)`` (world-frame rotation vectors,
+        radians: :attr:`sqfit.fitting.stages.FitState.camera_corrections`); the masks' caches are shared."""
+        from scipy.spatial.transform import Rotation
+
+        w = check_shape(corrections, (len(self), 3), "corrections")
+        turns = Rotation.from_rotvec(w).as_matrix()
+        moved = []
+        for o, turn in zip(self.observations, turns):
+            pose = np.array(o.camera.pose, dtype=np.float64)
+            pose[:3, :3] = turn @ pose[:3, :3]
+            moved.append(o.with_camera(Camera(o.camera.intrinsics, pose)))
+        return ObservationSet(moved)
 
     def targets(self, kind):
         """Observation polygons for :func:`sqfit.geometry.polygon.batch_iou`: ``(targets, convex, planes)``.

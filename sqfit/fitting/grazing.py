@@ -17,8 +17,7 @@ Nuisance unknowns: after the plain run above converges, a second run estimates, 
 - pose corrections (``options.pose_sigma_deg > 0``, the default): the cameras' rotations are not
   trusted exactly; a small rotation per view, held near zero by prior rows ``w_v / sigma``. All
   views turning together is nearly the same as moving the superquadric; that freedom is held by
-  the prior only. The corrections are used inside this stage only (later stages and R-IOU-M see
-  the given cameras); the stage message lists them, in degrees, as rotation vectors ``delta_v`` in
+  the prior only. The stage message lists them, in degrees, as rotation vectors ``delta_v`` in
   each camera's frame (corrected pose rotation ``R_v exp([delta_v]x)``). When those corrections
   say that the cameras disagree (:func:`pose_noise_estimate`, the RMS rotation angle, above
   :data:`POSE_NOISE_TRIGGER_DEG`), the run is repeated under the prior that is right for that
@@ -30,7 +29,14 @@ Nuisance unknowns: after the plain run above converges, a second run estimates, 
   corrections small, and the object's position absorbed the views' disagreement (3G started at the
   truth: median position error 0.175 m, 0.150 m under the scaled prior; IoU 0.781 -> 0.834, and
   0.907 with the fitted shape at the true position). 3H then also refines every screened candidate
-  under that prior (:mod:`sqfit.fitting.axis_screen`);
+  under that prior (:mod:`sqfit.fitting.axis_screen`). Such a fit hands its corrections on
+  (:attr:`sqfit.fitting.stages.FitState.camera_corrections`) where it grazes the outline (cost at
+  most :data:`sqfit.fitting.outline.TRIGGER_COST`): stage 3R's trimmed re-fits are plain 3G runs,
+  and on the given cameras they fit the views' disagreement too, so 3R also re-fits on the cameras
+  turned by them (:mod:`sqfit.fitting.trimmed`). Where no superquadric grazes the outline (a table,
+  a chair) the corrections bend the cameras towards the wrong shape and are not handed on; nor are
+  those under the fixed prior (the cameras agree, or ``pose_noise_refit`` is off). Every other
+  stage and R-IOU-M see the given cameras;
 - the outline offset (``options.outline_offset_sigma_px > 0``, the default): a segmenter's
   outline lies a few tenths of a pixel to pixels outside (over-segmentation) or inside the
   object's silhouette, the same amount all around; one offset per object (or per view,
@@ -59,6 +65,7 @@ import numpy as np
 
 from .. import constants as C
 from .lm import DenseJacobian, levenberg_marquardt
+from .outline import TRIGGER_COST
 from .raycost import offset_groups_of, posed_ray_residuals, ray_bounds, ray_residuals
 from ..views.rays import RaySet, contour_rays
 from .stages import StageError, register
@@ -219,8 +226,10 @@ def silhouette_fit(state, obs, options, name="3G", plain_first=True, offsets=Non
         message += "; " + describe_offsets(estimate, options.outline_offset)
     if dropped:
         message += f"; outline offset not estimated (shape exponent at its bound {C.SILHOUETTE_SHAPE_BOUNDS[0]})"
+    trusted = n_pose and scale is not None and res.cost <= TRIGGER_COST
+    corrections = res.x[k:k + n_pose].reshape(-1, 3).copy() if trusted else None
     return SilhouetteFit(replace(state, xi=xi, cost=res.cost, status=res.status, message=message, nfev=nfev,
-                                 outline_offsets=estimate), noise_deg, scale)
+                                 outline_offsets=estimate, camera_corrections=corrections), noise_deg, scale)
 
 
 def at_shape_bound(xi):

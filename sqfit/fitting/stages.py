@@ -105,6 +105,12 @@ class FitState:
         that passes its input on (``dataclasses.replace`` without ``xi``) keeps them; a stage
         that moves ``xi`` without estimating offsets sets None, since they belong to a fit that
         is no longer this one.
+    camera_corrections : (v, 3) float or None
+        Rotation corrections of the given cameras that ``xi`` was fitted with, as world-frame
+        rotation vectors ``w_v`` (radians; camera -> world rotation ``exp([w_v]x) R_v``), where 3G or
+        3H found that the cameras disagree and its fit grazes the outline
+        (:func:`sqfit.fitting.grazing.silhouette_fit`); else None. Stage 3R re-fits under those
+        cameras too (:mod:`sqfit.fitting.trimmed`); a stage that passes its input on keeps them.
     """
 
     xi: np.ndarray
@@ -115,6 +121,7 @@ class FitState:
     message: str = ""
     nfev: int = 0
     outline_offsets: np.ndarray | None = None
+    camera_corrections: np.ndarray | None = None
 
 
 class StageError(Exception):
@@ -414,7 +421,8 @@ def _riou_stage(state, obs, options, free, quadric, name):
     xi[free] = res.x
     _check_result(xi, name)
     return replace(state, xi=xi, cost=res.cost, status=res.status, message=res.message,
-                   nfev=res.nfev + (0 if analytic else res.njev * k), outline_offsets=None)
+                   nfev=res.nfev + (0 if analytic else res.njev * k), outline_offsets=None,
+                   camera_corrections=None)
 
 
 @register("3A")
