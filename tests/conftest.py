@@ -30,19 +30,10 @@ def household():
 
 
 @pytest.fixture
-def paper_noisy():
+def paper_noisy(scene_trial):
     """``paper_noisy(index)``: trial ``index`` of ``scenes/paper-noisy.toml`` (seed 0, its renderer): the
     object and its observations."""
-    from sqsim.imaging.render import get_renderer
-    from sqsim.imaging.trial import observations, simulate_trial
-    from sqsim.world.scene import load_scene
-
-    def trial(index):
-        scene = load_scene(SCENES / "paper-noisy.toml")
-        sim = simulate_trial(scene, index, get_renderer(scene.masks.renderer, scene.intrinsics))
-        return sim.objects[0], observations(sim, sim.objects[0].id, scene)
-
-    return trial
+    return lambda index: scene_trial("paper-noisy", index)
 
 
 @pytest.fixture
