@@ -64,11 +64,11 @@ and its fit grazes the outline), the re-fits, plain 3G runs without pose unknown
 the cameras turned by them (:meth:`sqfit.fitting.costs.ObservationSet.turned`); on the given cameras
 they fit the views' disagreement as well as the shape. Of the fits each camera set keeps (the same
 score and gate, each on its own rays) the one of lower truncated cost is kept, with the corrections
-when it is the turned set's. The given set stays a candidate because the corrections may have
-absorbed a wrong basin's misfit instead: on clean masks of two cylinders (``scenes/cylinders.toml``,
-seed 0, trials 0 and 14) 3H's fit (0.79, 0.76 3D IoU) "finds" 0.4-0.9 degrees of pose noise, and
-the re-fit from a cylinder start reaches 0.993 on the given cameras, 0.84 and 0.79 on the turned
-ones. Measured on household scenes with 1 degree of pose noise in the README ("Real objects",
+when it is the turned set's (3RH carves the visual hull for its starts on the given cameras only).
+The given set stays a candidate because the corrections may have absorbed a wrong basin's misfit
+instead: on clean masks of two cylinders (``scenes/cylinders.toml``, seed 0, trials 0 and 14) 3H's
+fit (0.79, 0.76 3D IoU) "finds" 0.4-0.9 degrees of pose noise, and the re-fit from a cylinder start
+reaches 0.993 on the given cameras, 0.84 and 0.79 on the turned ones. Measured on household scenes with 1 degree of pose noise in the README ("Real objects",
 "Pose noise: 3R on the corrected cameras").
 
 It acts only where the input's 3G cost lies between :data:`MIN_COST` (clean superquadric masks: at
@@ -305,7 +305,7 @@ def _trimmed(state, obs, options, code, hull):
         cameras.append((" on the pose-corrected cameras", obs.turned(w), w))
     nfev, tried = 0, []
     for where, seen, corrections in cameras:
-        best, n, note = _kept_refit(xi0, seen, options, hull)
+        best, n, note = _kept_refit(xi0, seen, options, hull and corrections is None)
         nfev += n
         tried.append((best, note + where, corrections))
     kept = [t for t in tried if t[0] is not None]
