@@ -1,5 +1,7 @@
 """Stage 3G/3H under camera rotation noise: the pose prior scaled to the residual noise once the
-rotation corrections say that the cameras disagree (sqfit.fitting.grazing, sqfit.fitting.axis_screen)."""
+rotation corrections say that the cameras disagree (sqfit.fitting.grazing, sqfit.fitting.axis_screen),
+and those corrections handed on to stage 3R, which re-fits on the turned cameras too
+(FitState.camera_corrections, ObservationSet.turned, sqfit.fitting.trimmed)."""
 
 from dataclasses import replace
 
