@@ -181,7 +181,8 @@ def test_3r_keeps_the_given_cameras_where_they_explain_the_outline(scene_trial):
     state = _through_3h(obs, options)
     assert state.camera_corrections is not None
     new = STAGES["3R"](state, obs, options)
-    assert ": kept it; not truncated cost" in new.message and "on the pose-corrected cameras: kept it" not in new.message
+    assert ": kept it; not truncated cost" in new.message
+    assert "on the pose-corrected cameras: kept it" not in new.message
     assert new.camera_corrections is None
     assert iou_3d_mesh(to_superquadric(new.xi), gt.mesh) > 0.95
 
