@@ -1,7 +1,5 @@
 """Stage 3R (sqfit.fitting.trimmed): 3G without the outline rays no superquadric grazes (a mug's handle)."""
 
-from pathlib import Path
-
 import numpy as np
 import pytest
 
@@ -90,23 +88,17 @@ def test_a_part_is_long_stretches_in_two_views_and_few_contrary_rays(ev, part):
     assert ev.part is part
 
 
-def test_noisy_masks_keep_the_input_where_an_ungated_3r_would_not(monkeypatch):
+def test_noisy_masks_keep_the_input_where_an_ungated_3r_would_not(monkeypatch, paper_noisy):
     """paper-noisy, seed 0, trial 6: 3R's best candidate scores 0.64 of the input's truncated cost (0.884 -> 0.677
     3D IoU when kept), but its misfit is rays of both signs, not a part that sticks out."""
-    from sqsim.imaging.render import get_renderer
-    from sqsim.imaging.trial import observations, simulate_trial
-    from sqsim.world.scene import load_scene
-
-    scene = load_scene(Path(__file__).resolve().parents[1] / "scenes" / "paper-noisy.toml")
-    sim = simulate_trial(scene, 6, get_renderer(scene.masks.renderer, scene.intrinsics))
-    obs = observations(sim, sim.objects[0].id, scene)
+    obj, obs = paper_noisy(6)
     plain, gated = sqfit.fit(obs, "1-2M-3H"), sqfit.fit(obs, "1-2M-3H-3R")
     assert trimmed.MIN_COST < plain.cost <= sqfit.fitting.outline.TRIGGER_COST
     assert "no part sticks out" in gated.stages[-1].message, gated.stages[-1].message
     np.testing.assert_array_equal(plain.superquadric.to_vector(), gated.superquadric.to_vector())
     monkeypatch.setattr(trimmed.Stretches, "part", property(lambda self: True))
     ungated = sqfit.fit(obs, "1-2M-3H-3R")
-    truth = sim.objects[0].superquadric
+    truth = obj.superquadric
     assert iou_3d(ungated.superquadric, truth) < iou_3d(gated.superquadric, truth) - 0.1
 
 
@@ -140,25 +132,14 @@ def test_clean_superquadrics_pass_unchanged():
         assert all("kept the input" in s.message for s in default.stages[-2:])
 
 
-def test_3rh_starts_from_the_visual_hull_where_3r_keeps_nothing():
+def test_3rh_starts_from_the_visual_hull_where_3r_keeps_nothing(household):
     """scenes/household.toml, mugs only, seed 0, trial 3: 3H's fit turned towards the handle and none of
     3R's starts (the input, cylinders about its axes) leaves that basin; from the visual hull's fit the
     trimmed re-fit finds the body (3D IoU 0.65 -> 0.79 against the mesh). (Trial 0, where this was
     0.57 -> 0.89, now has 3R keep a re-fit on the cameras turned by 3H's pose corrections, 0.58.)"""
-    import tomllib
-
     from sqfit.metrics import iou_3d_mesh
-    from sqsim.imaging.trial import observations, simulate_trial
-    from sqsim.world.scene import parse_scene
 
-    with open(Path(__file__).resolve().parent.parent / "scenes" / "household.toml", "rb") as f:
-        d = tomllib.load(f)
-    d["objects"]["catalogue"] = ["mug"]
-    d["experiment"].update(seed=0, limit=False)
-    scene = parse_scene(d, source="household mugs")
-    sim = simulate_trial(scene, 3)
-    mug = sim.objects[0]
-    obs = observations(sim, mug.id, scene)
+    mug, obs = household("mug", 0, 3)
     default, hull = sqfit.fit(obs), sqfit.fit(obs, "1-2M-3H-3RH")
     assert "kept the input" in default.stages[-2].message, default.stages[-2].message
     assert "kept it" in hull.stages[-1].message and "visual hull" in hull.stages[-1].message, hull.stages[-1].message
