@@ -2,10 +2,12 @@
 
 Usage::
 
-    python scripts/household_fits_figure.py RUN_DIR --output docs/figures/household_fits.png [--chains default,tolerant]
+    python scripts/household_fits_figure.py RUN_DIR [RUN_DIR ...] --output docs/figures/household_fits.png \
+        [--chains default,tolerant]
 
-``RUN_DIR`` is an ``sqsim experiment`` output of a household scene (``trials.jsonl`` with the
-``limit`` of every object, so ``experiment.limit = true``). For each kind, the object whose default
+Each ``RUN_DIR`` is an ``sqsim experiment`` output of a household scene (``trials.jsonl`` with the
+``limit`` of every object, so ``experiment.limit = true``), e.g. one per kind; their objects are
+pooled (an object is a trial and object of one directory). For each kind, the object whose default
 IoU / limit is the median of its kind is drawn in one row: the mesh alone, then the mesh (grey) with
 the limit superquadric and with each chain's fit (translucent, coloured), all from the same
 off-screen pyrender (OSMesa) camera, with the 3D IoU against the mesh in the panel title.
@@ -42,18 +44,20 @@ MESH_COLOUR = (0.55, 0.55, 0.55, 1.0)
 SQ_COLOURS = [(0.15, 0.65, 0.25, 0.45), (0.90, 0.45, 0.10, 0.45), (0.75, 0.10, 0.45, 0.45), (0.1, 0.3, 0.8, 0.45)]
 
 
-def _records(run_dir):
-    path = Path(run_dir) / "trials.jsonl"
-    if not path.is_file():
-        raise SystemExit(f"{path} not found: RUN_DIR must be an sqsim experiment output")
+def _records(run_dirs):
+    """``{(directory index, trial, object): {chain: record}}`` of the household objects with a limit."""
     by_object = defaultdict(dict)
-    for line in path.read_text().splitlines():
-        if line.strip():
-            r = json.loads(line)
-            if "item" in r.get("gt", {}) and r.get("limit"):
-                by_object[(r["trial"], r["object"])][r["chain"]] = r
+    for index, run_dir in enumerate(run_dirs):
+        path = Path(run_dir) / "trials.jsonl"
+        if not path.is_file():
+            raise SystemExit(f"{path} not found: each RUN_DIR must be an sqsim experiment output")
+        for line in path.read_text().splitlines():
+            if line.strip():
+                r = json.loads(line)
+                if "item" in r.get("gt", {}) and r.get("limit"):
+                    by_object[(index, r["trial"], r["object"])][r["chain"]] = r
     if not by_object:
-        raise SystemExit(f"{path} holds no household objects with a representation limit")
+        raise SystemExit(f"{', '.join(map(str, run_dirs))}: no household objects with a representation limit")
     return by_object
 
 
@@ -87,15 +91,15 @@ def _render(renderer, meshes, centre, radius):
 
 def main(argv=None):
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("run_dir")
+    parser.add_argument("run_dirs", nargs="+", metavar="RUN_DIR")
     parser.add_argument("--output", required=True)
     parser.add_argument("--chains", default="default,tolerant",
                         help="chains to draw, as recorded (aliases are expanded: default = sqfit.DEFAULT_CHAIN)")
     args = parser.parse_args(argv)
     chains = [CHAIN_ALIASES.get(c, c) for c in args.chains.split(",")]
-    picked = _pick(_records(args.run_dir), chains)
+    picked = _pick(_records(args.run_dirs), chains)
     if not picked:
-        raise SystemExit(f"no object of {args.run_dir} was fitted with all of {chains}")
+        raise SystemExit(f"no object of {', '.join(args.run_dirs)} was fitted with all of {chains}")
     cols = 2 + len(chains)
     fig, axes = plt.subplots(len(picked), cols, figsize=(2.3 * cols, 2.4 * len(picked)), squeeze=False)
     renderer = pyrender.OffscreenRenderer(PIXELS, PIXELS)
@@ -119,8 +123,8 @@ def main(argv=None):
             ax.set_title(kind if name == "mesh" else f"{name}: IoU {iou:.2f}", fontsize=8)
             ax.set_axis_off()
     renderer.delete()
-    fig.suptitle(f"{Path(args.run_dir).name}: mesh, best superquadric (limit), fits (median object of each kind)",
-                 fontsize=9)
+    source = Path(args.run_dirs[0]).name if len(args.run_dirs) == 1 else f"{len(args.run_dirs)} runs"
+    fig.suptitle(f"{source}: mesh, best superquadric (limit), fits (median object of each kind)", fontsize=9)
     fig.tight_layout(rect=(0, 0, 1, 1 - 0.4 / fig.get_figheight()))
     fig.savefig(args.output, dpi=100)
     print(f"wrote {args.output} ({len(picked)} kinds)")
