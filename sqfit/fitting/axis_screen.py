@@ -54,7 +54,8 @@ therefore decides before 3G, from the 3G cost itself:
    seed 0) 1 fit of 100 changed (better, 10th percentile 0.368 -> 0.401), 1 px over-segmentation
    (``scenes/paper-bias1.toml``) 6 changed, 2 worse by up to 0.020, median 0.9889 either way.
    Not seen while it was built (paper seed 2, boxes seed 2, cylinders seed 1, the occlusion and
-   truncation scenes): better in median and 10th percentile on each (README "Real objects").
+   truncation scenes): better in median and 10th percentile on each (docs/real-objects.md, "3H without
+   idle nuisances").
    The cost condition keeps it off furniture: without it, household tables, monitors and lamps (20
    each, seed 0), whose fits 3T/3TP then take over, changed 19 fits both ways by up to 0.2 (3T
    from a slightly other start), and 240 mixed household objects lost 0.045 of median IoU on

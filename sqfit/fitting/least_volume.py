@@ -42,7 +42,7 @@ tables 0.536 / 0.473 / 0.405 -> 0.544 / 0.497 / 0.467 (21 fits changed: 15 bette
 0.01, up to 0.128; three worse, by 0.011, 0.017 and 0.031); lamps, chairs, laptops and toys
 unchanged. Not where no candidate counted: there the masks may be of one pinched superquadric,
 noisy (squared there as well, one fit of 100 noisy paper masks lost 0.075 and three of 50 with
-20 % dropout up to 0.045, while one monitor gained 0.022). README "Real objects", "Least volume",
+20 % dropout up to 0.045, while one monitor gained 0.022). docs/real-objects.md, "Least volume",
 has the measurements. Deterministic (the opened masks' area samples are drawn from a fixed seed).
 """
 

@@ -43,7 +43,7 @@ The margin: on paper-noisy no stretch in two views on any of the 25 fits of seed
 of seeds 0-2), against a threshold of 8 rays in 2 views (stage 3R's
 :data:`~sqfit.fitting.trimmed.STRETCH_RAYS` / :data:`~sqfit.fitting.trimmed.STRETCH_VIEWS`); tables,
 monitors and lamps kept with 10-109. Where 3T's trigger does not hold 3TP costs nothing; where it
-holds it costs 3T's G2 run (0.2-1 s) and one residual evaluation. README "Real objects". Deterministic.
+holds it costs 3T's G2 run (0.2-1 s) and one residual evaluation. docs/real-objects.md, "Stage 3TP". Deterministic.
 """
 
 from __future__ import annotations

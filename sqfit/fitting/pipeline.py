@@ -42,7 +42,7 @@ PAPER_CHAINS = ("3A", "3B", "1-3A", "1-2-3A", "1-2-3B", "3E", "1-3E", "1-2-3C", 
 #: :mod:`sqfit.fitting.parts`, G2 on the mask contours where 3G's cost is high (stage 3T), kept only where
 #: what it lets go is such a stretch in several views (a table's legs, a monitor's stand); 3V:
 #: :mod:`sqfit.fitting.least_volume`, 3TP, then, where 3T's trigger holds, of 3TP's fit and fits of the masks
-#: with their thin parts opened away that match the contours alike, the one of least volume (README "Real objects").
+#: with their thin parts opened away that match the contours alike, the one of least volume (docs/real-objects.md).
 DEFAULT_CHAIN = "1-2M-3H-3R-3V"
 #: Chain of :func:`fit` when a starting superquadric is given (``initial=``) and no chain is: a
 #: local refinement from it.
@@ -51,7 +51,7 @@ INITIAL_CHAIN = "3G"
 #: the visual hull's superquadric: mugs whose fit turned to the handle) and stage 3T without 3TP's gate
 #: (G2 on the mask contours wherever 3G's cost is high: monitors, chairs and laptops gain a little more,
 #: noisy masks of true superquadrics can lose); opt-in (the carving runs wherever 3R keeps nothing),
-#: measured in the README ("Real objects").
+#: measured in docs/real-objects.md.
 TOLERANT_CHAIN = DEFAULT_CHAIN.replace("-3R-", "-3RH-").removesuffix("-3V") + "-3T"
 #: Names that stand for a whole chain wherever a chain is given (:func:`parse_chain`); ``hull`` is the
 #: visual-hull baseline (:data:`sqfit.fitting.hull.HULL_CHAIN`), ``tolerant`` :data:`TOLERANT_CHAIN`.

@@ -75,13 +75,13 @@ hand them on: 0.14-0.76 degrees, the turned set never kept; the 13th, 1.38, kept
 second run for nothing (clean mugs 72 -> 114-117 ms median per object; with the threshold 78 / 77
 -> 76 / 75 ms, two rounds alternated with the code before the turned set);
 with 1 degree of noise the turned set's fit was kept on mugs at 0.75-1.62 degrees only (seed 0).
-Measured on household scenes with 1 degree of pose noise in the README ("Real objects", "Pose
-noise: 3R on the corrected cameras").
+Measured on household scenes with 1 degree of pose noise in docs/real-objects.md, "Pose
+noise: 3R on the corrected cameras".
 
 It acts only where the input's 3G cost lies between :data:`MIN_COST` (clean superquadric masks: at
 most 2.7e-3 over 60 paper trials) and :data:`sqfit.fitting.outline.TRIGGER_COST` (above it, stage
 3T's domain). In the default chain (:data:`sqfit.fitting.pipeline.DEFAULT_CHAIN`) since the gate;
-measured in the README, "Real objects". Deterministic; no random numbers.
+measured in docs/real-objects.md, "Stage 3R". Deterministic; no random numbers.
 """
 
 from __future__ import annotations

@@ -16,7 +16,7 @@ household objects per kind, seed 0): at 0.3 the monitors' fits fell back from 0.
 3D IoU and the books' from 0.85 to 0.71. With stage 3V built at 0.15, 0.1 and 0.22 were tried too
 (monitors, lamps, tables, chairs, 20 each, seeds 0 and 1): 0.1 lowered monitors by up to 0.055 and
 raised tables by 0.03; 0.22 moved the medians by -0.006 to +0.017, single fits both ways. 0.15
-stays (README "Real objects", "Least volume").
+stays (docs/real-objects.md, "Least volume").
 """
 
 from __future__ import annotations
