@@ -105,17 +105,20 @@ def plot_sequence(seq, path, frusta=FRUSTA):
 
 
 def add_arguments(parser):
+    from ..world.scene import SET_HELP
+
     parser.add_argument("scene", help="sequence scene TOML file (trajectory.kind = \"orbit\" or \"waypoints\")")
+    parser.add_argument("--set", action="append", default=[], metavar="SECTION.KEY=VALUE", help=SET_HELP)
     parser.add_argument("--seed", type=int, default=None, help="seed (default: experiment.seed)")
     parser.add_argument("--index", type=int, default=0, help="sequence index (trial of a dataset with this seed)")
     parser.add_argument("--figure", default=None, help="write the top-down figure (PNG) here")
 
 
 def run(args):
-    from ..world.scene import load_scene
+    from ..world.scene import load_scene, scene_overrides
     from ..imaging.sequence import simulate_sequence
 
-    seq = simulate_sequence(load_scene(args.scene), seed=args.seed, index=args.index)
+    seq = simulate_sequence(load_scene(args.scene, scene_overrides(args.set)), seed=args.seed, index=args.index)
     print(summarize(seq))
     if args.figure:
         plot_sequence(seq, args.figure)

@@ -61,7 +61,10 @@ STAGE_IOU_CELLS = 2**16
 # --------------------------------------------------------------------------- command line
 
 def add_arguments(parser):
+    from ..world.scene import SET_HELP
+
     parser.add_argument("scene", help="scene / experiment TOML file (see scenes/paper.toml)")
+    parser.add_argument("--set", action="append", default=[], metavar="SECTION.KEY=VALUE", help=SET_HELP)
     parser.add_argument("-o", "--output", required=True, help="output directory (created; resumed if it exists)")
     parser.add_argument("--trials", type=int, default=None, help="number of trials (default: the scene's)")
     parser.add_argument("--chains", default=None,
@@ -80,9 +83,9 @@ def add_arguments(parser):
 
 
 def run(args):
-    from ..world.scene import load_scene
+    from ..world.scene import load_scene, scene_overrides
 
-    scene = load_scene(args.scene)
+    scene = load_scene(args.scene, scene_overrides(args.set))
     summary = run_experiment(scene, args.output, trials=args.trials, chains=parse_chains(args.chains),
                              seed=args.seed, workers=args.workers, scheduler=args.scheduler,
                              progress=not args.no_progress, rerun=args.rerun,

@@ -72,7 +72,10 @@ times; skipped objects and warnings) and topdown.png; over all sequences DIR/sum
 DIR/table.md. Re-running into the same directory resumes: finished sequences are not recomputed.
 
 example: sqsim slam scenes/sequence.toml -o /tmp/slam --sequences 5 --workers 2"""
+    from ..world.scene import SET_HELP
+
     parser.add_argument("scene", help="sequence scene TOML file, e.g. scenes/sequence.toml")
+    parser.add_argument("--set", action="append", default=[], metavar="SECTION.KEY=VALUE", help=SET_HELP)
     parser.add_argument("-o", "--output", required=True, help="output directory (created; resumed if it exists)")
     parser.add_argument("--sequences", type=int, default=None,
                         help="number of sequences, indices 0..N-1 (default: the scene's experiment.trials)")
@@ -98,10 +101,10 @@ example: sqsim slam scenes/sequence.toml -o /tmp/slam --sequences 5 --workers 2"
 
 
 def run(args):
-    from ..world.scene import load_scene
+    from ..world.scene import load_scene, scene_overrides
 
     options = _parse_options(args.options)
-    summary = run_slam(load_scene(args.scene), args.output, sequences=args.sequences, seed=args.seed,
+    summary = run_slam(load_scene(args.scene, scene_overrides(args.set)), args.output, sequences=args.sequences, seed=args.seed,
                        methods=parse_methods(args.methods), options=options, floor=args.floor,
                        scene_odometry_noise=args.scene_odometry_noise, workers=args.workers,
                        scheduler=args.scheduler, progress=not args.no_progress, figures=not args.no_figures)

@@ -4,7 +4,8 @@ A scene is a TOML file with the sections ``[experiment]``, ``[camera]``, ``[traj
 ``[objects]``, ``[masks]``, ``[noise]`` and ``[fit]`` (keys and defaults: README, "Scene files"; example: scenes/paper.toml).
 Every section and key is optional (defaults are the paper's values, Table I); an unknown section
 or key, a malformed file or a bad value raises ``ValueError`` naming the file, the key and the
-problem.
+problem. The commands that read a scene take ``--set SECTION.KEY=VALUE`` to replace keys without
+editing the file (:func:`scene_overrides`, ``load_scene(path, overrides)``).
 
 Objects of a trial (meshes, sampling, the observability tests): :mod:`sqsim.world.objects`.
 """
@@ -12,6 +13,7 @@ Objects of a trial (meshes, sampling, the observability tests): :mod:`sqsim.worl
 from __future__ import annotations
 
 import math
+import re
 import tomllib
 from dataclasses import asdict, dataclass, replace
 from pathlib import Path
@@ -29,7 +31,7 @@ from .values import (boolean, catalogue, choice, integer, interval, nonempty_str
 
 __all__ = ["Scene", "ExperimentConfig", "CameraConfig", "TrajectoryConfig", "ObjectsConfig",
            "MasksConfig", "NoiseConfig", "FitConfig", "OBJECT_KINDS", "load_scene", "parse_scene", "trial_seed",
-           "child_seed", "camera_poses"]
+           "child_seed", "camera_poses", "scene_overrides", "SET_HELP"]
 
 OBJECT_KINDS = ("superquadric", "box", "cylinder", "capsule", "cone", "mesh", "household")
 RENDERERS = ("osmesa", "egl", "polygon")
@@ -258,12 +260,66 @@ class Scene:
         return list(cached)
 
 
-def load_scene(path):
+#: Help of the commands' ``--set`` option (:func:`scene_overrides`).
+SET_HELP = ("replace a scene key without editing the file, e.g. --set 'objects.catalogue=[mug,can]' "
+            "--set noise.pose_rotation_deg=1 (repeatable; VALUE is a TOML value; bare words are strings)")
+_BARE_WORD = re.compile(r"[A-Za-z_][A-Za-z0-9_.\-]*")
+
+
+def scene_overrides(items):
+    """Scene keys to replace, from ``--set`` items.
+
+    Parameters
+    ----------
+    items : iterable of str
+        ``"SECTION.KEY=VALUE"``, VALUE a TOML value (``2``, ``0.5``, ``true``, ``"mug"``,
+        ``["mug", "can"]``); a bare word (``household``) is taken as a string, and a list of bare
+        words (``[mug, can]``) as a list of strings, so the shell needs no quotes inside.
+
+    Returns
+    -------
+    overrides : dict
+        ``{"section.key": value}`` in the order given (a key set twice keeps the last value).
+
+    Raises
+    ------
+    ValueError
+        An item without ``=``, a key that is not ``section.key`` of a scene, or a value that is
+        not TOML; the message names the item.
+    """
+    out = {}
+    for item in items or ():
+        dotted, sep, text = str(item).partition("=")
+        dotted, text = dotted.strip(), text.strip()
+        section, _, key = dotted.partition(".")
+        if not sep or not text or not key:
+            raise ValueError(f"--set {item!r}: expected SECTION.KEY=VALUE, e.g. noise.dropout=0.1")
+        if section not in _SECTIONS:
+            raise ValueError(f"--set {item!r}: unknown section {section!r} (known: {', '.join(_SECTIONS)})")
+        if key not in _CHECKS[section]:
+            raise ValueError(f"--set {item!r}: unknown key {key!r} in [{section}] (known: {', '.join(_CHECKS[section])})")
+        try:
+            value = tomllib.loads(f"value = {text}")["value"]
+        except tomllib.TOMLDecodeError as exc:
+            words = [w.strip() for w in text[1:-1].split(",")] if text[:1] + text[-1:] == "[]" else [text]
+            if not all(_BARE_WORD.fullmatch(w) for w in words):
+                raise ValueError(f"--set {item!r}: the value is neither TOML nor a bare word or list of bare "
+                                 f"words ({exc})") from None
+            value = words if text.startswith("[") else text
+        out[dotted] = value
+    return out
+
+
+def load_scene(path, overrides=None):
     """Read and validate a scene TOML file.
 
     Parameters
     ----------
     path : str or os.PathLike
+    overrides : dict, optional
+        ``{"section.key": value}`` replacing keys of the file before it is validated (the
+        commands' ``--set``, :func:`scene_overrides`), so a key may be set that the file's other
+        keys need (``objects.kind`` with ``objects.catalogue``).
 
     Returns
     -------
@@ -274,9 +330,25 @@ def load_scene(path):
     OSError
         The file cannot be read.
     ValueError
-        Malformed TOML, unknown section or key, or a bad value (message names file and key).
+        Malformed TOML, unknown section or key, or a bad value (message names file and key, and
+        the overrides where there are any).
     """
-    return parse_scene(read_toml(path), source=str(path))
+    mapping = read_toml(path)
+    if not overrides:
+        return parse_scene(mapping, source=str(path))
+    for dotted, value in dict(overrides).items():
+        section, _, key = str(dotted).partition(".")
+        if section not in _SECTIONS or key not in _CHECKS[section]:
+            raise ValueError(f"{path}: unknown override key {dotted!r} (use 'section.key', e.g. 'noise.dropout')")
+        table = mapping.setdefault(section, {})
+        if not isinstance(table, dict):
+            raise ValueError(f"{path}: [{section}] must be a table of keys, got {table!r}")
+        table[key] = value
+    try:
+        return parse_scene(mapping, source=str(path))
+    except ValueError as exc:
+        changed = ", ".join(f"{k}={v!r}" for k, v in dict(overrides).items())
+        raise ValueError(f"{exc} (with {changed} set on the command line)") from None
 
 
 def read_toml(path):
