@@ -90,8 +90,19 @@ def test_bad_set_is_one_line_error(tmp_path, capsys):
     assert not (tmp_path / "x").exists()
 
 
-@pytest.mark.parametrize("command", ["experiment", "generate", "slam", "sequence"])
+@pytest.mark.parametrize("command", ["experiment", "generate", "slam", "sequence", "sweep"])
 def test_every_command_that_reads_a_scene_takes_set(command, capsys):
     with pytest.raises(SystemExit):
         sqsim_main([command, "--help"])
     assert "--set SECTION.KEY=VALUE" in capsys.readouterr().out
+
+
+def test_sweep_points_start_from_the_scene_as_set(tmp_path, capsys):
+    out = tmp_path / "sweep"
+    args = ["sweep", str(PAPER), "--set", "trajectory.views=4", "--set", "experiment.limit=false",
+            "--param", "noise.dropout", "--values", "0,0.1", "--trials", "1", "--chains", "1", "-o", str(out),
+            "--no-progress"]
+    assert sqsim_main(args) == 0
+    configs = [json.loads(p.read_text()) for p in sorted(out.glob("points/*/experiment.json"))]
+    assert len(configs) == 2 and {c["scene"]["noise"]["dropout"] for c in configs} == {0.0, 0.1}
+    assert all(c["scene"]["trajectory"]["views"] == 4 for c in configs)
