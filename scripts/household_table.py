@@ -80,7 +80,8 @@ def _cell(values, fmt, target=None):
 def markdown(rows, names, ratio, margin):
     """The Markdown table of :func:`kind_rows`."""
     a, b = names
-    lines = [f"| kind | {a} | {b} | limit | {a} / limit | {a} − {b} | ms, {a} / {b} |", "|---|---|---|---|---|---|---|"]
+    lines = [f"| kind | {a} | {b} | limit | {a} / limit | {a} − {b} | ms, {a} / {b} |",
+             "|---|---|---|---|---|---|---|"]
     for kind, seeds in rows.items():
         s = list(seeds.values())
         get = lambda key: [x[key] for x in s]  # noqa: E731

@@ -39,8 +39,8 @@ def test_rows_per_kind_and_seed_with_the_targets_in_bold(tmp_path):
     assert rows["mug"] == ("| mug | 0.700 / 0.800 | 0.690 / 0.600 | 0.920 / 0.900 | 0.76 / 0.89 | +0.010 / **+0.200** "
                            "| 80 / 400, 100 / 500 |")
     # a run without limits leaves its limit cells empty; a negative difference gets a minus sign
-    assert rows["can"] == ("| can | 0.980 / 0.960 | 0.900 / 0.970 | 0.990 / – | **0.99** / – | **+0.080** / −0.010 "
-                           "| 10 / 300, 12 / 300 |")
+    assert rows["can"] == ("| can | 0.980 / 0.960 | 0.900 / 0.970 | 0.990 / – | **0.99** / – "
+                           "| **+0.080** / −0.010 | 10 / 300, 12 / 300 |")
     assert list(rows)[1:] == ["mug", "can"]  # the README's order of kinds
     assert "seeds 0 / 4; objects per kind and seed: 1" in out
 

@@ -21,6 +21,7 @@ PAPER = ROOT / "scenes" / "paper.toml"
     ('objects.catalogue=["mug", "can"]', "objects.catalogue", ["mug", "can"]),
     ("objects.catalogue=[mug, can]", "objects.catalogue", ["mug", "can"]),  # so are bare words in a list
     ("objects.size=[0.5, 2.5]", "objects.size", [0.5, 2.5]),
+    ("experiment.chains=[1-2-3D, default]", "experiment.chains", ["1-2-3D", "default"]),  # chains are words too
     (" noise.dropout = 0.2 ", "noise.dropout", 0.2),
 ])
 def test_values_are_toml_or_bare_words(item, key, value):
@@ -64,7 +65,7 @@ def test_a_bad_value_names_the_file_the_key_and_the_override():
         load_scene(PAPER, {"noise.dropout": 2})
     message = str(info.value)
     assert "paper.toml" in message and "noise.dropout must be < 1" in message
-    assert "noise.dropout=2 set on the command line" in message
+    assert "with noise.dropout=2 set over the file's keys" in message
 
 
 def test_experiment_command_records_the_scene_as_set(tmp_path, capsys):

@@ -263,7 +263,7 @@ class Scene:
 #: Help of the commands' ``--set`` option (:func:`scene_overrides`).
 SET_HELP = ("replace a scene key without editing the file, e.g. --set 'objects.catalogue=[mug,can]' "
             "--set noise.pose_rotation_deg=1 (repeatable; VALUE is a TOML value; bare words are strings)")
-_BARE_WORD = re.compile(r"[A-Za-z_][A-Za-z0-9_.\-]*")
+_BARE_WORD = re.compile(r"[A-Za-z0-9_][A-Za-z0-9_.\-]*")
 
 
 def scene_overrides(items):
@@ -297,7 +297,8 @@ def scene_overrides(items):
         if section not in _SECTIONS:
             raise ValueError(f"--set {item!r}: unknown section {section!r} (known: {', '.join(_SECTIONS)})")
         if key not in _CHECKS[section]:
-            raise ValueError(f"--set {item!r}: unknown key {key!r} in [{section}] (known: {', '.join(_CHECKS[section])})")
+            known = ", ".join(_CHECKS[section])
+            raise ValueError(f"--set {item!r}: unknown key {key!r} in [{section}] (known: {known})")
         try:
             value = tomllib.loads(f"value = {text}")["value"]
         except tomllib.TOMLDecodeError as exc:
@@ -348,7 +349,7 @@ def load_scene(path, overrides=None):
         return parse_scene(mapping, source=str(path))
     except ValueError as exc:
         changed = ", ".join(f"{k}={v!r}" for k, v in dict(overrides).items())
-        raise ValueError(f"{exc} (with {changed} set on the command line)") from None
+        raise ValueError(f"{exc} (with {changed} set over the file's keys)") from None
 
 
 def read_toml(path):
