@@ -104,7 +104,8 @@ def run(args):
     from ..world.scene import load_scene, scene_overrides
 
     options = _parse_options(args.options)
-    summary = run_slam(load_scene(args.scene, scene_overrides(args.set)), args.output, sequences=args.sequences, seed=args.seed,
+    scene = load_scene(args.scene, scene_overrides(args.set))
+    summary = run_slam(scene, args.output, sequences=args.sequences, seed=args.seed,
                        methods=parse_methods(args.methods), options=options, floor=args.floor,
                        scene_odometry_noise=args.scene_odometry_noise, workers=args.workers,
                        scheduler=args.scheduler, progress=not args.no_progress, figures=not args.no_figures)
