@@ -22,6 +22,8 @@ PAPER = ROOT / "scenes" / "paper.toml"
     ("objects.catalogue=[mug, can]", "objects.catalogue", ["mug", "can"]),  # so are bare words in a list
     ("objects.size=[0.5, 2.5]", "objects.size", [0.5, 2.5]),
     ("experiment.chains=[1-2-3D, default]", "experiment.chains", ["1-2-3D", "default"]),  # chains are words too
+    ("objects.path=meshes/duck.obj", "objects.path", "meshes/duck.obj"),  # and paths without spaces
+    ("objects.path=/data/scans/mug_col.obj", "objects.path", "/data/scans/mug_col.obj"),
     (" noise.dropout = 0.2 ", "noise.dropout", 0.2),
 ])
 def test_values_are_toml_or_bare_words(item, key, value):
@@ -107,3 +109,19 @@ def test_sweep_points_start_from_the_scene_as_set(tmp_path, capsys):
     configs = [json.loads(p.read_text()) for p in sorted(out.glob("points/*/experiment.json"))]
     assert len(configs) == 2 and {c["scene"]["noise"]["dropout"] for c in configs} == {0.0, 0.1}
     assert all(c["scene"]["trajectory"]["views"] == 4 for c in configs)
+
+
+def test_a_relative_mesh_path_is_taken_from_the_current_directory(tmp_path, monkeypatch):
+    import trimesh
+
+    (tmp_path / "meshes").mkdir()
+    trimesh.creation.box(extents=(1.0, 2.0, 3.0)).export(tmp_path / "meshes" / "box.obj")
+    (tmp_path / "scenes").mkdir()
+    in_file = tmp_path / "scenes" / "mesh.toml"
+    in_file.write_text('[objects]\nkind = "mesh"\npath = "meshes/box.obj"\n')
+    monkeypatch.chdir(tmp_path)
+    scene = load_scene(PAPER, scene_overrides(["objects.kind=mesh", "objects.path=meshes/box.obj"]))
+    assert scene.objects.path == str(tmp_path / "meshes" / "box.obj")
+    # in a scene file the same path is relative to the file's directory: scenes/meshes/box.obj, not there
+    with pytest.raises(ValueError, match="mesh file not found"):
+        load_scene(in_file)

@@ -31,7 +31,7 @@ from .values import (boolean, catalogue, choice, integer, interval, nonempty_str
 
 __all__ = ["Scene", "ExperimentConfig", "CameraConfig", "TrajectoryConfig", "ObjectsConfig",
            "MasksConfig", "NoiseConfig", "FitConfig", "OBJECT_KINDS", "load_scene", "parse_scene", "trial_seed",
-           "child_seed", "camera_poses", "scene_overrides", "SET_HELP"]
+           "child_seed", "camera_poses", "scene_overrides", "SET_HELP", "PATH_KEYS"]
 
 OBJECT_KINDS = ("superquadric", "box", "cylinder", "capsule", "cone", "mesh", "household")
 RENDERERS = ("osmesa", "egl", "polygon")
@@ -263,7 +263,11 @@ class Scene:
 #: Help of the commands' ``--set`` option (:func:`scene_overrides`).
 SET_HELP = ("replace a scene key without editing the file, e.g. --set 'objects.catalogue=[mug,can]' "
             "--set noise.pose_rotation_deg=1 (repeatable; VALUE is a TOML value; bare words are strings)")
-_BARE_WORD = re.compile(r"[A-Za-z0-9_][A-Za-z0-9_.\-]*")
+#: A ``--set`` value that is no TOML but a word (``household``, ``1-2-3D``) or a path (``meshes/duck.obj``).
+_BARE_WORD = re.compile(r"[A-Za-z0-9_./~+:][A-Za-z0-9_./~+:\-]*")
+#: Keys that name files: relative in a scene file to the file's directory, relative in ``--set`` to the
+#: current directory (where the user typed it).
+PATH_KEYS = ("objects.path", "trajectory.waypoints_file")
 
 
 def scene_overrides(items):
@@ -273,8 +277,9 @@ def scene_overrides(items):
     ----------
     items : iterable of str
         ``"SECTION.KEY=VALUE"``, VALUE a TOML value (``2``, ``0.5``, ``true``, ``"mug"``,
-        ``["mug", "can"]``); a bare word (``household``) is taken as a string, and a list of bare
-        words (``[mug, can]``) as a list of strings, so the shell needs no quotes inside.
+        ``["mug", "can"]``); a bare word (``household``, ``1-2-3D``, a path without spaces) is taken
+        as a string, and a list of bare words (``[mug, can]``) as a list of strings, so the shell
+        needs no quotes inside.
 
     Returns
     -------
@@ -320,7 +325,8 @@ def load_scene(path, overrides=None):
     overrides : dict, optional
         ``{"section.key": value}`` replacing keys of the file before it is validated (the
         commands' ``--set``, :func:`scene_overrides`), so a key may be set that the file's other
-        keys need (``objects.kind`` with ``objects.catalogue``).
+        keys need (``objects.kind`` with ``objects.catalogue``). A relative path given for one of
+        :data:`PATH_KEYS` is taken from the current directory, not from the file's.
 
     Returns
     -------
@@ -344,6 +350,8 @@ def load_scene(path, overrides=None):
         table = mapping.setdefault(section, {})
         if not isinstance(table, dict):
             raise ValueError(f"{path}: [{section}] must be a table of keys, got {table!r}")
+        if dotted in PATH_KEYS and isinstance(value, str) and value:
+            value = str(Path.cwd() / Path(value).expanduser())  # an absolute path stays itself
         table[key] = value
     try:
         return parse_scene(mapping, source=str(path))
