@@ -1,12 +1,13 @@
-"""Per household kind: the default against the visual-hull baseline and the representation limit.
+"""Per household kind or mesh file: the default against the visual-hull baseline and the representation limit.
 
 Usage::
 
     python scripts/household_table.py RUN_DIR [RUN_DIR ...] [--chains default,hull] [--ratio 0.95] [--margin 0.03]
 
-Each ``RUN_DIR`` is an ``sqsim experiment`` output of a household scene (e.g. one per kind:
-README "Real objects", "Where the default stands"); their records are pooled by kind (``gt.item``)
-and by seed (the scene's ``experiment.seed`` in ``experiment.json``). Prints one Markdown row per
+Each ``RUN_DIR`` is an ``sqsim experiment`` output of a household or mesh-file scene (e.g. one per
+kind: README "Real objects", "Where the default stands"); their records are pooled by kind
+(``gt.item``, or the mesh file's name for ``objects.kind = "mesh"``) and by seed (the scene's
+``experiment.seed`` in ``experiment.json``). Prints one Markdown row per
 kind: the first chain's, the second chain's and the limit's median 3D IoU, the first chain's IoU
 over the limit (ratio of the medians), the first chain minus the second, and both chains' median ms
 per object; each cell gives the seeds in ascending order, separated by ``/``. Bold where the issue
@@ -30,7 +31,7 @@ KINDS = ("table", "monitor", "lamp", "toy", "chair", "laptop", "bowl", "mug", "b
 
 
 def _runs(run_dirs):
-    """``{kind: {seed: {chain: [record, ...]}}}`` of the household records of ``run_dirs``."""
+    """``{kind: {seed: {chain: [record, ...]}}}`` of the household and mesh-file records of ``run_dirs``."""
     pooled = defaultdict(lambda: defaultdict(lambda: defaultdict(list)))
     for run_dir in run_dirs:
         path, config = Path(run_dir) / "trials.jsonl", Path(run_dir) / "experiment.json"
@@ -40,10 +41,12 @@ def _runs(run_dirs):
         for line in path.read_text().splitlines():
             if line.strip():
                 r = json.loads(line)
-                if "item" in r.get("gt", {}):
-                    pooled[r["gt"]["item"]][seed][r["chain"]].append(r)
+                gt = r.get("gt", {})
+                kind = gt.get("item") or (Path(gt["path"]).stem if gt.get("path") else None)
+                if kind is not None:
+                    pooled[kind][seed][r["chain"]].append(r)
     if not pooled:
-        raise SystemExit(f"{', '.join(map(str, run_dirs))}: no household objects")
+        raise SystemExit(f"{', '.join(map(str, run_dirs))}: no household or mesh-file objects")
     return pooled
 
 

@@ -48,3 +48,15 @@ def test_rows_per_kind_and_seed_with_the_targets_in_bold(tmp_path):
 def test_not_an_experiment_output_is_one_line(tmp_path):
     res = subprocess.run([sys.executable, str(SCRIPT), str(tmp_path)], capture_output=True, text=True)
     assert res.returncode == 1 and "not an sqsim experiment output" in res.stderr
+
+
+def test_mesh_file_objects_are_grouped_by_file_name(tmp_path):
+    d = sqfit.DEFAULT_CHAIN
+    run = tmp_path / "duck"
+    _run_dir(run, 1, [("x", d, 0.6, 0.7, 0.1), ("x", "HULL", 0.5, 0.7, 0.3)])
+    lines = [json.loads(line) for line in (run / "trials.jsonl").read_text().splitlines()]
+    for r in lines:
+        r["gt"] = {"kind": "mesh", "path": "/data/scans/duck_vhacd.obj"}
+    (run / "trials.jsonl").write_text("\n".join(json.dumps(r) for r in lines) + "\n")
+    out = subprocess.run([sys.executable, str(SCRIPT), str(run)], capture_output=True, text=True, check=True).stdout
+    assert "| duck vhacd | 0.600 | 0.500 | 0.700 | 0.86 | **+0.100** | 100 / 300 |" in out
