@@ -132,19 +132,41 @@ def test_clean_superquadrics_pass_unchanged():
         assert all("kept the input" in s.message for s in default.stages[-2:])
 
 
-def test_3rh_starts_from_the_visual_hull_where_3r_keeps_nothing(household):
-    """scenes/household.toml, mugs only, seed 0, trial 3: 3H's fit turned towards the handle and none of
-    3R's starts (the input, cylinders about its axes) leaves that basin; from the visual hull's fit the
-    trimmed re-fit finds the body (3D IoU 0.65 -> 0.79 against the mesh). (Trial 0, where this was
-    0.57 -> 0.89, now has 3R keep a re-fit on the cameras turned by 3H's pose corrections, 0.58.)"""
+def test_3r_starts_from_the_visual_hull_where_the_input_is_pinched(household, monkeypatch):
+    """scenes/household.toml, mugs only, seed 0, trial 3: 3H's fit turned towards the handle (pinched:
+    an exponent 1.5) and none of 3R's own starts (the input, cylinders about its axes) leaves that
+    basin; from the visual hull's fit the trimmed re-fit finds the body (3D IoU 0.65 -> 0.79 against
+    the mesh). 3R carves where the input is pinched; 3RH carves wherever 3R's own starts keep nothing."""
     from sqfit.metrics import iou_3d_mesh
 
     mug, obs = household("mug", 0, 3)
-    default, hull = sqfit.fit(obs), sqfit.fit(obs, "1-2M-3H-3RH")
-    assert "kept the input" in default.stages[-2].message, default.stages[-2].message
-    assert "kept it" in hull.stages[-1].message and "visual hull" in hull.stages[-1].message, hull.stages[-1].message
-    assert iou_3d_mesh(hull.superquadric, mug.mesh) > iou_3d_mesh(default.superquadric, mug.mesh) + 0.1
+    plain, default, hull = sqfit.fit(obs, "1-2M-3H"), sqfit.fit(obs), sqfit.fit(obs, "1-2M-3H-3RH")
+    assert max(plain.superquadric.to_vector()[3:5]) >= trimmed.PINCHED
+    refit = default.stages[-2]
+    assert refit.name == "3R" and "kept it" in refit.message and "visual hull" in refit.message, refit.message
+    np.testing.assert_array_equal(refit.superquadric.to_vector(), hull.superquadric.to_vector())
+    assert iou_3d_mesh(default.superquadric, mug.mesh) > iou_3d_mesh(plain.superquadric, mug.mesh) + 0.1
+    # with the pinch rule off (PINCHED above the input's exponents) 3R keeps the input; 3RH still carves
+    monkeypatch.setattr(trimmed, "PINCHED", 2.0)
+    assert "kept the input" in sqfit.fit(obs).stages[-2].message
+    np.testing.assert_array_equal(sqfit.fit(obs, "1-2M-3H-3RH").superquadric.to_vector(), hull.superquadric.to_vector())
     # where 3R keeps a re-fit, 3RH keeps the same one without carving
     body, obs = _mug_observations()
     np.testing.assert_array_equal(sqfit.fit(obs).superquadric.to_vector(),
                                   sqfit.fit(obs, "1-2M-3H-3RH").superquadric.to_vector())
+
+
+def test_a_refit_whose_silhouettes_leave_the_masks_is_not_kept(household, monkeypatch):
+    """scenes/household.toml, laptops only, seed 4, trial 4: 3H's fit is pinched, 3R's own starts keep
+    nothing, and the trimmed re-fit from a cylinder about the visual hull fit's axis runs off to 3G's
+    far, huge minimum (half-axes of 200-1850 m) whose truncated cost is nearly 0; its silhouettes miss
+    the masks (R-IOU-M 0.002), so 3R keeps the input."""
+    _, obs = household("laptop", 4, 4)
+    res = sqfit.fit(obs)
+    refit = res.stages[-2]
+    assert refit.name == "3R" and "kept the input" in refit.message
+    assert "its silhouettes leave the masks" in refit.message, refit.message
+    assert max(res.superquadric.to_vector()[:3]) < 5.0
+    monkeypatch.setattr(trimmed, "MIN_OVERLAP", 0.0)  # without the check the far, huge fit is kept
+    assert max(sqfit.fit(obs).superquadric.to_vector()[:3]) > 100.0
+

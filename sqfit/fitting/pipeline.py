@@ -38,7 +38,8 @@ PAPER_CHAINS = ("3A", "3B", "1-3A", "1-2-3A", "1-2-3B", "3E", "1-3E", "1-2-3C", 
                 "1-2-3D-3E", "1-2-3D-3A", "1-2-3D-3F")
 #: 2M: :mod:`sqfit.fitting.moments`; 3H: :mod:`sqfit.fitting.axis_screen` (README "Beyond the paper"); 3R:
 #: :mod:`sqfit.fitting.trimmed`, 3G without a stretch of outline rays that sticks out of the fit (a handle, a
-#: bottle's neck), acting only where 3H's cost is moderate and the misfit is such a stretch; 3TP:
+#: bottle's neck), acting only where 3H's cost is moderate and the misfit is such a stretch (from the visual
+#: hull's fit too where 3H's fit is pinched and its own starts keep nothing: a mug turned to its handle); 3TP:
 #: :mod:`sqfit.fitting.parts`, G2 on the mask contours where 3G's cost is high (stage 3T), kept only where
 #: what it lets go is such a stretch in several views (a table's legs, a monitor's stand); 3V:
 #: :mod:`sqfit.fitting.least_volume`, 3TP, then, where 3T's trigger holds, of 3TP's fit and fits of the masks
@@ -48,7 +49,7 @@ DEFAULT_CHAIN = "1-2M-3H-3R-3V"
 #: local refinement from it.
 INITIAL_CHAIN = "3G"
 #: The default with stage 3RH in place of 3R (3R, then where none of its re-fits is kept the same from
-#: the visual hull's superquadric: mugs whose fit turned to the handle) and stage 3T without 3TP's gate
+#: the visual hull's superquadric, pinched input or not) and stage 3T without 3TP's gate
 #: (G2 on the mask contours wherever 3G's cost is high: monitors, chairs and laptops gain a little more,
 #: noisy masks of true superquadrics can lose); opt-in (the carving runs wherever 3R keeps nothing),
 #: measured in docs/real-objects.md.
