@@ -125,3 +125,8 @@ def test_a_relative_mesh_path_is_taken_from_the_current_directory(tmp_path, monk
     # in a scene file the same path is relative to the file's directory: scenes/meshes/box.obj, not there
     with pytest.raises(ValueError, match="mesh file not found"):
         load_scene(in_file)
+    # sqsim sweep's --set reads it the same way as every other command's
+    from sqsim.runs.sweep import load_sweep
+
+    swept, _ = load_sweep(in_file, scene_overrides(["objects.path=meshes/box.obj"]))
+    assert swept.objects.path == str(tmp_path / "meshes" / "box.obj")

@@ -60,9 +60,7 @@ def add_arguments(parser):
 def run(args):
     from ..world.scene import scene_overrides
 
-    scene, axes = load_sweep(args.scene)
-    if args.set:
-        scene = scene.with_overrides(scene_overrides(args.set))
+    scene, axes = load_sweep(args.scene, scene_overrides(args.set))
     if args.param or args.values:
         axes = parse_axes(args.param, args.values)
     if not axes:
@@ -105,8 +103,10 @@ def parse_axes(params, values):
     return axes
 
 
-def load_sweep(path):
-    """Scene and axes from a sweep file (or a plain scene, which has no axes).
+def load_sweep(path, overrides=None):
+    """Scene and axes from a sweep file (or a plain scene, which has no axes), with ``overrides``
+    (``{"section.key": value}``, the command's ``--set``) replacing keys before the scene is validated,
+    as :func:`sqsim.world.scene.load_scene` does.
 
     Returns
     -------
@@ -119,7 +119,7 @@ def load_sweep(path):
     data = read_toml(path)
     spec = data.pop("sweep", None)
     if spec is None:
-        return parse_scene(data, source=str(path)), []
+        return parse_scene(data, source=str(path), overrides=overrides), []
     if not isinstance(spec, dict):
         raise ValueError(f"{path}: [sweep] must be a table")
     unknown = set(spec) - {"base", "axis"}
@@ -142,7 +142,7 @@ def load_sweep(path):
         if not isinstance(axis["values"], list) or not axis["values"]:
             raise ValueError(f"{path}: [[sweep.axis]] #{n} values must be a non-empty list")
         axes.append((str(axis["param"]), list(axis["values"])))
-    return parse_scene(merged, source=str(path)), axes
+    return parse_scene(merged, source=str(path), overrides=overrides), axes
 
 
 def point_name(point):

@@ -242,10 +242,7 @@ class Scene:
         """
         data = self.to_dict()
         for dotted, value in dict(overrides).items():
-            section, _, key = str(dotted).partition(".")
-            if section not in _SECTIONS or key not in _CHECKS[section]:
-                raise ValueError(f"{self.source}: unknown override key {dotted!r} "
-                                 f"(use 'section.key', e.g. 'noise.dropout')")
+            section, key = _override_key(dotted, self.source)
             data[section][key] = list(value) if isinstance(value, tuple) else value
         return parse_scene(data, source=self.source)
 
@@ -340,24 +337,15 @@ def load_scene(path, overrides=None):
         Malformed TOML, unknown section or key, or a bad value (message names file and key, and
         the overrides where there are any).
     """
-    mapping = read_toml(path)
-    if not overrides:
-        return parse_scene(mapping, source=str(path))
-    for dotted, value in dict(overrides).items():
-        section, _, key = str(dotted).partition(".")
-        if section not in _SECTIONS or key not in _CHECKS[section]:
-            raise ValueError(f"{path}: unknown override key {dotted!r} (use 'section.key', e.g. 'noise.dropout')")
-        table = mapping.setdefault(section, {})
-        if not isinstance(table, dict):
-            raise ValueError(f"{path}: [{section}] must be a table of keys, got {table!r}")
-        if dotted in PATH_KEYS and isinstance(value, str) and value:
-            value = str(Path.cwd() / Path(value).expanduser())  # an absolute path stays itself
-        table[key] = value
-    try:
-        return parse_scene(mapping, source=str(path))
-    except ValueError as exc:
-        changed = ", ".join(f"{k}={v!r}" for k, v in dict(overrides).items())
-        raise ValueError(f"{exc} (with {changed} set over the file's keys)") from None
+    return parse_scene(read_toml(path), source=str(path), overrides=overrides)
+
+
+def _override_key(dotted, source):
+    """``(section, key)`` of an override key ``"section.key"``; ValueError naming ``source`` if no scene has it."""
+    section, _, key = str(dotted).partition(".")
+    if section not in _SECTIONS or key not in _CHECKS[section]:
+        raise ValueError(f"{source}: unknown override key {dotted!r} (use 'section.key', e.g. 'noise.dropout')")
+    return section, key
 
 
 def read_toml(path):
@@ -381,7 +369,7 @@ def read_toml(path):
         raise ValueError(f"{path}: malformed TOML: {exc}") from None
 
 
-def parse_scene(mapping, source="<string>"):
+def parse_scene(mapping, source="<string>", overrides=None):
     """Validate a scene mapping (the parsed TOML) into a :class:`Scene`.
 
     Parameters
@@ -390,6 +378,9 @@ def parse_scene(mapping, source="<string>"):
         ``section -> {key -> value}``; missing sections and keys take their defaults.
     source : str
         File name used in error messages and to resolve a relative ``objects.path``.
+    overrides : dict, optional
+        ``{"section.key": value}`` replacing keys of ``mapping`` (not changed) before it is
+        validated, as :func:`load_scene` takes them; an error then also names them.
 
     Returns
     -------
@@ -397,6 +388,21 @@ def parse_scene(mapping, source="<string>"):
     """
     if not isinstance(mapping, dict):
         raise ValueError(f"{source}: a scene must be a mapping of sections, got {type(mapping).__name__}")
+    if overrides:
+        mapping = {name: dict(values) if isinstance(values, dict) else values for name, values in mapping.items()}
+        for dotted, value in dict(overrides).items():
+            section, key = _override_key(dotted, source)
+            table = mapping.setdefault(section, {})
+            if not isinstance(table, dict):
+                raise ValueError(f"{source}: [{section}] must be a table of keys, got {table!r}")
+            if dotted in PATH_KEYS and isinstance(value, str) and value:
+                value = str(Path.cwd() / Path(value).expanduser())  # an absolute path stays itself
+            table[key] = value
+        try:
+            return parse_scene(mapping, source)
+        except ValueError as exc:
+            changed = ", ".join(f"{k}={v!r}" for k, v in dict(overrides).items())
+            raise ValueError(f"{exc} (with {changed} set over the file's keys)") from None
     sections = {}
     for name, values in mapping.items():
         if name not in _SECTIONS:
