@@ -367,12 +367,15 @@ def _kept_refit(xi0, obs, options, hull):
             ev = stretches(best, rays, pen)
             detail = (f"{ev.stretch} of {len(rays)} rays outliers in stretches of {ev.views} views, {ev.contrary} "
                       f"passing through by > {PHI_MIN:g}, {ev.beyond} beyond it")
-            overlap = r_iou_m([to_superquadric(best)], obs)[0] if ev.part else None
-            if ev.part and overlap >= MIN_OVERLAP:
-                note = f"truncated cost {before:.3g} -> {best_cost:.3g} (trimmed re-fit from the {best_name}, {detail})"
-                return (best, best_cost), nfev, note
-            what += (f" ({detail}: no part sticks out)" if not ev.part else
-                     f" ({detail}; its silhouettes leave the masks, R-IOU-M {overlap:.3f})")
+            if not ev.part:
+                what += f" ({detail}: no part sticks out)"
+            else:
+                overlap = r_iou_m([to_superquadric(best)], obs)[0]
+                if overlap >= MIN_OVERLAP:
+                    note = (f"truncated cost {before:.3g} -> {best_cost:.3g} (trimmed re-fit from the {best_name}, "
+                            f"{detail})")
+                    return (best, best_cost), nfev, note
+                what += f" ({detail}; its silhouettes leave the masks, R-IOU-M {overlap:.3f})"
         found.append(what)
     return None, nfev, f"truncated cost {before:.3g}, " + ("; ".join(found) or "no candidate")
 
