@@ -29,6 +29,10 @@ is not published as a package; the one superquadric package on PyPI that fits po
 scikit-learn to ``sqfit``. The mixture, the E-step and the S-step are a few lines over
 ``scipy.optimize.least_squares``, which does the optimisation.
 
+The radial residuals and their Jacobian run in one compiled loop where numba is chosen
+(:mod:`sqfit.kernels.backend`, :func:`sqfit.kernels.hull_kernels.radial_residuals`: the same numbers to
+rounding); what is left of EMS's time is ``least_squares``'s own (its SVDs and bookkeeping).
+
 Deterministic: no random numbers (a cloud larger than ``max_points`` is thinned by a fixed stride).
 """
 
@@ -42,6 +46,7 @@ from scipy.optimize import least_squares
 from .. import constants as C
 from .._checks import check_shape
 from ..geometry.superquadric import matrix_to_euler, rotation_and_derivatives
+from ..kernels.backend import compiled
 from .restarts import symmetric_candidates
 
 __all__ = ["PointFit", "fit_points", "radial_residuals", "OUTLIER_WEIGHT", "MAX_POINTS", "EM_ITERATIONS",
@@ -126,6 +131,14 @@ def radial_residuals(xi, points, jacobian=False):
         coordinate are taken as 0, their limit for ``e < 2``).
     """
     R, dR = rotation_and_derivatives(xi[8:11])
+    kernels = compiled("hull")
+    if kernels is not None:  # the same formulas in one compiled loop (sqfit.kernels.hull_kernels)
+        xi = np.asarray(xi, dtype=np.float64)
+        points = np.ascontiguousarray(points, dtype=np.float64)
+        d = np.empty(len(points))
+        J = np.empty((len(points), C.N_PARAMS) if jacobian else (0, C.N_PARAMS))
+        kernels.radial_residuals(xi, points, R, dR, bool(jacobian), d, J)
+        return (d, J) if jacobian else d
     offset = points - xi[5:8]
     t = offset @ R
     a, e1, e2 = np.abs(xi[0:3]), xi[3], xi[4]

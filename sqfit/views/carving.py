@@ -28,6 +28,11 @@ survived or touch one. At the fine level voxel centres are the carving test poin
 silhouette whose centre is not is carved (the usual convention), so the hull's faces are within
 half a voxel of the true visual hull's.
 
+The test runs per view in one compiled loop where numba is chosen (:mod:`sqfit.kernels.backend`,
+:func:`sqfit.kernels.hull_kernels.carve_view`: the same carvings), and the fine level makes only the
+centres inside the coarse survivors' neighbourhood (about 2.5x less carving time on household objects,
+``benchmarks/bench_hull.py``).
+
 Grid convention: ``VoxelHull.occupied[i, j, k]`` is the voxel whose centre is
 ``origin + voxel * (i, j, k)`` (world frame, metres).
 """
@@ -41,6 +46,7 @@ import numpy as np
 from .._checks import check_shape
 from ..geometry.camera import project
 from ..geometry.raster import fill_polygon  # re-exported (it lived here)
+from ..kernels.backend import compiled
 from .observation import Observation
 from .visibility import OCCLUDER_REACH_PX
 
@@ -194,7 +200,14 @@ def carve(observations, points, radius=0.0, clearances=None):
         clearances = [background_clearance(o) for o in obs]
     carved = np.zeros(len(points), dtype=bool)
     seen = np.zeros(len(points), dtype=np.int64)
+    kernels = compiled("hull")
     for o, clearance in zip(obs, clearances):
+        if kernels is not None:  # the same test in one compiled loop (sqfit.kernels.hull_kernels)
+            k, cam = o.camera.intrinsics, o.camera
+            kernels.carve_view(points, np.asarray(cam.center, dtype=np.float64),
+                               np.asarray(cam.rotation, dtype=np.float64), float(k.fx), float(k.fy), float(k.cx),
+                               float(k.cy), int(k.width), int(k.height), clearance, float(radius), carved, seen)
+            continue
         uv, depth = project(o.camera, points)
         k = o.camera.intrinsics
         carved |= depth + radius <= 0
@@ -278,13 +291,17 @@ def _refine(obs, clearances, coarse_hull, fine):
     cells = np.maximum(np.ceil((hi - lo) / voxel).astype(np.int64), 1)
     if np.prod(cells) > _MAX_FINE_VOXELS:
         raise ValueError(f"fine grid of {cells.tolist()} voxels is too large; lower fine ({fine})")
-    points = _grid(lo + 0.5 * voxel, cells, voxel)
-    # Only points inside a coarse voxel that survived or touches one can survive.
+    # Only points inside a coarse voxel that survived or touches one can survive. The grid is
+    # separable: each axis's fine centres fall in coarse cells of their own, so the candidates are
+    # picked per axis, and only their centres are made (the same numbers as the full grid's).
     near = ndimage.binary_dilation(coarse_hull.occupied, np.ones((3, 3, 3), dtype=bool))
-    cell = np.floor((points - coarse_hull.origin) / c_voxel + 0.5).astype(np.int64)
-    inside = np.all((cell >= 0) & (cell < np.array(near.shape)), axis=1)
-    candidate = np.zeros(len(points), dtype=bool)
-    candidate[inside] = near[tuple(cell[inside].T)]
-    keep = np.zeros(len(points), dtype=bool)
-    keep[candidate] = carve(obs, points[candidate], 0.0, clearances)
-    return VoxelHull(keep.reshape(tuple(cells)), lo + 0.5 * voxel, voxel)
+    lower = lo + 0.5 * voxel
+    axes = [lower[i] + voxel * np.arange(cells[i]) for i in range(3)]
+    cell = [np.floor((axes[i] - coarse_hull.origin[i]) / c_voxel + 0.5).astype(np.int64) for i in range(3)]
+    valid = [(c >= 0) & (c < near.shape[i]) for i, c in enumerate(cell)]
+    candidate = np.zeros(tuple(cells), dtype=bool)
+    candidate[np.ix_(*valid)] = near[np.ix_(*(c[v] for c, v in zip(cell, valid)))]
+    idx = np.nonzero(candidate)
+    keep = np.zeros(tuple(cells), dtype=bool)
+    keep[idx] = carve(obs, np.stack([axes[i][idx[i]] for i in range(3)], axis=1), 0.0, clearances)
+    return VoxelHull(keep, lower, voxel)
