@@ -8,9 +8,11 @@ Stage ``HULL`` (:mod:`sqfit.fitting.hull`), and stage 3R's starts from the visua
   the views whose image holds it. The numpy code makes a dozen temporary arrays of all the points
   per view (up to ~10^6 voxel centres at the fine level);
 - :func:`radial_residuals`, :func:`sqfit.fitting.pointcloud.radial_residuals` (EMS's radial
-  distances and their Jacobian), evaluated about 150 times per fit on up to 1500 points; numpy's
-  per-call overhead and its ``einsum`` for the rotation's derivatives were ~60 % of EMS's time in a
+  distances and their Jacobian, on up to 1500 points, at every step of every M-step); with numpy
+  (its ``einsum`` for the rotation's derivatives included) they were about half of EMS's time in a
   pyinstrument profile (the pybullet mug, 5 fits).
+
+``benchmarks/bench_hull.py`` measures both (README, "Fitter speed").
 
 The same formulas in the same order as the numpy code, without ``fastmath``; the elementary functions
 (numpy's ``exp``, ``log``, ``logaddexp`` against libm's) and the order of the 3-term sums may differ in

@@ -30,7 +30,7 @@ half a voxel of the true visual hull's.
 
 The test runs per view in one compiled loop where numba is chosen (:mod:`sqfit.kernels.backend`,
 :func:`sqfit.kernels.hull_kernels.carve_view`: the same carvings), and the fine level makes only the
-centres inside the coarse survivors' neighbourhood (about 2.5x less carving time on household objects,
+centres inside the coarse survivors' neighbourhood (about 2.4x less carving time on household objects,
 ``benchmarks/bench_hull.py``).
 
 Grid convention: ``VoxelHull.occupied[i, j, k]`` is the voxel whose centre is
