@@ -143,7 +143,9 @@ def test_3r_starts_from_the_visual_hull_where_the_input_is_pinched(household, mo
     plain, default, hull = sqfit.fit(obs, "1-2M-3H"), sqfit.fit(obs), sqfit.fit(obs, "1-2M-3H-3RH")
     assert max(plain.superquadric.to_vector()[3:5]) >= trimmed.PINCHED
     refit = default.stages[-2]
-    assert refit.name == "3R" and "kept it" in refit.message and "visual hull" in refit.message, refit.message
+    # from the visual hull's fit or a cylinder about its axes: both end in the same fit, and which
+    # of the two is named (their costs tie) turns on rounding (numba against numpy kernels)
+    assert refit.name == "3R" and "kept it" in refit.message and "hull" in refit.message, refit.message
     np.testing.assert_array_equal(refit.superquadric.to_vector(), hull.superquadric.to_vector())
     assert iou_3d_mesh(default.superquadric, mug.mesh) > iou_3d_mesh(plain.superquadric, mug.mesh) + 0.1
     # with the pinch rule off (PINCHED above the input's exponents) 3R keeps the input; 3RH still carves
