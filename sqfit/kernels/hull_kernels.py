@@ -18,8 +18,9 @@ The same formulas in the same order as the numpy code, without ``fastmath``; the
 (numpy's ``exp``, ``log``, ``logaddexp`` against libm's) and the order of the 3-term sums may differ in
 the last bit, so the two paths agree to rounding (``tests/test_hull_kernels.py``: the same carvings,
 residuals within 1e-12 relative). Importing this module imports numba; :mod:`sqfit.kernels.backend`
-does that lazily (part ``"hull"``). Compiled on first use and cached next to this file; it calls no
-other file's kernels, and refreshes the cache (:mod:`sqfit.kernels.kernel_cache`) as the others do.
+does that lazily (part ``"hull"``). Compiled on first use and cached next to this file; it calls
+:mod:`sqfit.kernels.ray_kernels`'s ``logaddexp``, whose import refreshes the cache
+(:mod:`sqfit.kernels.kernel_cache`).
 """
 
 from __future__ import annotations
@@ -29,12 +30,11 @@ import math
 import numpy as np
 from numba import njit
 
-from .kernel_cache import refresh_for
+from .ray_kernels import logaddexp
 
 __all__ = ["carve_view", "radial_residuals"]
 
 _JIT = dict(cache=True, error_model="numpy", nogil=True)
-_LOG2 = math.log(2.0)
 
 
 @njit(**_JIT)
@@ -70,19 +70,6 @@ def carve_view(points, center, rotation, fx, fy, cx, cy, width, height, clearanc
 
 
 @njit(**_JIT)
-def _logaddexp(x, y):
-    """numpy's ``logaddexp`` of two floats (its branches: equal arguments, infinities, NaN)."""
-    if x == y:
-        return x + _LOG2
-    tmp = x - y
-    if tmp > 0.0:
-        return x + math.log1p(math.exp(-tmp))
-    if tmp <= 0.0:
-        return y + math.log1p(math.exp(tmp))
-    return tmp
-
-
-@njit(**_JIT)
 def radial_residuals(xi, points, rotation, d_rotation, jacobian, d, J):
     """:func:`sqfit.fitting.pointcloud.radial_residuals` into ``d`` (and ``J`` where ``jacobian``).
 
@@ -110,8 +97,8 @@ def radial_residuals(xi, points, rotation, d_rotation, jacobian, d, J):
             la[i] = (math.log(at) if at > 0.0 else -math.inf) - la_a[i]
             safe[i] = la[i] if math.isfinite(la[i]) else 0.0
         norm = max(math.sqrt(sq), 1e-300)
-        xy = _logaddexp((2.0 / e2) * la[0], (2.0 / e2) * la[1])
-        log_f = _logaddexp((e2 / e1) * xy, (2.0 / e1) * la[2])
+        xy = logaddexp((2.0 / e2) * la[0], (2.0 / e2) * la[1])
+        log_f = logaddexp((e2 / e1) * xy, (2.0 / e1) * la[2])
         ratio = math.exp(-0.5 * e1 * log_f)
         d[n] = norm * (ratio - 1.0)
         if not jacobian:
@@ -142,7 +129,3 @@ def radial_residuals(xi, points, rotation, d_rotation, jacobian, d, J):
                 acc += dd_dt[i] * (d_rotation[q, 0, i] * off[0] + d_rotation[q, 1, i] * off[1]
                                    + d_rotation[q, 2, i] * off[2])
             J[n, 8 + q] = acc
-
-
-# before any kernel here runs (sqfit.kernels.kernel_cache)
-refresh_for(carve_view)

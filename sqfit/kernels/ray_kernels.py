@@ -28,7 +28,7 @@ from numba import njit
 
 from .kernel_cache import refresh_for
 
-__all__ = ["nan_max", "nan_min", "ray_minimiser", "gauge_minima", "rotation", "log_gauge_point", "crossing_fix",
+__all__ = ["nan_max", "nan_min", "logaddexp", "ray_minimiser", "gauge_minima", "rotation", "log_gauge_point", "crossing_fix",
            "ray_block", "penalty_rows", "ray_rows", "posed_rows", "radial_rows", "g5_rows", "log_gauge_rows"]
 
 _TINY = 1e-300
@@ -52,8 +52,8 @@ def nan_min(a, b):
 
 
 @njit(**_JIT)
-def _logaddexp(x, y):
-    """``np.logaddexp``."""
+def logaddexp(x, y):
+    """``np.logaddexp`` of two floats (its branches: equal arguments, infinities, NaN)."""
     if x == y:
         return x + _LOGE2
     t = x - y
@@ -252,10 +252,10 @@ def _radial_point(xi, log_a, R, dR, px, py, pz, d_xi, d_point):
     la1 = math.log(abs(y1)) - log_a[1]
     la2 = math.log(abs(y2)) - log_a[2]
     X0, X1 = (2.0 / e2) * la0, (2.0 / e2) * la1
-    XY = _logaddexp(X0, X1)
+    XY = logaddexp(X0, X1)
     w0, w1 = math.exp(X0 - XY), math.exp(X1 - XY)
     A, Bz = (e2 / e1) * XY, (2.0 / e1) * la2
-    L = _logaddexp(A, Bz)
+    L = logaddexp(A, Bz)
     wA = math.exp(A - L)
     wB = 1.0 - wA
     S = math.exp(0.5 * (math.log(norm2) - e1 * L))
