@@ -28,8 +28,9 @@ from numba import njit
 
 from .kernel_cache import refresh_for
 
-__all__ = ["nan_max", "nan_min", "logaddexp", "ray_minimiser", "gauge_minima", "rotation", "log_gauge_point", "crossing_fix",
-           "ray_block", "penalty_rows", "ray_rows", "posed_rows", "radial_rows", "g5_rows", "log_gauge_rows"]
+__all__ = ["nan_max", "nan_min", "logaddexp", "ray_minimiser", "gauge_minima", "rotation", "log_gauge_point",
+           "crossing_fix", "ray_block", "penalty_rows", "ray_rows", "posed_rows", "radial_rows", "g5_rows",
+           "log_gauge_rows"]
 
 _TINY = 1e-300
 _LOGE2 = math.log(2.0)
