@@ -33,14 +33,14 @@ def _best(fn, repeat):
     return 1e3 * best, out
 
 
-def main():
+def main(argv=None):
     parser = scene_parser(__doc__, "runs per measurement (the fastest is kept)", trials=20)
     parser.set_defaults(scene=str(ROOT / "scenes" / "household.toml"))
     parser.add_argument("--set", dest="overrides", action="append", default=[], metavar="SECTION.KEY=VALUE",
                         help="scene override, as sqsim experiment's --set")
     parser.add_argument("--chain", default="hull", help="the chain timed whole (default: hull)")
     parser.add_argument("--kernels", default="numba,numpy", help="kernel choices to compare")
-    args = parser.parse_args()
+    args = parser.parse_args(argv)
 
     import sqfit
     from sqfit.fitting.costs import ObservationSet
