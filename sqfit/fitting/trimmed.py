@@ -112,9 +112,8 @@ from ..geometry.superquadric import euler_to_matrix, matrix_to_euler
 
 __all__ = ["ROUNDS", "CUT", "PHI_MIN", "KEEP", "CYLINDER_SHAPE", "MIN_COST", "PINCHED", "MIN_OVERLAP", "RUN_RAYS",
            "STRETCH_RAYS", "STRETCH_VIEWS", "CONTRARY_FRACTION", "ray_phi", "outlier_rays", "outline_runs", "Stretches",
-           "stretches",
-           "trim_refit", "truncated_cost", "cylinder_starts", "hull_starts", "HULL_MIN_POINTS", "trimmed_stage",
-           "trimmed_hull_stage"]
+           "stretches", "trim_refit", "truncated_cost", "cylinder_starts", "hull_starts", "HULL_MIN_POINTS",
+           "trimmed_stage", "trimmed_hull_stage"]
 
 #: Trim-and-refit rounds.
 ROUNDS = 3

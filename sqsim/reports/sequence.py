@@ -105,10 +105,10 @@ def plot_sequence(seq, path, frusta=FRUSTA):
 
 
 def add_arguments(parser):
-    from ..world.scene import SET_HELP
+    from ..world.scene import add_set_option
 
     parser.add_argument("scene", help="sequence scene TOML file (trajectory.kind = \"orbit\" or \"waypoints\")")
-    parser.add_argument("--set", action="append", default=[], metavar="SECTION.KEY=VALUE", help=SET_HELP)
+    add_set_option(parser)
     parser.add_argument("--seed", type=int, default=None, help="seed (default: experiment.seed)")
     parser.add_argument("--index", type=int, default=0, help="sequence index (trial of a dataset with this seed)")
     parser.add_argument("--figure", default=None, help="write the top-down figure (PNG) here")

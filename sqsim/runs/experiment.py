@@ -61,10 +61,10 @@ STAGE_IOU_CELLS = 2**16
 # --------------------------------------------------------------------------- command line
 
 def add_arguments(parser):
-    from ..world.scene import SET_HELP
+    from ..world.scene import add_set_option
 
     parser.add_argument("scene", help="scene / experiment TOML file (see scenes/paper.toml)")
-    parser.add_argument("--set", action="append", default=[], metavar="SECTION.KEY=VALUE", help=SET_HELP)
+    add_set_option(parser)
     parser.add_argument("-o", "--output", required=True, help="output directory (created; resumed if it exists)")
     parser.add_argument("--trials", type=int, default=None, help="number of trials (default: the scene's)")
     parser.add_argument("--chains", default=None,

@@ -18,7 +18,7 @@ from sqfit.views.dataset import load_trial, trial_dirs
 from ..data.dataset import build_annotations, prepare_dataset, trial_name, write_trial
 from ..data.files import atomic_write_text
 from ..data.sequence_dataset import finish_sequence_dataset, write_sequence_trial
-from ..world.scene import SET_HELP, load_scene, parse_scene, scene_overrides
+from ..world.scene import add_set_option, load_scene, parse_scene, scene_overrides
 from ..world.trajectory import is_sequence
 
 __all__ = ["generate", "add_arguments", "run"]
@@ -173,7 +173,7 @@ def _run(scene, todo, root, workers, scheduler, progress):
 def add_arguments(parser):
     parser.add_argument("scene", help="scene TOML file (keys: README, \"Scene files\"; example: scenes/paper.toml)")
     parser.add_argument("-o", "--output", required=True, help="dataset directory (created; re-running resumes)")
-    parser.add_argument("--set", action="append", default=[], metavar="SECTION.KEY=VALUE", help=SET_HELP)
+    add_set_option(parser)
     parser.add_argument("--trials", type=int, default=None, help="number of trials (default: experiment.trials)")
     parser.add_argument("--seed", type=int, default=None, help="seed (default: experiment.seed)")
     parser.add_argument("--workers", type=int, default=1, help="worker processes")

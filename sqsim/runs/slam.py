@@ -72,10 +72,10 @@ times; skipped objects and warnings) and topdown.png; over all sequences DIR/sum
 DIR/table.md. Re-running into the same directory resumes: finished sequences are not recomputed.
 
 example: sqsim slam scenes/sequence.toml -o /tmp/slam --sequences 5 --workers 2"""
-    from ..world.scene import SET_HELP
+    from ..world.scene import add_set_option
 
     parser.add_argument("scene", help="sequence scene TOML file, e.g. scenes/sequence.toml")
-    parser.add_argument("--set", action="append", default=[], metavar="SECTION.KEY=VALUE", help=SET_HELP)
+    add_set_option(parser)
     parser.add_argument("-o", "--output", required=True, help="output directory (created; resumed if it exists)")
     parser.add_argument("--sequences", type=int, default=None,
                         help="number of sequences, indices 0..N-1 (default: the scene's experiment.trials)")

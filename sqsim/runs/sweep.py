@@ -39,11 +39,10 @@ QUANTITIES = ("iou", "r_iou", "r_iou_m", "time_s")
 
 
 def add_arguments(parser):
-    from ..world.scene import SET_HELP
+    from ..world.scene import add_set_option
 
     parser.add_argument("scene", help="scene TOML, or a sweep file with a [sweep] table (see scenes/sweep-*.toml)")
-    parser.add_argument("--set", action="append", default=[], metavar="SECTION.KEY=VALUE",
-                        help=SET_HELP + "; applies to the scene every grid point starts from")
+    add_set_option(parser, "applies to the scene every grid point starts from")
     parser.add_argument("-o", "--output", required=True, help="output directory (resumed if it exists)")
     parser.add_argument("--param", action="append", default=[], metavar="KEY",
                         help="scene key to sweep, e.g. noise.boundary_jitter_px (repeat for a grid)")

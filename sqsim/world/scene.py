@@ -31,7 +31,7 @@ from .values import (boolean, catalogue, choice, integer, interval, nonempty_str
 
 __all__ = ["Scene", "ExperimentConfig", "CameraConfig", "TrajectoryConfig", "ObjectsConfig",
            "MasksConfig", "NoiseConfig", "FitConfig", "OBJECT_KINDS", "load_scene", "parse_scene", "trial_seed",
-           "child_seed", "camera_poses", "scene_overrides", "SET_HELP", "PATH_KEYS"]
+           "child_seed", "camera_poses", "scene_overrides", "add_set_option", "SET_HELP", "PATH_KEYS"]
 
 OBJECT_KINDS = ("superquadric", "box", "cylinder", "capsule", "cone", "mesh", "household")
 RENDERERS = ("osmesa", "egl", "polygon")
@@ -265,6 +265,13 @@ _BARE_WORD = re.compile(r"[A-Za-z0-9_./~+:][A-Za-z0-9_./~+:\-]*")
 #: Keys that name files: relative in a scene file to the file's directory, relative in ``--set`` to the
 #: current directory (where the user typed it).
 PATH_KEYS = ("objects.path", "trajectory.waypoints_file")
+
+
+def add_set_option(parser, note=""):
+    """Give an ``argparse`` parser the commands' ``--set SECTION.KEY=VALUE`` option (repeatable, read by
+    :func:`scene_overrides`); ``note`` is added to its help."""
+    parser.add_argument("--set", action="append", default=[], metavar="SECTION.KEY=VALUE",
+                        help=SET_HELP + (f"; {note}" if note else ""))
 
 
 def scene_overrides(items):
