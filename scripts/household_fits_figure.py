@@ -16,7 +16,6 @@ off-screen pyrender (OSMesa) camera, with the 3D IoU against the mesh in the pan
 from __future__ import annotations
 
 import argparse
-import json
 import os
 from collections import defaultdict
 from pathlib import Path
@@ -33,6 +32,7 @@ import pyrender  # noqa: E402
 import sqfit  # noqa: E402
 from sqfit.fitting import CHAIN_ALIASES  # noqa: E402
 from sqfit.geometry.superquadric import to_mesh  # noqa: E402
+from sqsim.data.files import read_records  # noqa: E402
 from sqsim.world.objects import make_object  # noqa: E402
 
 PIXELS = 300
@@ -51,11 +51,13 @@ def _records(run_dirs):
         path = Path(run_dir) / "trials.jsonl"
         if not path.is_file():
             raise SystemExit(f"{path} not found: each RUN_DIR must be an sqsim experiment output")
-        for line in path.read_text().splitlines():
-            if line.strip():
-                r = json.loads(line)
-                if "item" in r.get("gt", {}) and r.get("limit"):
-                    by_object[(index, r["trial"], r["object"])][r["chain"]] = r
+        try:
+            records = read_records(path)  # as a resumed run reads them: a line cut short by a kill is dropped
+        except ValueError as exc:
+            raise SystemExit(str(exc)) from None
+        for r in records:
+            if "item" in r.get("gt", {}) and r.get("limit"):
+                by_object[(index, r["trial"], r["object"])][r["chain"]] = r
     if not by_object:
         raise SystemExit(f"{', '.join(map(str, run_dirs))}: no household objects with a representation limit")
     return by_object

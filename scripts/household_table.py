@@ -25,6 +25,7 @@ from pathlib import Path
 import numpy as np
 
 from sqfit.fitting import CHAIN_ALIASES
+from sqsim.data.files import read_records
 
 #: Row order: the furniture first, as the README's tables.
 KINDS = ("table", "monitor", "lamp", "toy", "chair", "laptop", "bowl", "mug", "bottle", "plant_pot", "book", "can")
@@ -38,13 +39,15 @@ def _runs(run_dirs):
         if not path.is_file() or not config.is_file():
             raise SystemExit(f"{run_dir}: not an sqsim experiment output (trials.jsonl and experiment.json)")
         seed = int(json.loads(config.read_text())["scene"]["experiment"]["seed"])
-        for line in path.read_text().splitlines():
-            if line.strip():
-                r = json.loads(line)
-                gt = r.get("gt", {})
-                kind = gt.get("item") or (Path(gt["path"]).stem if gt.get("path") else None)
-                if kind is not None:
-                    pooled[kind][seed][r["chain"]].append(r)
+        try:
+            records = read_records(path)  # as a resumed run reads them: a line cut short by a kill is dropped
+        except ValueError as exc:
+            raise SystemExit(str(exc)) from None
+        for r in records:
+            gt = r.get("gt", {})
+            kind = gt.get("item") or (Path(gt["path"]).stem if gt.get("path") else None)
+            if kind is not None:
+                pooled[kind][seed][r["chain"]].append(r)
     if not pooled:
         raise SystemExit(f"{', '.join(map(str, run_dirs))}: no household or mesh-file objects")
     return pooled
