@@ -1,0 +1,220 @@
+"""Two superquadrics for an object's masks, and the best single one of them (household kinds).
+
+Usage::
+
+    OPENBLAS_NUM_THREADS=1 python scripts/two_part_probe.py [--scene scenes/household.toml] \
+        [--kinds chair laptop ...] [--trials 10] [--seed 0] [--mu 0.2] [--limits DIR] [--records FILE]
+
+A lead measured, not adopted (too slow and its choice of part unreliable), kept so that it can be
+repeated. An open laptop or a chair's seat and back are two slabs at an angle; their best single
+superquadric (the representation limit, :func:`sqfit.limit.best_superquadric`) is one slab, but
+the default's fit, like the visual hull, fills the wedge between them (3D IoU about 0.09 against
+limits of 0.45-0.66). The masks do show the two slabs: the default's silhouettes match them to a
+mean IoU of 0.7-0.8 only. So for each trial this fits the *union* of two superquadrics to the
+masks, from twelve L-shaped starts (each pair of adjacent faces of the default fit's box, each a
+slab :data:`THIN` of the box thick), by least squares on ``1 - IoU`` per view of the union's
+silhouettes with the mask contours (the masks with their thin parts opened away,
+:func:`sqfit.fitting.least_volume.bulk_observations`, where any view has one: a chair's legs)
+plus ``mu`` times the parts' total volume over the default fit's (the least volume that matches,
+as stage 3V picks), and keeps the start of the lowest objective. Then one of the two parts is the
+answer; which one, the masks must say. Two rules are reported: the part of higher estimated 3D
+IoU with the union (a uniform sample of the union), and the part whose own silhouettes match the
+masks better. And a gate: the first rule's part only where the union matches the masks better than
+the default's fit by at least ``--gate`` in mean silhouette IoU, else the default's fit.
+
+Per trial it prints the default's 3D IoU against the mesh and its silhouettes' mean IoU with the
+(opened) masks, the union's, the rules' picks, the better of the two parts, the gated pick and the
+limit; then per kind the medians. ``--records FILE`` appends one JSON line per trial (parts' parameters included).
+Measured: docs/real-objects.md, "Two parts for two slabs".
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import time
+import tomllib
+
+os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
+
+import numpy as np  # noqa: E402
+from scipy.optimize import least_squares  # noqa: E402
+
+import sqfit  # noqa: E402
+from sqfit.fitting.costs import ObservationSet  # noqa: E402
+from sqfit.fitting.least_volume import bulk_observations  # noqa: E402
+from sqfit.fitting.stages import to_superquadric  # noqa: E402
+from sqfit.geometry.silhouette import batch_silhouettes, camera_arrays  # noqa: E402
+from sqfit.geometry.superquadric import contains, euler_to_matrix, volume  # noqa: E402
+from sqfit.metrics import iou_3d_mesh  # noqa: E402
+from sqsim.imaging.render import get_renderer  # noqa: E402
+from sqsim.imaging.trial import observations, simulate_trial  # noqa: E402
+from sqsim.world.limit import LimitCache, object_limit  # noqa: E402
+from sqsim.world.scene import parse_scene  # noqa: E402
+
+#: A start's slabs are this share of the default fit's box thick.
+THIN = 0.15
+#: Vertices per silhouette.
+VERTICES = 48
+#: Least-squares evaluations per start.
+EVALUATIONS = 100
+#: Forward-difference step of the Jacobian (relative, as scipy's ``diff_step``).
+STEP = 1e-3
+#: Points of the union's uniform sample (the rules' IoU estimate).
+UNION_POINTS = 20000
+#: Seed of that sample.
+SEED = 0
+#: Default of ``--gate``: the union's silhouette gain over the default's fit that lets a part replace it.
+GATE = 0.12
+
+
+def l_starts(xi, thin=THIN):
+    """``(12, 2, 11)``: for each pair of adjacent faces of the box of the fit ``xi`` (its frame and
+    half-axes), a slab along each face, ``thin`` of the box thick, with boxy exponents."""
+    a, R, p = np.abs(xi[0:3]), euler_to_matrix(xi[8:11]), xi[5:8]
+    starts = []
+    for i, j in ((0, 1), (0, 2), (1, 2)):
+        for si in (-1.0, 1.0):
+            for sj in (-1.0, 1.0):
+                pair = []
+                for axis, sign in ((i, si), (j, sj)):
+                    size = a.copy()
+                    size[axis] *= thin
+                    centre = p + R[:, axis] * sign * a[axis] * (1.0 - thin)
+                    pair.append(np.r_[size, 0.2, 0.2, centre, xi[8:11]])
+                starts.append(pair)
+    return np.array(starts)
+
+
+def union_ious(X, cameras, contours):
+    """``(b, v)``: IoU of the union of each row's superquadrics' silhouettes (``X`` ``(b, m, 11)``)
+    with each view's contour (shapely polygons); 0 where a silhouette is not valid."""
+    import shapely
+
+    b, m = X.shape[:2]
+    polys, valid, _ = batch_silhouettes(X.reshape(b * m, 11), *cameras, VERTICES)
+    polys, valid = polys.reshape(b, m, *polys.shape[1:]), valid.reshape(b, m, -1)
+    out = np.zeros((b, len(contours)))
+    for v, contour in enumerate(contours):
+        shapes = shapely.make_valid(shapely.polygons(polys[:, :, v]))
+        union = shapely.union_all(shapes, axis=1)
+        inter = shapely.area(shapely.intersection(union, contour))
+        out[:, v] = inter / (shapely.area(union) + contour.area - inter)
+    out[~valid.all(axis=1)] = 0.0
+    return out
+
+
+def _volumes(X):
+    return np.array([[volume(to_superquadric(x)) for x in row] for row in X]).sum(axis=1)
+
+
+def fit_union(start, cameras, contours, mu, reference):
+    """Least squares from ``start`` ``(m, 11)``: ``1 - IoU`` per view and ``mu`` x the parts' volume
+    over ``reference``. Returns the parts ``(m, 11)``, the union's mean silhouette IoU and the
+    objective (the sum of the residuals)."""
+    shape = start.shape
+    lower = np.tile(np.r_[[1e-3] * 3, 0.05, 0.05, [-np.inf] * 6], shape[0])
+    upper = np.tile(np.r_[[np.inf] * 3, 1.9, 1.9, [np.inf] * 6], shape[0])
+
+    def rows(X):
+        return np.column_stack([1.0 - union_ious(X, cameras, contours), mu * _volumes(X) / reference])
+
+    def residuals(x):
+        return rows(x.reshape(1, *shape))[0]
+
+    def jacobian(x):
+        h = STEP * np.maximum(np.abs(x), 1.0)
+        h = np.where(x + h > upper, -h, h)  # stay inside the bounds
+        X = np.vstack([x, x + np.diag(h)])
+        r = rows(X.reshape(-1, *shape))
+        return ((r[1:] - r[0]) / h[:, None]).T
+
+    x0 = np.clip(start.ravel(), lower + 1e-6, upper - 1e-6)
+    res = least_squares(residuals, x0, jac=jacobian, bounds=(lower, upper), x_scale="jac", max_nfev=EVALUATIONS)
+    return res.x.reshape(shape), 1.0 - res.fun[:-1].mean(), float(res.fun.sum())
+
+
+def union_sample(parts, n, rng):
+    """A uniform sample of the union of ``parts`` (superquadrics) and its volume."""
+    lo = np.min([q.position - 1.8 * np.abs(q.size).max() for q in parts], axis=0)
+    hi = np.max([q.position + 1.8 * np.abs(q.size).max() for q in parts], axis=0)
+    points, kept, drawn = [], 0, 0
+    while kept < n:
+        u = rng.uniform(lo, hi, (100000, 3))
+        inside = np.zeros(len(u), dtype=bool)
+        for q in parts:
+            inside |= contains(q, u)
+        points.append(u[inside])
+        kept, drawn = kept + inside.sum(), drawn + len(u)
+    return np.vstack(points)[:n], float(np.prod(hi - lo) * kept / drawn)
+
+
+def trial_row(scene, index, renderer, mu, cache):
+    """One trial's figures (a dict)."""
+    sim = simulate_trial(scene, index, renderer)
+    obj = sim.objects[0]
+    obs = ObservationSet(list(observations(sim, obj.id, scene)))
+    fit = sqfit.fit(obs.observations).superquadric
+    xi = fit.to_vector()
+    t0 = time.process_time()
+    bulk = bulk_observations(obs) or obs
+    import shapely
+
+    contours = [shapely.Polygon(o.contour).buffer(0) for o in bulk.observations]
+    cameras = camera_arrays([o.camera for o in obs.observations])
+    single = union_ious(xi[None, None], cameras, contours)[0].mean()
+    best = min((fit_union(start, cameras, contours, mu, volume(fit)) for start in l_starts(xi)), key=lambda t: t[2])
+    X, union = best[0], best[1]
+    parts = [to_superquadric(x) for x in X]
+    seconds = time.process_time() - t0
+    rng = np.random.default_rng(SEED)
+    sample, vol = union_sample(parts, UNION_POINTS, rng)
+    share = [contains(q, sample).mean() * vol for q in parts]
+    estimate = [s / (volume(q) + vol - s) for s, q in zip(share, parts)]
+    alone = union_ious(X[:, None], cameras, contours).mean(axis=1)
+    ious = [iou_3d_mesh(q, obj.mesh) for q in parts]
+    return {"trial": index, "default": iou_3d_mesh(fit, obj.mesh), "single_sil": float(single), "union_sil": float(union),
+            "parts": ious, "by_union": ious[int(np.argmax(estimate))], "by_silhouette": ious[int(np.argmax(alone))],
+            "limit": object_limit(obj, cache).iou, "seconds": seconds, "parts_xi": X.tolist()}
+
+
+def main(argv=None):
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--scene", default="scenes/household.toml")
+    parser.add_argument("--kinds", nargs="+", default=["chair", "laptop"])
+    parser.add_argument("--trials", type=int, default=10)
+    parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--mu", type=float, default=0.2, help="weight of the parts' volume (default 0.2)")
+    parser.add_argument("--gate", type=float, default=GATE,
+                        help=f"silhouette gain of the union that lets a part replace the default's fit (default {GATE})")
+    parser.add_argument("--limits", default=None, help="directory of cached limits (an experiment's DIR/limits)")
+    parser.add_argument("--records", default=None, help="append one JSON line per trial to this file")
+    args = parser.parse_args(argv)
+    if not args.mu >= 0:
+        parser.error(f"--mu must be >= 0, got {args.mu}")
+    with open(args.scene, "rb") as f:
+        scene_dict = tomllib.load(f)
+    cache = LimitCache(args.limits) if args.limits else None
+    columns = ("default", "single_sil", "union_sil", "by_union", "by_silhouette", "best_part", "gated", "limit",
+               "seconds")
+    for kind in args.kinds:
+        scene = parse_scene({**scene_dict, "objects": {**scene_dict["objects"], "catalogue": [kind]},
+                             "experiment": {**scene_dict["experiment"], "seed": args.seed}}, source=kind)
+        renderer = get_renderer(scene.masks.renderer, scene.intrinsics)
+        rows = []
+        for index in range(args.trials):
+            row = trial_row(scene, index, renderer, args.mu, cache)
+            row["best_part"] = max(row["parts"])
+            row["gated"] = row["by_union"] if row["union_sil"] - row["single_sil"] >= args.gate else row["default"]
+            rows.append(row)
+            print(f"{kind} {index:3d}: " + ", ".join(f"{c} {row[c]:.3f}" for c in columns), flush=True)
+            if args.records:
+                with open(args.records, "a") as f:
+                    f.write(json.dumps({"kind": kind, "seed": args.seed, "mu": args.mu, **row}) + "\n")
+        medians = {c: float(np.median([r[c] for r in rows])) for c in columns}
+        print(f"{kind} medians: " + ", ".join(f"{c} {v:.3f}" for c, v in medians.items()), flush=True)
+
+
+if __name__ == "__main__":
+    main()
