@@ -42,11 +42,13 @@ import numpy as np  # noqa: E402
 from scipy.optimize import least_squares  # noqa: E402
 
 import sqfit  # noqa: E402
+from sqfit.fitting.contour_overlap import CONVEX_TOL  # noqa: E402
 from sqfit.fitting.costs import ObservationSet  # noqa: E402
 from sqfit.fitting.least_volume import bulk_observations  # noqa: E402
 from sqfit.fitting.stages import to_superquadric  # noqa: E402
 from sqfit.geometry.silhouette import batch_silhouettes, camera_arrays  # noqa: E402
 from sqfit.geometry.superquadric import contains, euler_to_matrix, volume  # noqa: E402
+from sqfit.kernels.backend import compiled  # noqa: E402
 from sqfit.metrics import iou_3d_mesh  # noqa: E402
 from sqsim.imaging.render import get_renderer  # noqa: E402
 from sqsim.imaging.trial import observations, simulate_trial  # noqa: E402
@@ -87,29 +89,42 @@ def l_starts(xi, thin=THIN):
     return np.array(starts)
 
 
-def union_ious(X, cameras, contours):
+def union_ious(X, obs):
     """``(b, v)``: IoU of the union of each row's superquadrics' silhouettes (``X`` ``(b, m, 11)``)
-    with each view's contour (shapely polygons); 0 where a silhouette is not valid."""
+    with each view's mask contour (``obs``, an ObservationSet whose views the image border does not
+    cut); 0 where a silhouette is not valid. Two parts: compiled inclusion-exclusion where the
+    kernels are and the contour is simple
+    (:func:`sqfit.kernels.silhouette_kernels.union_overlaps`), else shapely."""
     import shapely
 
     b, m = X.shape[:2]
+    cameras = camera_arrays([o.camera for o in obs.observations])
     polys, valid, _ = batch_silhouettes(X.reshape(b * m, 11), *cameras, VERTICES)
-    polys, valid = polys.reshape(b, m, *polys.shape[1:]), valid.reshape(b, m, -1)
-    out = np.zeros((b, len(contours)))
-    for v, contour in enumerate(contours):
-        shapes = shapely.make_valid(shapely.polygons(polys[:, :, v]))
-        union = shapely.union_all(shapes, axis=1)
-        inter = shapely.area(shapely.intersection(union, contour))
-        out[:, v] = inter / (shapely.area(union) + contour.area - inter)
-    out[~valid.all(axis=1)] = 0.0
-    return out
+    polys, valid = polys.reshape(b, m, *polys.shape[1:]), valid.reshape(b, m, -1).all(axis=1)
+    stacked, starts, simple, areas = obs.contour_arrays()
+    inter, union = np.zeros((b, len(obs))), np.ones((b, len(obs)))
+    todo = valid.copy()
+    kernels = compiled("silhouettes")
+    if kernels is not None and m == 2 and todo.any():
+        rows, views = np.nonzero(todo & simple)
+        got_inter, got_area, ok = kernels.union_overlaps(np.ascontiguousarray(polys), np.stack([rows, views], axis=1),
+                                                        stacked, starts, CONVEX_TOL)
+        inter[rows[ok], views[ok]], union[rows[ok], views[ok]] = got_inter[ok], got_area[ok]
+        todo[rows[ok], views[ok]] = False
+    shapes = obs.contour_shapes()
+    for row, view in zip(*np.nonzero(todo)):
+        parts = shapely.union_all(shapely.make_valid(shapely.polygons(polys[row, :, view])))
+        inter[row, view] = shapely.area(shapely.intersection(parts, shapes[view]))
+        union[row, view] = shapely.area(parts)
+    iou = inter / (union + areas[None] - inter)
+    return np.where(valid, iou, 0.0)
 
 
 def _volumes(X):
     return np.array([[volume(to_superquadric(x)) for x in row] for row in X]).sum(axis=1)
 
 
-def fit_union(start, cameras, contours, mu, reference):
+def fit_union(start, obs, mu, reference):
     """Least squares from ``start`` ``(m, 11)``: ``1 - IoU`` per view and ``mu`` x the parts' volume
     over ``reference``. Returns the parts ``(m, 11)``, the union's mean silhouette IoU and the
     objective (the sum of the residuals)."""
@@ -118,7 +133,7 @@ def fit_union(start, cameras, contours, mu, reference):
     upper = np.tile(np.r_[[np.inf] * 3, 1.9, 1.9, [np.inf] * 6], shape[0])
 
     def rows(X):
-        return np.column_stack([1.0 - union_ious(X, cameras, contours), mu * _volumes(X) / reference])
+        return np.column_stack([1.0 - union_ious(X, obs), mu * _volumes(X) / reference])
 
     def residuals(x):
         return rows(x.reshape(1, *shape))[0]
@@ -159,12 +174,8 @@ def trial_row(scene, index, renderer, mu, cache):
     xi = fit.to_vector()
     t0 = time.process_time()
     bulk = bulk_observations(obs) or obs
-    import shapely
-
-    contours = [shapely.Polygon(o.contour).buffer(0) for o in bulk.observations]
-    cameras = camera_arrays([o.camera for o in obs.observations])
-    single = union_ious(xi[None, None], cameras, contours)[0].mean()
-    best = min((fit_union(start, cameras, contours, mu, volume(fit)) for start in l_starts(xi)), key=lambda t: t[2])
+    single = union_ious(xi[None, None], bulk)[0].mean()
+    best = min((fit_union(start, bulk, mu, volume(fit)) for start in l_starts(xi)), key=lambda t: t[2])
     X, union = best[0], best[1]
     parts = [to_superquadric(x) for x in X]
     seconds = time.process_time() - t0
@@ -172,7 +183,7 @@ def trial_row(scene, index, renderer, mu, cache):
     sample, vol = union_sample(parts, UNION_POINTS, rng)
     share = [contains(q, sample).mean() * vol for q in parts]
     estimate = [s / (volume(q) + vol - s) for s, q in zip(share, parts)]
-    alone = union_ious(X[:, None], cameras, contours).mean(axis=1)
+    alone = union_ious(X[:, None], bulk).mean(axis=1)
     ious = [iou_3d_mesh(q, obj.mesh) for q in parts]
     return {"trial": index, "default": iou_3d_mesh(fit, obj.mesh), "single_sil": float(single), "union_sil": float(union),
             "parts": ious, "by_union": ious[int(np.argmax(estimate))], "by_silhouette": ious[int(np.argmax(alone))],

@@ -7,8 +7,10 @@ import numpy as np
 import shapely
 
 import sqfit
-from sqfit.geometry.silhouette import camera_arrays, silhouette
+from sqfit.fitting.costs import ObservationSet
+from sqfit.geometry.silhouette import silhouette
 from sqfit.geometry.superquadric import contains, euler_to_matrix
+from sqfit.kernels.backend import compiled, set_kernels
 from sqfit.testing import paper_trial
 
 SCRIPT = Path(__file__).resolve().parents[1] / "scripts" / "two_part_probe.py"
@@ -46,18 +48,43 @@ def test_the_starts_are_slabs_on_two_adjacent_faces_of_the_fits_box():
 def test_the_unions_silhouette_iou_is_the_single_ones_for_one_part_or_the_same_part_twice():
     probe = _probe()
     trial = paper_trial(0)
-    obs, truth = trial.observations, trial.gt
-    cameras = camera_arrays([o.camera for o in obs])
-    contours = [shapely.Polygon(o.contour).buffer(0) for o in obs]
+    obs, truth = ObservationSet(trial.observations), trial.gt
     xi = truth.to_vector()
-    one = probe.union_ious(xi[None, None], cameras, contours)[0]
-    twice = probe.union_ious(np.stack([xi, xi])[None], cameras, contours)[0]
+    one = probe.union_ious(xi[None, None], obs)[0]
+    twice = probe.union_ious(np.stack([xi, xi])[None], obs)[0]
     assert np.allclose(one, twice)
-    for v, (o, contour) in enumerate(zip(obs, contours)):
+    for v, o in enumerate(trial.observations):
         sil = shapely.Polygon(silhouette(truth, o.camera, probe.VERTICES))
+        contour = shapely.Polygon(o.contour).buffer(0)
         inter = sil.intersection(contour).area
         assert np.isclose(one[v], inter / (sil.area + contour.area - inter))
     assert one.min() > 0.95  # the truth's silhouettes match its masks
+
+
+def test_the_compiled_union_overlap_agrees_with_shapely():
+    probe = _probe()
+    trial = paper_trial(3)
+    obs, xi = ObservationSet(trial.observations), trial.gt.to_vector()
+    rng = np.random.default_rng(0)
+    X = []
+    for _ in range(6):  # two parts about the truth: overlapping, nested or apart
+        a, b = xi.copy(), xi.copy()
+        a[0:3] *= rng.uniform(0.3, 1.0, 3)
+        b[0:3] *= rng.uniform(0.3, 1.0, 3)
+        a[5:8] += rng.normal(0.0, 0.5, 3)
+        b[5:8] += rng.normal(0.0, 0.5, 3)
+        b[8:11] += rng.normal(0.0, 0.5, 3)
+        X.append([a, b])
+    X = np.array(X)
+    previous = set_kernels("numba")
+    try:
+        fast = probe.union_ious(X, obs)
+        set_kernels("numpy")
+        slow = probe.union_ious(X, obs)
+    finally:
+        set_kernels(previous)
+    assert np.all(slow > 0) and np.all(slow < 1)
+    assert np.allclose(fast, slow, atol=1e-9)
 
 
 def test_the_union_sample_lies_in_the_parts_and_its_volume_is_theirs():
@@ -68,3 +95,25 @@ def test_the_union_sample_lies_in_the_parts_and_its_volume_is_theirs():
     assert len(points) == 5000 and np.all(contains(a, points) | contains(b, points))
     exact = 4.0 / 3.0 * np.pi * (1.0 + 0.5**3)
     assert abs(vol / exact - 1.0) < 0.05
+
+
+def test_the_union_overlap_kernel_on_known_squares():
+    previous = set_kernels("numba")
+    try:
+        k = compiled("silhouettes")
+    finally:
+        set_kernels(previous)
+    square = np.array([[0.0, 0.0], [1.0, 0.0], [1.0, 1.0], [0.0, 1.0]])
+    pair = np.stack([square, square + [0.5, 0.0]])  # overlapping by half: the union is 1.5 x 1
+    apart = np.stack([square, square + [3.0, 0.0]])
+    polys = np.ascontiguousarray(np.stack([pair, apart])[:, :, None])  # (2, 2, 1 view, 4, 2)
+    # two views: the contour the first square (view 0), a 6 x 2 box around both pairs (view 1)
+    contours = np.array([[0.0, 0.0], [1.0, 0.0], [1.0, 1.0], [0.0, 1.0],
+                         [-1.0, -0.5], [5.0, -0.5], [5.0, 1.5], [-1.0, 1.5]])
+    starts = np.array([0, 4, 8])
+    polys = np.ascontiguousarray(np.repeat(polys, 2, axis=2))
+    pairs = np.array([[0, 0], [0, 1], [1, 0], [1, 1]])
+    inter, area, ok = k.union_overlaps(polys, pairs, contours, starts, 1e-9)
+    assert ok.all()
+    assert np.allclose(area, [1.5, 1.5, 2.0, 2.0])
+    assert np.allclose(inter, [1.0, 1.5, 1.0, 2.0])

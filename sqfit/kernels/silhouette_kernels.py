@@ -22,6 +22,9 @@ compute the same numbers per view and per vertex:
   inside each silhouette, the same edge tests), a point's tests stopping at its first outside edge:
   with thousands of occluding pixels per view the numpy version's ``(b, n)`` passes per edge were
   ~15 % of the factor graph's batch time;
+- :func:`union_overlaps` is the overlap of the union of two convex silhouettes with a mask contour
+  (``scripts/two_part_probe.py``: shapely's union and intersection per view took most of its time),
+  from :func:`contour_overlaps`' clipping: ``|(S1 ∪ S2) ∩ M| = |S1 ∩ M| + |S2 ∩ M| - |S1 ∩ S2 ∩ M|``;
 - :func:`points_in_convex` is :func:`sqfit.geometry.visible_iou.points_in_convex` for one polygon, the
   same edge test per point, stopping at its first outside edge (no bounding-box shortcut, so each
   point's answer is the numpy test's bit for bit): which occluding pixels lie in an observation's
@@ -42,7 +45,8 @@ from numba import njit
 
 from .ray_kernels import nan_max, nan_min
 
-__all__ = ["silhouettes", "convex_iou", "clipped_iou", "convex_hull", "hidden_counts", "points_in_convex", "contour_overlaps"]
+__all__ = ["silhouettes", "convex_iou", "clipped_iou", "convex_hull", "hidden_counts", "points_in_convex", "contour_overlaps",
+           "union_overlaps"]
 
 _TINY = 1e-300
 _JIT = dict(cache=True, error_model="numpy", nogil=True)
@@ -540,4 +544,46 @@ def contour_overlaps(polys, pairs, contours, starts, frames, clip, tol):
         if clip[t] and n:
             cur, n, other = _clip_convex(cur, n, F, frame_sign, other)
         inter[p] = _area(cur, n)
+    return inter, area, ok
+
+
+@njit(**_JIT)
+def union_overlaps(polys, pairs, contours, starts, tol):
+    """Overlap of the union of two silhouettes with a mask contour: ``polys`` ``(b, 2, v, k, 2)``,
+    ``pairs`` ``(p, 2)`` ``(batch, view)`` indices, ``contours`` and ``starts`` as
+    :func:`contour_overlaps` takes them -> ``(inter, area, ok)``, each ``(p,)``: the area of
+    (S1 ∪ S2) ∩ contour, the union's area, and whether both silhouettes are convex and simple
+    (:func:`_convex_sign` with ``tol``; where not, 0 and 0). The contour clipped by S1 (then by S2)
+    and by S2, and S1 clipped by S2, give the four areas of inclusion-exclusion. No image border:
+    for views that it does not cut."""
+    count = pairs.shape[0]
+    inter, area, ok = np.zeros(count), np.zeros(count), np.zeros(count, dtype=np.bool_)
+    longest = 4
+    for t in range(starts.shape[0] - 1):
+        longest = max(longest, starts[t + 1] - starts[t])
+    longest = max(longest, polys.shape[3])
+    cur, other = np.empty((4 * longest, 2)), np.empty((4 * longest, 2))
+    for p in range(count):
+        s, t = pairs[p, 0], pairs[p, 1]
+        S1, S2 = polys[s, 0, t], polys[s, 1, t]
+        sign1, sign2 = _convex_sign(S1, tol), _convex_sign(S2, tol)
+        if sign1 == 0.0 or sign2 == 0.0:
+            continue
+        ok[p] = True
+        k = S1.shape[0]
+        for i in range(k):
+            cur[i, 0], cur[i, 1] = S1[i, 0], S1[i, 1]
+        cur, n, other = _clip_convex(cur, k, S2, sign2, other)
+        area[p] = _area(S1, k) + _area(S2, S2.shape[0]) - _area(cur, n)
+        lo, hi = starts[t], starts[t + 1]
+        for i in range(lo, hi):
+            cur[i - lo, 0], cur[i - lo, 1] = contours[i, 0], contours[i, 1]
+        cur, n, other = _clip_convex(cur, hi - lo, S1, sign1, other)
+        inter[p] = _area(cur, n)
+        cur, n, other = _clip_convex(cur, n, S2, sign2, other)
+        inter[p] -= _area(cur, n)
+        for i in range(lo, hi):
+            cur[i - lo, 0], cur[i - lo, 1] = contours[i, 0], contours[i, 1]
+        cur, n, other = _clip_convex(cur, hi - lo, S2, sign2, other)
+        inter[p] += _area(cur, n)
     return inter, area, ok
