@@ -3,28 +3,31 @@
 Usage::
 
     OPENBLAS_NUM_THREADS=1 python scripts/two_part_probe.py [--scene scenes/household.toml] \
-        [--kinds chair laptop ...] [--trials 10] [--seed 0] [--mu 0.2] [--limits DIR] [--records FILE]
+        [--kinds chair laptop ...] [--trials 10] [--seed 0] [--mu 0.2] [--gate 0.12] [--differences] \
+        [--limits DIR] [--records FILE]
 
 A lead measured, not adopted (too slow and its choice of part unreliable), kept so that it can be
 repeated. An open laptop or a chair's seat and back are two slabs at an angle; their best single
-superquadric (the representation limit, :func:`sqfit.limit.best_superquadric`) is one slab, but
-the default's fit, like the visual hull, fills the wedge between them (3D IoU about 0.09 against
-limits of 0.45-0.66). The masks do show the two slabs: the default's silhouettes match them to a
-mean IoU of 0.7-0.8 only. So for each trial this fits the *union* of two superquadrics to the
-masks, from twelve L-shaped starts (each pair of adjacent faces of the default fit's box, each a
-slab :data:`THIN` of the box thick), by least squares on ``1 - IoU`` per view of the union's
-silhouettes with the mask contours (the masks with their thin parts opened away,
-:func:`sqfit.fitting.least_volume.bulk_observations`, where any view has one: a chair's legs)
-plus ``mu`` times the parts' total volume over the default fit's (the least volume that matches,
-as stage 3V picks), and keeps the start of the lowest objective. Then one of the two parts is the
-answer; which one, the masks must say. Two rules are reported: the part of higher estimated 3D
-IoU with the union (a uniform sample of the union), and the part whose own silhouettes match the
-masks better. And a gate: the first rule's part only where the union matches the masks better than
-the default's fit by at least ``--gate`` in mean silhouette IoU, else the default's fit.
+superquadric (the representation limit, :func:`sqfit.limit.best_superquadric`) is one slab, but the
+default's fit, like the visual hull, fills the wedge between them (3D IoU about 0.09 against limits
+of 0.45-0.66). The masks do show the two slabs: the default's silhouettes match them to a mean IoU
+of 0.58-0.76 only (medians per kind and seed). So for each trial this fits the *union* of two
+superquadrics to the masks, from twelve L-shaped starts (each pair of adjacent faces of the default
+fit's box, each a slab :data:`THIN` of the box thick), by least squares (the IoUs' Jacobian from the
+silhouettes' vertex velocities, :func:`union_gradient`; ``--differences`` for forward differences)
+on ``1 - IoU`` per view of the union's silhouettes with the mask contours (the masks with their thin
+parts opened away, :func:`sqfit.fitting.least_volume.bulk_observations`, where any view has one: a
+chair's legs) plus ``mu`` times the parts' total volume over the default fit's (the least volume
+that matches, as stage 3V picks), and keeps the start of the lowest objective. Then one of the two
+parts is the answer; which one, the masks must say. Two rules are reported: the part of higher
+estimated 3D IoU with the union (a uniform sample of the union), and the part whose own silhouettes
+match the masks better. And a gate: the first rule's part only where the union matches the masks
+better than the default's fit by at least ``--gate`` in mean silhouette IoU, else the default's fit.
 
 Per trial it prints the default's 3D IoU against the mesh and its silhouettes' mean IoU with the
 (opened) masks, the union's, the rules' picks, the better of the two parts, the gated pick and the
-limit; then per kind the medians. ``--records FILE`` appends one JSON line per trial (parts' parameters included).
+limit; then per kind the medians. ``--records FILE`` appends one JSON line per trial (parts'
+parameters included).
 Measured: docs/real-objects.md, "Two parts for two slabs".
 """
 
@@ -46,7 +49,7 @@ from sqfit.fitting.contour_overlap import CONVEX_TOL  # noqa: E402
 from sqfit.fitting.costs import ObservationSet  # noqa: E402
 from sqfit.fitting.least_volume import bulk_observations  # noqa: E402
 from sqfit.fitting.stages import to_superquadric  # noqa: E402
-from sqfit.geometry.silhouette import batch_silhouettes, camera_arrays  # noqa: E402
+from sqfit.geometry.silhouette import batch_silhouettes, camera_arrays, vertex_velocities  # noqa: E402
 from sqfit.geometry.superquadric import contains, euler_to_matrix, volume  # noqa: E402
 from sqfit.kernels.backend import compiled  # noqa: E402
 from sqfit.metrics import iou_3d_mesh  # noqa: E402
@@ -63,6 +66,8 @@ VERTICES = 48
 EVALUATIONS = 100
 #: Forward-difference step of the Jacobian (relative, as scipy's ``diff_step``).
 STEP = 1e-3
+#: Midpoints per silhouette edge of the union's gradient (:func:`union_gradient`).
+EDGE_POINTS = 8
 #: Points of the union's uniform sample (the rules' IoU estimate).
 UNION_POINTS = 20000
 #: Seed of that sample.
@@ -89,19 +94,19 @@ def l_starts(xi, thin=THIN):
     return np.array(starts)
 
 
-def union_ious(X, obs):
-    """``(b, v)``: IoU of the union of each row's superquadrics' silhouettes (``X`` ``(b, m, 11)``)
-    with each view's mask contour (``obs``, an ObservationSet whose views the image border does not
-    cut); 0 where a silhouette is not valid. Two parts: compiled inclusion-exclusion where the
-    kernels are and the contour is simple
-    (:func:`sqfit.kernels.silhouette_kernels.union_overlaps`), else shapely."""
+def union_overlap(X, obs):
+    """``(inter, union, valid)``, each ``(b, v)``: the area of the union of each row's superquadrics'
+    silhouettes (``X`` ``(b, m, 11)``) in each view of ``obs`` (an ObservationSet whose views the
+    image border does not cut) overlapping the mask contour, the union's area, and whether every
+    silhouette is valid. Two parts: compiled inclusion-exclusion where the kernels are and the
+    contour is simple (:func:`sqfit.kernels.silhouette_kernels.union_overlaps`), else shapely."""
     import shapely
 
     b, m = X.shape[:2]
     cameras = camera_arrays([o.camera for o in obs.observations])
     polys, valid, _ = batch_silhouettes(X.reshape(b * m, 11), *cameras, VERTICES)
     polys, valid = polys.reshape(b, m, *polys.shape[1:]), valid.reshape(b, m, -1).all(axis=1)
-    stacked, starts, simple, areas = obs.contour_arrays()
+    stacked, starts, simple, _ = obs.contour_arrays()
     inter, union = np.zeros((b, len(obs))), np.ones((b, len(obs)))
     todo = valid.copy()
     kernels = compiled("silhouettes")
@@ -116,17 +121,75 @@ def union_ious(X, obs):
         parts = shapely.union_all(shapely.make_valid(shapely.polygons(polys[row, :, view])))
         inter[row, view] = shapely.area(shapely.intersection(parts, shapes[view]))
         union[row, view] = shapely.area(parts)
-    iou = inter / (union + areas[None] - inter)
+    return inter, union, valid
+
+
+def union_ious(X, obs):
+    """``(b, v)``: IoU of the union of each row's superquadrics' silhouettes (``X`` ``(b, m, 11)``)
+    with each view's mask contour (:func:`union_overlap`); 0 where a silhouette is not valid."""
+    inter, union, valid = union_overlap(X, obs)
+    iou = inter / (union + obs.contour_arrays()[3][None] - inter)
     return np.where(valid, iou, 0.0)
+
+
+def union_gradient(X, obs):
+    """IoU per view of the union of the two parts ``X`` ``(2, 11)`` with the mask contours of
+    ``obs``, and its gradient: ``(v,)`` and ``(v, 22)``. Moving a silhouette's boundary outward by
+    ``w`` changes the union's area by the integral of ``w`` along the stretch of that boundary
+    outside the other silhouette, and its overlap with the mask by the integral along the stretch
+    outside the other silhouette and inside the contour. ``w`` is the normal component of the
+    vertices' velocities (:func:`sqfit.geometry.silhouette.vertex_velocities`), linear along each
+    edge; the integrals are midpoint sums of :data:`EDGE_POINTS` points per edge."""
+    import shapely
+
+    rotations, centers, intrinsics = camera_arrays([o.camera for o in obs.observations])
+    polys, valid, _, unit_points, points = batch_silhouettes(X, rotations, centers, intrinsics, VERTICES,
+                                                             touching=True)
+    inter, union, ok = (q[0] for q in union_overlap(X[None], obs))
+    areas = obs.contour_arrays()[3]
+    iou = np.where(ok, inter / (union + areas - inter), 0.0)
+    grad = np.zeros((len(obs), 22))
+    if not valid.all():
+        return iou, grad
+    velocities = vertex_velocities(X, unit_points, points, rotations, intrinsics)  # (2, v, K, 2, 11)
+    shapes = obs.contour_shapes()
+    s = (np.arange(EDGE_POINTS) + 0.5) / EDGE_POINTS
+    for view in range(len(obs)):
+        d_inter, d_union = np.zeros(22), np.zeros(22)
+        for part in range(2):
+            P, other = polys[part, view], polys[1 - part, view]
+            edge = np.roll(P, -1, axis=0) - P
+            length = np.hypot(edge[:, 0], edge[:, 1])
+            normal = np.zeros_like(edge)  # outward: the polygons run counter-clockwise
+            keep = length > 1e-12
+            normal[keep] = np.column_stack([edge[keep, 1], -edge[keep, 0]]) / length[keep, None]
+            x = (P[:, None, :] + s[None, :, None] * edge[:, None, :]).reshape(-1, 2)
+            o_edge = np.roll(other, -1, axis=0) - other
+            cross = (o_edge[None, :, 0] * (x[:, None, 1] - other[None, :, 1])
+                     - o_edge[None, :, 1] * (x[:, None, 0] - other[None, :, 0]))
+            outside = ~np.all(cross >= 0.0, axis=1).reshape(len(P), -1)
+            in_mask = shapely.contains_xy(shapes[view], x[:, 0], x[:, 1]).reshape(len(P), -1)
+            vel = velocities[part, view]  # (K, 2, 11)
+            w0 = np.einsum("kc,kcp->kp", normal, vel)  # each edge's normal speed at its two ends
+            w1 = np.einsum("kc,kcp->kp", normal, np.roll(vel, -1, axis=0))
+            w = (1.0 - s)[None, :, None] * w0[:, None, :] + s[None, :, None] * w1[:, None, :]  # (K, n, 11)
+            weight = (length / EDGE_POINTS)[:, None] * outside
+            cols = slice(11 * part, 11 * part + 11)
+            d_union[cols] = np.einsum("kn,knp->p", weight, w)
+            d_inter[cols] = np.einsum("kn,knp->p", weight * in_mask, w)
+        i, u, a = inter[view], union[view], areas[view]
+        grad[view] = (d_inter * (u + a) - i * d_union) / (u + a - i) ** 2
+    return iou, grad
 
 
 def _volumes(X):
     return np.array([[volume(to_superquadric(x)) for x in row] for row in X]).sum(axis=1)
 
 
-def fit_union(start, obs, mu, reference):
-    """Least squares from ``start`` ``(m, 11)``: ``1 - IoU`` per view and ``mu`` x the parts' volume
-    over ``reference``. Returns the parts ``(m, 11)``, the union's mean silhouette IoU and the
+def fit_union(start, obs, mu, reference, differences=False):
+    """Least squares from ``start`` ``(2, 11)``: ``1 - IoU`` per view and ``mu`` x the parts' volume
+    over ``reference``; the IoUs' Jacobian from :func:`union_gradient`, or by forward differences
+    (``differences``; the volume's always). Returns the parts ``(m, 11)``, the union's mean silhouette IoU and the
     objective (the sum of the residuals)."""
     shape = start.shape
     lower = np.tile(np.r_[[1e-3] * 3, 0.05, 0.05, [-np.inf] * 6], shape[0])
@@ -141,9 +204,12 @@ def fit_union(start, obs, mu, reference):
     def jacobian(x):
         h = STEP * np.maximum(np.abs(x), 1.0)
         h = np.where(x + h > upper, -h, h)  # stay inside the bounds
-        X = np.vstack([x, x + np.diag(h)])
-        r = rows(X.reshape(-1, *shape))
-        return ((r[1:] - r[0]) / h[:, None]).T
+        X = np.vstack([x, x + np.diag(h)]).reshape(-1, *shape)
+        if differences:
+            r = rows(X)
+            return ((r[1:] - r[0]) / h[:, None]).T
+        v = mu * _volumes(X) / reference
+        return np.vstack([-union_gradient(X[0], obs)[1], (v[1:] - v[0]) / h])
 
     x0 = np.clip(start.ravel(), lower + 1e-6, upper - 1e-6)
     res = least_squares(residuals, x0, jac=jacobian, bounds=(lower, upper), x_scale="jac", max_nfev=EVALUATIONS)
@@ -165,7 +231,7 @@ def union_sample(parts, n, rng):
     return np.vstack(points)[:n], float(np.prod(hi - lo) * kept / drawn)
 
 
-def trial_row(scene, index, renderer, mu, cache):
+def trial_row(scene, index, renderer, mu, cache, differences=False):
     """One trial's figures (a dict)."""
     sim = simulate_trial(scene, index, renderer)
     obj = sim.objects[0]
@@ -175,7 +241,7 @@ def trial_row(scene, index, renderer, mu, cache):
     t0 = time.process_time()
     bulk = bulk_observations(obs) or obs
     single = union_ious(xi[None, None], bulk)[0].mean()
-    best = min((fit_union(start, bulk, mu, volume(fit)) for start in l_starts(xi)), key=lambda t: t[2])
+    best = min((fit_union(start, bulk, mu, volume(fit), differences) for start in l_starts(xi)), key=lambda t: t[2])
     X, union = best[0], best[1]
     parts = [to_superquadric(x) for x in X]
     seconds = time.process_time() - t0
@@ -199,6 +265,8 @@ def main(argv=None):
     parser.add_argument("--mu", type=float, default=0.2, help="weight of the parts' volume (default 0.2)")
     parser.add_argument("--gate", type=float, default=GATE,
                         help=f"silhouette gain of the union that lets a part replace the default's fit (default {GATE})")
+    parser.add_argument("--differences", action="store_true",
+                        help="the IoUs' Jacobian by forward differences (slower) instead of union_gradient")
     parser.add_argument("--limits", default=None, help="directory of cached limits (an experiment's DIR/limits)")
     parser.add_argument("--records", default=None, help="append one JSON line per trial to this file")
     args = parser.parse_args(argv)
@@ -215,7 +283,7 @@ def main(argv=None):
         renderer = get_renderer(scene.masks.renderer, scene.intrinsics)
         rows = []
         for index in range(args.trials):
-            row = trial_row(scene, index, renderer, args.mu, cache)
+            row = trial_row(scene, index, renderer, args.mu, cache, args.differences)
             row["best_part"] = max(row["parts"])
             row["gated"] = row["by_union"] if row["union_sil"] - row["single_sil"] >= args.gate else row["default"]
             rows.append(row)

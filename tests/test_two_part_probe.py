@@ -117,3 +117,28 @@ def test_the_union_overlap_kernel_on_known_squares():
     assert ok.all()
     assert np.allclose(area, [1.5, 1.5, 2.0, 2.0])
     assert np.allclose(inter, [1.0, 1.5, 1.0, 2.0])
+
+
+def test_the_unions_gradient_follows_its_finite_differences():
+    probe = _probe()
+    trial = paper_trial(3)
+    obs, xi = ObservationSet(trial.observations), trial.gt.to_vector()
+    rng = np.random.default_rng(2)
+    for _ in range(3):  # two overlapping parts about the truth, as the fit meets them
+        X = np.stack([xi, xi])
+        X[:, 0:3] *= rng.uniform(0.5, 0.9, (2, 3))
+        X[:, 5:8] += rng.normal(0.0, 0.3, (2, 3))
+        X[1, 8:11] += rng.normal(0.0, 0.3, 3)
+        iou, grad = probe.union_gradient(X, obs)
+        assert np.allclose(iou, probe.union_ious(X[None], obs)[0])
+        x, diff = X.ravel(), np.zeros_like(grad)
+        for j in range(22):
+            h = 1e-5 * max(abs(x[j]), 1.0)
+            up, down = x.copy(), x.copy()
+            up[j] += h
+            down[j] -= h
+            diff[:, j] = (probe.union_ious(up.reshape(1, 2, 11), obs)[0]
+                          - probe.union_ious(down.reshape(1, 2, 11), obs)[0]) / (2 * h)
+        # the midpoint sums and the polygon's vertex model: a few per cent, the same direction
+        assert np.linalg.norm(grad - diff) < 0.15 * np.linalg.norm(diff)
+        assert (grad * diff).sum() > 0.99 * np.linalg.norm(grad) * np.linalg.norm(diff)
