@@ -11,7 +11,7 @@ repeated. An open laptop or a chair's seat and back are two slabs at an angle; t
 superquadric (the representation limit, :func:`sqfit.limit.best_superquadric`) is one slab, but the
 default's fit, like the visual hull, fills the wedge between them (3D IoU about 0.09 against limits
 of 0.45-0.66). The masks do show the two slabs: the default's silhouettes match them to a mean IoU
-of 0.58-0.76 only (medians per kind and seed). So for each trial this fits the *union* of two
+of 0.58-0.78 only (medians per kind and seed). So for each trial this fits the *union* of two
 superquadrics to the masks, from twelve L-shaped starts (each pair of adjacent faces of the default
 fit's box, each a slab :data:`THIN` of the box thick), by least squares (the IoUs' Jacobian from the
 silhouettes' vertex velocities, :func:`union_gradient`; ``--differences`` for forward differences)
