@@ -500,6 +500,25 @@ def _area(P, n):
 
 
 @njit(**_JIT)
+def _buffers(starts, k):
+    """Two ping-pong buffers for clipping any of the contours (``starts`` as :func:`contour_overlaps`
+    takes them) or a polygon of ``k`` vertices."""
+    longest = max(4, k)
+    for t in range(starts.shape[0] - 1):
+        longest = max(longest, starts[t + 1] - starts[t])
+    return np.empty((4 * longest, 2)), np.empty((4 * longest, 2))
+
+
+@njit(**_JIT)
+def _clipped_contour(contours, lo, hi, S, sign, cur, other):
+    """The contour ``contours[lo:hi]`` clipped by the convex polygon ``S`` of orientation ``sign``
+    (:func:`_clip_convex`) -> ``(buffer, count, the other buffer)``."""
+    for i in range(lo, hi):
+        cur[i - lo, 0], cur[i - lo, 1] = contours[i, 0], contours[i, 1]
+    return _clip_convex(cur, hi - lo, S, sign, other)
+
+
+@njit(**_JIT)
 def contour_overlaps(polys, pairs, contours, starts, frames, clip, tol):
     """Overlap of silhouettes with mask contours, for shapely's ``intersection`` in
     :func:`sqfit.fitting.costs.visible_iou`'s contour path: ``polys`` ``(b, v, k, 2)``, ``pairs``
@@ -514,10 +533,7 @@ def contour_overlaps(polys, pairs, contours, starts, frames, clip, tol):
     adding none), then by the frame's."""
     count = pairs.shape[0]
     inter, area, ok = np.zeros(count), np.zeros(count), np.zeros(count, dtype=np.bool_)
-    longest = 4
-    for t in range(starts.shape[0] - 1):
-        longest = max(longest, starts[t + 1] - starts[t])
-    cur, other = np.empty((4 * longest, 2)), np.empty((4 * longest, 2))
+    cur, other = _buffers(starts, 0)
     for p in range(count):
         s, t = pairs[p, 0], pairs[p, 1]
         S = polys[s, t]
@@ -537,10 +553,7 @@ def contour_overlaps(polys, pairs, contours, starts, frames, clip, tol):
             area[p] = _area(cur, n)
         else:
             area[p] = _area(S, k)
-        lo, hi = starts[t], starts[t + 1]
-        for i in range(lo, hi):
-            cur[i - lo, 0], cur[i - lo, 1] = contours[i, 0], contours[i, 1]
-        cur, n, other = _clip_convex(cur, hi - lo, S, sign, other)
+        cur, n, other = _clipped_contour(contours, starts[t], starts[t + 1], S, sign, cur, other)
         if clip[t] and n:
             cur, n, other = _clip_convex(cur, n, F, frame_sign, other)
         inter[p] = _area(cur, n)
@@ -558,11 +571,7 @@ def union_overlaps(polys, pairs, contours, starts, tol):
     for views that it does not cut."""
     count = pairs.shape[0]
     inter, area, ok = np.zeros(count), np.zeros(count), np.zeros(count, dtype=np.bool_)
-    longest = 4
-    for t in range(starts.shape[0] - 1):
-        longest = max(longest, starts[t + 1] - starts[t])
-    longest = max(longest, polys.shape[3])
-    cur, other = np.empty((4 * longest, 2)), np.empty((4 * longest, 2))
+    cur, other = _buffers(starts, polys.shape[3])
     for p in range(count):
         s, t = pairs[p, 0], pairs[p, 1]
         S1, S2 = polys[s, 0, t], polys[s, 1, t]
@@ -576,14 +585,10 @@ def union_overlaps(polys, pairs, contours, starts, tol):
         cur, n, other = _clip_convex(cur, k, S2, sign2, other)
         area[p] = _area(S1, k) + _area(S2, S2.shape[0]) - _area(cur, n)
         lo, hi = starts[t], starts[t + 1]
-        for i in range(lo, hi):
-            cur[i - lo, 0], cur[i - lo, 1] = contours[i, 0], contours[i, 1]
-        cur, n, other = _clip_convex(cur, hi - lo, S1, sign1, other)
+        cur, n, other = _clipped_contour(contours, lo, hi, S1, sign1, cur, other)
         inter[p] = _area(cur, n)
         cur, n, other = _clip_convex(cur, n, S2, sign2, other)
         inter[p] -= _area(cur, n)
-        for i in range(lo, hi):
-            cur[i - lo, 0], cur[i - lo, 1] = contours[i, 0], contours[i, 1]
-        cur, n, other = _clip_convex(cur, hi - lo, S2, sign2, other)
+        cur, n, other = _clipped_contour(contours, lo, hi, S2, sign2, cur, other)
         inter[p] += _area(cur, n)
     return inter, area, ok
