@@ -49,7 +49,7 @@ from sqfit.fitting.contour_overlap import CONVEX_TOL  # noqa: E402
 from sqfit.fitting.costs import ObservationSet  # noqa: E402
 from sqfit.fitting.least_volume import bulk_observations  # noqa: E402
 from sqfit.fitting.stages import to_superquadric  # noqa: E402
-from sqfit.geometry.silhouette import batch_silhouettes, camera_arrays, vertex_velocities  # noqa: E402
+from sqfit.geometry.silhouette import batch_silhouettes, vertex_velocities  # noqa: E402
 from sqfit.geometry.superquadric import contains, euler_to_matrix, volume  # noqa: E402
 from sqfit.kernels.backend import compiled  # noqa: E402
 from sqfit.metrics import iou_3d_mesh  # noqa: E402
@@ -94,17 +94,20 @@ def l_starts(xi, thin=THIN):
     return np.array(starts)
 
 
-def union_overlap(X, obs):
+def union_overlap(X, obs, silhouettes=None):
     """``(inter, union, valid)``, each ``(b, v)``: the area of the union of each row's superquadrics'
     silhouettes (``X`` ``(b, m, 11)``) in each view of ``obs`` (an ObservationSet whose views the
     image border does not cut) overlapping the mask contour, the union's area, and whether every
-    silhouette is valid. Two parts: compiled inclusion-exclusion where the kernels are and the
+    silhouette is valid. ``silhouettes``: ``(polys, valid)`` of ``X``'s rows as
+    :func:`sqfit.geometry.silhouette.batch_silhouettes` returns them for ``X.reshape(-1, 11)``, where
+    the caller has them. Two parts: compiled inclusion-exclusion where the kernels are and the
     contour is simple (:func:`sqfit.kernels.silhouette_kernels.union_overlaps`), else shapely."""
     import shapely
 
     b, m = X.shape[:2]
-    cameras = camera_arrays([o.camera for o in obs.observations])
-    polys, valid, _ = batch_silhouettes(X.reshape(b * m, 11), *cameras, VERTICES)
+    if silhouettes is None:
+        silhouettes = batch_silhouettes(X.reshape(b * m, 11), obs.rotations, obs.centers, obs.intrinsics, VERTICES)
+    polys, valid = silhouettes[0], silhouettes[1]
     polys, valid = polys.reshape(b, m, *polys.shape[1:]), valid.reshape(b, m, -1).all(axis=1)
     stacked, starts, simple, _ = obs.contour_arrays()
     inter, union = np.zeros((b, len(obs))), np.ones((b, len(obs)))
@@ -142,16 +145,15 @@ def union_gradient(X, obs):
     edge; the integrals are midpoint sums of :data:`EDGE_POINTS` points per edge."""
     import shapely
 
-    rotations, centers, intrinsics = camera_arrays([o.camera for o in obs.observations])
-    polys, valid, _, unit_points, points = batch_silhouettes(X, rotations, centers, intrinsics, VERTICES,
+    polys, valid, _, unit_points, points = batch_silhouettes(X, obs.rotations, obs.centers, obs.intrinsics, VERTICES,
                                                              touching=True)
-    inter, union, ok = (q[0] for q in union_overlap(X[None], obs))
+    inter, union, ok = (q[0] for q in union_overlap(X[None], obs, (polys, valid)))
     areas = obs.contour_arrays()[3]
     iou = np.where(ok, inter / (union + areas - inter), 0.0)
     grad = np.zeros((len(obs), 22))
     if not valid.all():
         return iou, grad
-    velocities = vertex_velocities(X, unit_points, points, rotations, intrinsics)  # (2, v, K, 2, 11)
+    velocities = vertex_velocities(X, unit_points, points, obs.rotations, obs.intrinsics)  # (2, v, K, 2, 11)
     shapes = obs.contour_shapes()
     s = (np.arange(EDGE_POINTS) + 0.5) / EDGE_POINTS
     for view in range(len(obs)):
@@ -189,8 +191,8 @@ def _volumes(X):
 def fit_union(start, obs, mu, reference, differences=False):
     """Least squares from ``start`` ``(2, 11)``: ``1 - IoU`` per view and ``mu`` x the parts' volume
     over ``reference``; the IoUs' Jacobian from :func:`union_gradient`, or by forward differences
-    (``differences``; the volume's always). Returns the parts ``(m, 11)``, the union's mean silhouette IoU and the
-    objective (the sum of the residuals)."""
+    (``differences``; the volume's always). Returns the parts ``(2, 11)``, the union's mean silhouette
+    IoU and the objective (the sum of the residuals)."""
     shape = start.shape
     lower = np.tile(np.r_[[1e-3] * 3, 0.05, 0.05, [-np.inf] * 6], shape[0])
     upper = np.tile(np.r_[[np.inf] * 3, 1.9, 1.9, [np.inf] * 6], shape[0])
@@ -272,6 +274,8 @@ def main(argv=None):
     args = parser.parse_args(argv)
     if not args.mu >= 0:
         parser.error(f"--mu must be >= 0, got {args.mu}")
+    if args.trials < 1:
+        parser.error(f"--trials must be >= 1, got {args.trials}")
     with open(args.scene, "rb") as f:
         scene_dict = tomllib.load(f)
     cache = LimitCache(args.limits) if args.limits else None

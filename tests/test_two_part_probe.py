@@ -4,6 +4,7 @@ import importlib.util
 from pathlib import Path
 
 import numpy as np
+import pytest
 import shapely
 
 import sqfit
@@ -142,3 +143,11 @@ def test_the_unions_gradient_follows_its_finite_differences():
         # the midpoint sums and the polygon's vertex model: a few per cent, the same direction
         assert np.linalg.norm(grad - diff) < 0.15 * np.linalg.norm(diff)
         assert (grad * diff).sum() > 0.99 * np.linalg.norm(grad) * np.linalg.norm(diff)
+
+
+def test_bad_arguments_are_refused_by_name(capsys):
+    probe = _probe()
+    for argv, message in ((["--trials", "0"], "--trials must be >= 1, got 0"), (["--mu", "-1"], "--mu must be >= 0")):
+        with pytest.raises(SystemExit):
+            probe.main(argv)
+        assert message in capsys.readouterr().err
