@@ -54,9 +54,15 @@ INITIAL_CHAIN = "3G"
 #: noisy masks of true superquadrics can lose); opt-in (the carving runs wherever 3R keeps nothing),
 #: measured in docs/real-objects.md.
 TOLERANT_CHAIN = DEFAULT_CHAIN.replace("-3R-", "-3RH-").removesuffix("-3V") + "-3T"
+#: The default with stage 3U in place of 3V (3V, then where 3T's trigger holds one of two superquadrics fitted
+#: together to the opened masks, where their union matches them much better: chairs, laptops); opt-in (seconds
+#: of CPU per object where it fits the two), measured in docs/real-objects.md, "Stage 3U".
+TWO_PART_CHAIN = DEFAULT_CHAIN.removesuffix("-3V") + "-3U"
 #: Names that stand for a whole chain wherever a chain is given (:func:`parse_chain`); ``hull`` is the
-#: visual-hull baseline (:data:`sqfit.fitting.hull.HULL_CHAIN`), ``tolerant`` :data:`TOLERANT_CHAIN`.
-CHAIN_ALIASES = {"default": DEFAULT_CHAIN, "hull": HULL_CHAIN, "tolerant": TOLERANT_CHAIN}
+#: visual-hull baseline (:data:`sqfit.fitting.hull.HULL_CHAIN`), ``tolerant`` :data:`TOLERANT_CHAIN`,
+#: ``two-parts`` :data:`TWO_PART_CHAIN`.
+CHAIN_ALIASES = {"default": DEFAULT_CHAIN, "hull": HULL_CHAIN, "tolerant": TOLERANT_CHAIN,
+                 "two-parts": TWO_PART_CHAIN}
 #: Values of ``FitOptions.outline_offset``: one outline offset per object, or one per view.
 OUTLINE_OFFSETS = ("object", "view")
 #: Stages that compute their start from the masks alone and would discard ``initial``.

@@ -41,6 +41,7 @@ __all__ = [
     "contains",
     "volume",
     "unit_volume",
+    "unit_volumes",
     "sample_surface_parametric",
     "sample_surface_uniform",
     "project_to_surface",
@@ -387,8 +388,13 @@ def unit_volume(shape):
     v : float
         Cubic metres per cubic metre of ``a1 a2 a3``.
     """
-    e1, e2 = shape
-    return float(2.0 * e1 * e2 * beta(e1 / 2 + 1, e1) * beta(e2 / 2, e2 / 2))
+    return float(unit_volumes(np.asarray(shape, dtype=np.float64)[None])[0])
+
+
+def unit_volumes(shapes):
+    """:func:`unit_volume` of each row of ``shapes`` ``(n, 2)``: ``(n,)`` float."""
+    e1, e2 = shapes[:, 0], shapes[:, 1]
+    return 2.0 * e1 * e2 * beta(e1 / 2 + 1, e1) * beta(e2 / 2, e2 / 2)
 
 
 def _to_world(sq, local):

@@ -13,6 +13,8 @@ for ``SQFIT_KERNELS=numpy``. :mod:`.backend` chooses between the two; importing 
 - :mod:`.silhouette_kernels` — R-IOU-M's silhouettes, convex IoUs and hulls (:mod:`sqfit.fitting.costs`);
 - :mod:`.view_kernels` — the factor graph's silhouette residuals (:mod:`sqfit.graph.landmark`);
 - :mod:`.outline_kernels` — the outline samples behind every view's rays (:mod:`sqfit.views.rays`);
+- :mod:`.hull_kernels` — the visual hull's carving and EMS residuals (:mod:`sqfit.fitting.hull`);
+- :mod:`.union_kernels` — stage 3U's two silhouettes against a mask contour (:mod:`sqfit.fitting.two_parts`);
 - :mod:`.kernel_cache` — numba's on-disk cache, cleared when any kernel source changed.
 """
 

@@ -7,7 +7,8 @@ numba (:mod:`sqfit.kernels.ray_kernels`; 3H's screen of them, :mod:`sqfit.kernel
 do the silhouettes, convex IoUs and hulls of R-IOU-M (:mod:`sqfit.kernels.silhouette_kernels`), the
 factor graph's silhouette residuals (:mod:`sqfit.kernels.view_kernels`) and the outline samples
 behind every view's rays (:mod:`sqfit.kernels.outline_kernels`, for :mod:`sqfit.views.rays`) and
-the visual hull's carving and point-cloud residuals (:mod:`sqfit.kernels.hull_kernels`). Small
+the visual hull's carving and point-cloud residuals (:mod:`sqfit.kernels.hull_kernels`) and stage 3U's
+two silhouettes against a contour (:mod:`sqfit.kernels.union_kernels`). Small
 arrays make numpy pay its per-call overhead dozens of times per evaluation; the compiled loops do
 not (README, "Fitter speed").
 
@@ -34,7 +35,7 @@ KERNELS = ("auto", "numba", "numpy")
 ENV_VAR = "SQFIT_KERNELS"
 
 #: The kernel modules by part, imported at first use.
-PARTS = ("rays", "screen", "silhouettes", "views", "outlines", "hull")
+PARTS = ("rays", "screen", "silhouettes", "views", "outlines", "hull", "unions")
 
 _state = {"choice": None, "modules": {}, "resolved": None}
 
@@ -77,8 +78,8 @@ def compiled(part="rays"):
     (:mod:`sqfit.kernels.screen_kernels`, stage 3H's), ``"silhouettes"``
     (:mod:`sqfit.kernels.silhouette_kernels`), ``"views"`` (:mod:`sqfit.kernels.view_kernels`, the
     factor graph's), ``"outlines"`` (:mod:`sqfit.kernels.outline_kernels`, the rays' outline
-    samples) or ``"hull"`` (:mod:`sqfit.kernels.hull_kernels`, the visual hull's carving and EMS
-    residuals); each is imported (and its kernels loaded) at the first call that asks for it.
+    samples), ``"hull"`` (:mod:`sqfit.kernels.hull_kernels`, the visual hull's carving and EMS
+    residuals) or ``"unions"`` (:mod:`sqfit.kernels.union_kernels`, stage 3U's); each is imported (and its kernels loaded) at the first call that asks for it.
     """
     if _state["resolved"] is None:
         _state["resolved"] = _resolve(_requested())
@@ -98,6 +99,8 @@ def compiled(part="rays"):
             from . import outline_kernels as module
         elif part == "hull":
             from . import hull_kernels as module
+        elif part == "unions":
+            from . import union_kernels as module
         else:
             raise ValueError(f"part must be one of {PARTS}, got {part!r}")
         _state["modules"][part] = module

@@ -22,9 +22,6 @@ compute the same numbers per view and per vertex:
   inside each silhouette, the same edge tests), a point's tests stopping at its first outside edge:
   with thousands of occluding pixels per view the numpy version's ``(b, n)`` passes per edge were
   ~15 % of the factor graph's batch time;
-- :func:`union_overlaps` is the overlap of the union of two convex silhouettes with a mask contour
-  (``scripts/two_part_probe.py``: shapely's union and intersection per view took most of its time),
-  from :func:`contour_overlaps`' clipping: ``|(S1 ∪ S2) ∩ M| = |S1 ∩ M| + |S2 ∩ M| - |S1 ∩ S2 ∩ M|``;
 - :func:`points_in_convex` is :func:`sqfit.geometry.visible_iou.points_in_convex` for one polygon, the
   same edge test per point, stopping at its first outside edge (no bounding-box shortcut, so each
   point's answer is the numpy test's bit for bit): which occluding pixels lie in an observation's
@@ -46,7 +43,7 @@ from numba import njit
 from .ray_kernels import nan_max, nan_min
 
 __all__ = ["silhouettes", "convex_iou", "clipped_iou", "convex_hull", "hidden_counts", "points_in_convex", "contour_overlaps",
-           "union_overlaps"]
+           "clip_buffers", "clip_convex", "clipped_contour", "convex_sign", "polygon_area"]
 
 _TINY = 1e-300
 _JIT = dict(cache=True, error_model="numpy", nogil=True)
@@ -407,7 +404,7 @@ def points_in_convex(S, points):
 
 
 @njit(**_JIT)
-def _convex_sign(S, tol):
+def convex_sign(S, tol):
     """+1 or -1, the orientation of polygon ``S`` ``(k, 2)`` if it is convex and simple (each
     non-degenerate edge turns the same way from the one before, within ``tol`` of their lengths'
     product, and the turns add up to one full turn), else 0 (also for a non-finite vertex or no area)."""
@@ -465,7 +462,7 @@ def _clip_half_plane(src, n, ax, ay, ex, ey, sign, dst):
 
 
 @njit(**_JIT)
-def _clip_convex(cur, n, C, sign, other):
+def clip_convex(cur, n, C, sign, other):
     """``cur[:n]`` clipped by each edge of the convex polygon ``C`` of orientation ``sign``, ping-pong
     with ``other`` (grown as needed) -> ``(buffer, count, the other buffer)``."""
     k = C.shape[0]
@@ -494,13 +491,13 @@ def _shoelace2(P, n):
 
 
 @njit(**_JIT)
-def _area(P, n):
+def polygon_area(P, n):
     """Absolute shoelace area of ``P[:n]``."""
     return 0.5 * abs(_shoelace2(P, n))
 
 
 @njit(**_JIT)
-def _buffers(starts, k):
+def clip_buffers(starts, k):
     """Two ping-pong buffers for clipping any of the contours (``starts`` as :func:`contour_overlaps`
     takes them) or a polygon of ``k`` vertices."""
     longest = max(4, k)
@@ -510,12 +507,12 @@ def _buffers(starts, k):
 
 
 @njit(**_JIT)
-def _clipped_contour(contours, lo, hi, S, sign, cur, other):
+def clipped_contour(contours, lo, hi, S, sign, cur, other):
     """The contour ``contours[lo:hi]`` clipped by the convex polygon ``S`` of orientation ``sign``
-    (:func:`_clip_convex`) -> ``(buffer, count, the other buffer)``."""
+    (:func:`clip_convex`) -> ``(buffer, count, the other buffer)``."""
     for i in range(lo, hi):
         cur[i - lo, 0], cur[i - lo, 1] = contours[i, 0], contours[i, 1]
-    return _clip_convex(cur, hi - lo, S, sign, other)
+    return clip_convex(cur, hi - lo, S, sign, other)
 
 
 @njit(**_JIT)
@@ -527,17 +524,17 @@ def contour_overlaps(polys, pairs, contours, starts, frames, clip, tol):
     image rectangles, ``clip`` ``(v,) bool`` (count only the silhouette's part in the image) ->
     ``(inter, area, ok)``, each ``(p,)``: the area of (silhouette, clipped where asked) ∩ contour,
     the (clipped) silhouette's area, and whether the silhouette is convex and simple
-    (:func:`_convex_sign` with ``tol``); where not, ``inter`` and ``area`` are 0 and the caller
+    (:func:`convex_sign` with ``tol``); where not, ``inter`` and ``area`` are 0 and the caller
     asks shapely. Sutherland-Hodgman clipping of the contour by the silhouette's edges (a convex
     clip polygon: the clipped polygon's shoelace area is the intersection's, degenerate edges
     adding none), then by the frame's."""
     count = pairs.shape[0]
     inter, area, ok = np.zeros(count), np.zeros(count), np.zeros(count, dtype=np.bool_)
-    cur, other = _buffers(starts, 0)
+    cur, other = clip_buffers(starts, 0)
     for p in range(count):
         s, t = pairs[p, 0], pairs[p, 1]
         S = polys[s, t]
-        sign = _convex_sign(S, tol)
+        sign = convex_sign(S, tol)
         if sign == 0.0:
             continue
         ok[p] = True
@@ -549,46 +546,12 @@ def contour_overlaps(polys, pairs, contours, starts, frames, clip, tol):
                 cur, other = np.empty((4 * k, 2)), np.empty((4 * k, 2))
             for i in range(k):
                 cur[i, 0], cur[i, 1] = S[i, 0], S[i, 1]
-            cur, n, other = _clip_convex(cur, k, F, frame_sign, other)
-            area[p] = _area(cur, n)
+            cur, n, other = clip_convex(cur, k, F, frame_sign, other)
+            area[p] = polygon_area(cur, n)
         else:
-            area[p] = _area(S, k)
-        cur, n, other = _clipped_contour(contours, starts[t], starts[t + 1], S, sign, cur, other)
+            area[p] = polygon_area(S, k)
+        cur, n, other = clipped_contour(contours, starts[t], starts[t + 1], S, sign, cur, other)
         if clip[t] and n:
-            cur, n, other = _clip_convex(cur, n, F, frame_sign, other)
-        inter[p] = _area(cur, n)
-    return inter, area, ok
-
-
-@njit(**_JIT)
-def union_overlaps(polys, pairs, contours, starts, tol):
-    """Overlap of the union of two silhouettes with a mask contour: ``polys`` ``(b, 2, v, k, 2)``,
-    ``pairs`` ``(p, 2)`` ``(batch, view)`` indices, ``contours`` and ``starts`` as
-    :func:`contour_overlaps` takes them -> ``(inter, area, ok)``, each ``(p,)``: the area of
-    (S1 ∪ S2) ∩ contour, the union's area, and whether both silhouettes are convex and simple
-    (:func:`_convex_sign` with ``tol``; where not, 0 and 0). The contour clipped by S1 (then by S2)
-    and by S2, and S1 clipped by S2, give the four areas of inclusion-exclusion. No image border:
-    for views that it does not cut."""
-    count = pairs.shape[0]
-    inter, area, ok = np.zeros(count), np.zeros(count), np.zeros(count, dtype=np.bool_)
-    cur, other = _buffers(starts, polys.shape[3])
-    for p in range(count):
-        s, t = pairs[p, 0], pairs[p, 1]
-        S1, S2 = polys[s, 0, t], polys[s, 1, t]
-        sign1, sign2 = _convex_sign(S1, tol), _convex_sign(S2, tol)
-        if sign1 == 0.0 or sign2 == 0.0:
-            continue
-        ok[p] = True
-        k = S1.shape[0]
-        for i in range(k):
-            cur[i, 0], cur[i, 1] = S1[i, 0], S1[i, 1]
-        cur, n, other = _clip_convex(cur, k, S2, sign2, other)
-        area[p] = _area(S1, k) + _area(S2, S2.shape[0]) - _area(cur, n)
-        lo, hi = starts[t], starts[t + 1]
-        cur, n, other = _clipped_contour(contours, lo, hi, S1, sign1, cur, other)
-        inter[p] = _area(cur, n)
-        cur, n, other = _clip_convex(cur, n, S2, sign2, other)
-        inter[p] -= _area(cur, n)
-        cur, n, other = _clipped_contour(contours, lo, hi, S2, sign2, cur, other)
-        inter[p] += _area(cur, n)
+            cur, n, other = clip_convex(cur, n, F, frame_sign, other)
+        inter[p] = polygon_area(cur, n)
     return inter, area, ok

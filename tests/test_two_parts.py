@@ -1,6 +1,8 @@
-"""scripts/two_part_probe.py: its L-shaped starts, the union's silhouette IoU and the union's sample."""
+"""Stage 3U (sqfit.fitting.two_parts): its L-shaped starts, the union's silhouette IoU, gradient and sample, its
+kernels, the stage on a true superquadric and on a chair; scripts/two_part_probe.py's arguments."""
 
 import importlib.util
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -8,16 +10,20 @@ import pytest
 import shapely
 
 import sqfit
+from sqfit.fitting import two_parts
 from sqfit.fitting.costs import ObservationSet
 from sqfit.geometry.silhouette import silhouette
-from sqfit.geometry.superquadric import contains, euler_to_matrix
+from sqfit.fitting.stages import to_superquadric
+from sqfit.geometry.superquadric import contains, euler_to_matrix, volume
 from sqfit.kernels.backend import compiled, set_kernels
 from sqfit.testing import paper_trial
+from sqfit.views.visibility import BORDER
 
 SCRIPT = Path(__file__).resolve().parents[1] / "scripts" / "two_part_probe.py"
+SCENES = Path(__file__).resolve().parents[1] / "scenes"
 
 
-def _probe():
+def _script():
     spec = importlib.util.spec_from_file_location("two_part_probe", SCRIPT)
     module = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(module)
@@ -25,9 +31,8 @@ def _probe():
 
 
 def test_the_starts_are_slabs_on_two_adjacent_faces_of_the_fits_box():
-    probe = _probe()
     xi = np.r_[1.0, 2.0, 3.0, 1.0, 1.0, 0.5, -0.5, 2.0, 0.3, -0.2, 1.1]
-    starts = probe.l_starts(xi)
+    starts = two_parts.l_starts(xi)
     assert starts.shape == (12, 2, 11)
     R = euler_to_matrix(xi[8:11])
     faces = set()
@@ -36,9 +41,9 @@ def test_the_starts_are_slabs_on_two_adjacent_faces_of_the_fits_box():
         for part in pair:
             assert np.allclose(part[8:11], xi[8:11]) and np.allclose(part[3:5], 0.2)
             thin = int(np.argmax(np.abs(part[0:3] - xi[0:3])))
-            assert np.isclose(part[thin], probe.THIN * xi[thin])
+            assert np.isclose(part[thin], two_parts.THIN * xi[thin])
             offset = R.T @ (part[5:8] - xi[5:8])  # in the box's frame: on the face, inside the box
-            assert np.isclose(abs(offset[thin]), xi[thin] * (1 - probe.THIN))
+            assert np.isclose(abs(offset[thin]), xi[thin] * (1 - two_parts.THIN))
             assert np.allclose(np.delete(offset, thin), 0.0)
             thin_axes.append((thin, np.sign(offset[thin])))
         assert thin_axes[0][0] != thin_axes[1][0]  # two different faces, adjacent
@@ -47,15 +52,14 @@ def test_the_starts_are_slabs_on_two_adjacent_faces_of_the_fits_box():
 
 
 def test_the_unions_silhouette_iou_is_the_single_ones_for_one_part_or_the_same_part_twice():
-    probe = _probe()
     trial = paper_trial(0)
     obs, truth = ObservationSet(trial.observations), trial.gt
     xi = truth.to_vector()
-    one = probe.union_ious(xi[None, None], obs)[0]
-    twice = probe.union_ious(np.stack([xi, xi])[None], obs)[0]
+    one = two_parts.union_ious(xi[None, None], obs)[0]
+    twice = two_parts.union_ious(np.stack([xi, xi])[None], obs)[0]
     assert np.allclose(one, twice)
     for v, o in enumerate(trial.observations):
-        sil = shapely.Polygon(silhouette(truth, o.camera, probe.VERTICES))
+        sil = shapely.Polygon(silhouette(truth, o.camera, two_parts.VERTICES))
         contour = shapely.Polygon(o.contour).buffer(0)
         inter = sil.intersection(contour).area
         assert np.isclose(one[v], inter / (sil.area + contour.area - inter))
@@ -63,7 +67,6 @@ def test_the_unions_silhouette_iou_is_the_single_ones_for_one_part_or_the_same_p
 
 
 def test_the_compiled_union_overlap_agrees_with_shapely():
-    probe = _probe()
     trial = paper_trial(3)
     obs, xi = ObservationSet(trial.observations), trial.gt.to_vector()
     rng = np.random.default_rng(0)
@@ -79,9 +82,9 @@ def test_the_compiled_union_overlap_agrees_with_shapely():
     X = np.array(X)
     previous = set_kernels("numba")
     try:
-        fast = probe.union_ious(X, obs)
+        fast = two_parts.union_ious(X, obs)
         set_kernels("numpy")
-        slow = probe.union_ious(X, obs)
+        slow = two_parts.union_ious(X, obs)
     finally:
         set_kernels(previous)
     assert np.all(slow > 0) and np.all(slow < 1)
@@ -89,10 +92,9 @@ def test_the_compiled_union_overlap_agrees_with_shapely():
 
 
 def test_the_union_sample_lies_in_the_parts_and_its_volume_is_theirs():
-    probe = _probe()
     a = sqfit.Superquadric((1.0, 1.0, 1.0), (1.0, 1.0), (0.0, 0.0, 0.0), (0.0, 0.0, 0.0))
     b = sqfit.Superquadric((0.5, 0.5, 0.5), (1.0, 1.0), (5.0, 0.0, 0.0), (0.0, 0.0, 0.0))  # apart from a
-    points, vol = probe.union_sample([a, b], 5000, np.random.default_rng(0))
+    points, vol = two_parts.union_sample([a, b], 5000, np.random.default_rng(0))
     assert len(points) == 5000 and np.all(contains(a, points) | contains(b, points))
     exact = 4.0 / 3.0 * np.pi * (1.0 + 0.5**3)
     assert abs(vol / exact - 1.0) < 0.05
@@ -101,7 +103,7 @@ def test_the_union_sample_lies_in_the_parts_and_its_volume_is_theirs():
 def test_the_union_overlap_kernel_on_known_squares():
     previous = set_kernels("numba")
     try:
-        k = compiled("silhouettes")
+        k = compiled("unions")
     finally:
         set_kernels(previous)
     square = np.array([[0.0, 0.0], [1.0, 0.0], [1.0, 1.0], [0.0, 1.0]])
@@ -121,7 +123,6 @@ def test_the_union_overlap_kernel_on_known_squares():
 
 
 def test_the_unions_gradient_follows_its_finite_differences():
-    probe = _probe()
     trial = paper_trial(3)
     obs, xi = ObservationSet(trial.observations), trial.gt.to_vector()
     rng = np.random.default_rng(2)
@@ -130,24 +131,95 @@ def test_the_unions_gradient_follows_its_finite_differences():
         X[:, 0:3] *= rng.uniform(0.5, 0.9, (2, 3))
         X[:, 5:8] += rng.normal(0.0, 0.3, (2, 3))
         X[1, 8:11] += rng.normal(0.0, 0.3, 3)
-        iou, grad = probe.union_gradient(X, obs)
-        assert np.allclose(iou, probe.union_ious(X[None], obs)[0])
+        iou, grad = two_parts.union_gradient(X, obs)
+        assert np.allclose(iou, two_parts.union_ious(X[None], obs)[0])
         x, diff = X.ravel(), np.zeros_like(grad)
         for j in range(22):
             h = 1e-5 * max(abs(x[j]), 1.0)
             up, down = x.copy(), x.copy()
             up[j] += h
             down[j] -= h
-            diff[:, j] = (probe.union_ious(up.reshape(1, 2, 11), obs)[0]
-                          - probe.union_ious(down.reshape(1, 2, 11), obs)[0]) / (2 * h)
+            diff[:, j] = (two_parts.union_ious(up.reshape(1, 2, 11), obs)[0]
+                          - two_parts.union_ious(down.reshape(1, 2, 11), obs)[0]) / (2 * h)
         # the midpoint sums and the polygon's vertex model: a few per cent, the same direction
         assert np.linalg.norm(grad - diff) < 0.15 * np.linalg.norm(diff)
         assert (grad * diff).sum() > 0.99 * np.linalg.norm(grad) * np.linalg.norm(diff)
 
 
 def test_bad_arguments_are_refused_by_name(capsys):
-    probe = _probe()
+    probe = _script()
     for argv, message in ((["--trials", "0"], "--trials must be >= 1, got 0"), (["--mu", "-1"], "--mu must be >= 0")):
         with pytest.raises(SystemExit):
             probe.main(argv)
         assert message in capsys.readouterr().err
+
+
+def test_the_compiled_gradient_is_the_numpy_one():
+    trial = paper_trial(3)
+    obs, xi = ObservationSet(trial.observations), trial.gt.to_vector()
+    rng = np.random.default_rng(5)
+    previous = set_kernels("numba")
+    try:
+        for _ in range(3):
+            X = np.stack([xi, xi])
+            X[:, 0:3] *= rng.uniform(0.5, 0.9, (2, 3))
+            X[:, 5:8] += rng.normal(0.0, 0.3, (2, 3))
+            X[1, 8:11] += rng.normal(0.0, 0.3, 3)
+            set_kernels("numba")
+            fast = two_parts.union_gradient(X, obs)
+            set_kernels("numpy")
+            slow = two_parts.union_gradient(X, obs)
+            assert np.abs(slow[1]).max() > 0
+            assert np.allclose(fast[0], slow[0], atol=1e-9) and np.allclose(fast[1], slow[1], rtol=1e-9, atol=1e-9)
+    finally:
+        set_kernels(previous)
+
+
+def test_the_volumes_are_the_parts_volumes_as_a_fit_reads_them():
+    rng = np.random.default_rng(1)
+    X = rng.uniform(-2.0, 2.0, (4, 2, 11))
+    X[..., 3:5] = rng.uniform(-0.5, 2.5, (4, 2, 2))  # outside the shape domain too: clipped, as to_superquadric does
+    expected = [sum(volume(to_superquadric(x)) for x in row) for row in X]
+    assert np.allclose(two_parts.volumes(X), expected, rtol=1e-12)
+
+
+def test_the_stage_keeps_3vs_fit_on_a_true_superquadric():
+    trial = paper_trial(1)
+    three_v = sqfit.fit(trial.observations)
+    three_u = sqfit.fit(trial.observations, chain="two-parts")
+    assert three_u.chain == "1-2M-3H-3R-3U" and three_v.chain == "1-2M-3H-3R-3V"
+    assert np.array_equal(three_u.superquadric.to_vector(), three_v.superquadric.to_vector())
+    assert three_u.stages[-1].message.startswith("3U: 3V")
+
+
+def _chair(index):
+    from sqsim.imaging.render import get_renderer
+    from sqsim.imaging.trial import observations, simulate_trial
+    from sqsim.world.scene import load_scene
+
+    scene = load_scene(SCENES / "household.toml", overrides={"objects.catalogue": ["chair"], "experiment.seed": 0})
+    sim = simulate_trial(scene, index, get_renderer(scene.masks.renderer, scene.intrinsics))
+    return sim.objects[0], list(observations(sim, sim.objects[0].id, scene))
+
+
+def test_on_a_chair_the_stage_keeps_one_of_two_parts_closer_to_the_chair():
+    from sqfit.metrics import iou_3d_mesh
+
+    chair, obs = _chair(1)
+    three_v, three_u = sqfit.fit(obs), sqfit.fit(obs, chain="two-parts")
+    message = three_u.stages[-1].message
+    assert "two parts match the opened masks at" in message and message.endswith("of two"), message
+    # the default fills the wedge between seat and back; the part is the seat or the back
+    before, after = iou_3d_mesh(three_v.superquadric, chair.mesh), iou_3d_mesh(three_u.superquadric, chair.mesh)
+    assert before < 0.2 and after > before + 0.2
+    assert volume(three_u.superquadric) < 0.5 * volume(three_v.superquadric)
+
+
+def test_the_stage_does_not_fit_two_parts_where_a_view_is_cut(monkeypatch):
+    chair, obs = _chair(1)
+    calls = []
+    monkeypatch.setattr(two_parts, "fit_union", lambda *args, **kw: calls.append(1))
+    cut = [replace(o, contour_labels=np.where(np.arange(len(o.contour_labels)) < 5, BORDER, o.contour_labels))
+           if i == 0 else o for i, o in enumerate(obs)]
+    result = sqfit.fit(cut, chain="two-parts")
+    assert not calls and "cut by the image border or occluded: no two parts" in result.stages[-1].message
