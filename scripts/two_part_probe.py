@@ -3,26 +3,22 @@
 Usage::
 
     OPENBLAS_NUM_THREADS=1 python scripts/two_part_probe.py [--scene scenes/household.toml] \
-        [--kinds chair laptop ...] [--trials 10] [--seed 0] [--mu 0.2] [--gate 0.12] [--differences] \
-        [--limits DIR] [--records FILE]
+        [--kinds chair laptop ...] [--trials 10] [--seed 0] [--mu 0.2] [--gate 0.12] [--union-min 0.85] \
+        [--differences] [--limits DIR] [--records FILE]
 
-A lead measured, not adopted (too slow and its choice of part unreliable), kept so that it can be
-repeated. An open laptop or a chair's seat and back are two slabs at an angle; their best single
-superquadric (the representation limit, :func:`sqfit.limit.best_superquadric`) is one slab, but the
-default's fit, like the visual hull, fills the wedge between them (3D IoU about 0.09 against limits
-of 0.45-0.66). The masks do show the two slabs: the default's silhouettes match them to a mean IoU
-of 0.58-0.78 only (medians per kind and seed). So for each trial this fits the *union* of two
-superquadrics to the masks, from twelve L-shaped starts (each pair of adjacent faces of the default
-fit's box, each a slab :data:`THIN` of the box thick), by least squares (the IoUs' Jacobian from the
-silhouettes' vertex velocities, :func:`union_gradient`; ``--differences`` for forward differences)
-on ``1 - IoU`` per view of the union's silhouettes with the mask contours (the masks with their thin
-parts opened away, :func:`sqfit.fitting.least_volume.bulk_observations`, where any view has one: a
-chair's legs) plus ``mu`` times the parts' total volume over the default fit's (the least volume
-that matches, as stage 3V picks), and keeps the start of the lowest objective. Then one of the two
-parts is the answer; which one, the masks must say. Two rules are reported: the part of higher
-estimated 3D IoU with the union (a uniform sample of the union), and the part whose own silhouettes
-match the masks better. And a gate: the first rule's part only where the union matches the masks
-better than the default's fit by at least ``--gate`` in mean silhouette IoU, else the default's fit.
+The measurement behind stage 3U (:mod:`sqfit.fitting.two_parts`, chain ``two-parts``), which it
+takes its union fit from. An open laptop or a chair's seat and back are two slabs at an angle; their
+best single superquadric (the representation limit) is one slab, but the default's fit fills the
+wedge between them. For each trial this fits the *union* of two superquadrics to the opened masks
+from the default's fit as 3U does (:func:`~sqfit.fitting.two_parts.fit_union` from each of
+:func:`~sqfit.fitting.two_parts.l_starts`; ``--mu`` the weight of the parts' volume; ``--differences``
+for the IoUs' Jacobian by forward differences), and reports what each rule would keep: the part of
+higher estimated 3D IoU with the union (3U's :func:`~sqfit.fitting.two_parts.pick_part`), the part
+whose own silhouettes match the masks better, the better of the two parts (known only from the
+mesh), and the gated pick: the first rule's part only where the union matches the masks better than
+the default's fit by at least ``--gate`` in mean silhouette IoU and matches them at least at
+``--union-min``, else the default's fit (3U's rule; unlike 3U, the probe fits the union whether or not 3T's
+trigger holds).
 
 Per trial it prints the default's 3D IoU against the mesh and its silhouettes' mean IoU with the
 (opened) masks, the union's, the rules' picks, the better of the two parts, the gated pick and the
@@ -42,13 +38,13 @@ import tomllib
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
 import numpy as np  # noqa: E402
-from scipy.optimize import least_squares  # noqa: E402
 
 import sqfit  # noqa: E402
 from sqfit.fitting.costs import ObservationSet  # noqa: E402
 from sqfit.fitting.least_volume import bulk_observations  # noqa: E402
 from sqfit.fitting.stages import to_superquadric  # noqa: E402
-from sqfit.fitting.two_parts import GATE, SEED, UNION_POINTS, fit_union, l_starts, union_ious, union_sample  # noqa: E402
+from sqfit.fitting.two_parts import (GATE, SEED, UNION_MIN, UNION_POINTS, fit_union, l_starts,  # noqa: E402
+                                     union_ious, union_sample)
 from sqfit.geometry.superquadric import contains, volume  # noqa: E402
 from sqfit.metrics import iou_3d_mesh  # noqa: E402
 from sqsim.imaging.render import get_renderer  # noqa: E402
@@ -90,6 +86,8 @@ def main(argv=None):
     parser.add_argument("--mu", type=float, default=0.2, help="weight of the parts' volume (default 0.2)")
     parser.add_argument("--gate", type=float, default=GATE,
                         help=f"silhouette gain of the union that lets a part replace the default's fit (default {GATE})")
+    parser.add_argument("--union-min", type=float, default=UNION_MIN,
+                        help=f"the union's mean silhouette IoU below which the default's fit is kept (default {UNION_MIN})")
     parser.add_argument("--differences", action="store_true",
                         help="the IoUs' Jacobian by forward differences (slower) instead of union_gradient")
     parser.add_argument("--limits", default=None, help="directory of cached limits (an experiment's DIR/limits)")
@@ -97,6 +95,8 @@ def main(argv=None):
     args = parser.parse_args(argv)
     if not args.mu >= 0:
         parser.error(f"--mu must be >= 0, got {args.mu}")
+    if not 0.0 <= args.union_min <= 1.0:
+        parser.error(f"--union-min must be in [0, 1], got {args.union_min}")
     if args.trials < 1:
         parser.error(f"--trials must be >= 1, got {args.trials}")
     with open(args.scene, "rb") as f:
@@ -112,7 +112,8 @@ def main(argv=None):
         for index in range(args.trials):
             row = trial_row(scene, index, renderer, args.mu, cache, args.differences)
             row["best_part"] = max(row["parts"])
-            row["gated"] = row["by_union"] if row["union_sil"] - row["single_sil"] >= args.gate else row["default"]
+            passes = row["union_sil"] - row["single_sil"] >= args.gate and row["union_sil"] >= args.union_min
+            row["gated"] = row["by_union"] if passes else row["default"]
             rows.append(row)
             print(f"{kind} {index:3d}: " + ", ".join(f"{c} {row[c]:.3f}" for c in columns), flush=True)
             if args.records:

@@ -29,7 +29,8 @@ dash-joined list of them (``"1-2M-3H"``).
 - :mod:`.pipeline` — options, results and :func:`fit`.
 """
 
-from . import axis_screen, grazing, hull, least_volume, moments, outline, parts, restarts, trimmed, two_parts  # noqa: F401
+from . import (axis_screen, grazing, hull, least_volume, moments, outline, parts, restarts, trimmed,  # noqa: F401
+               two_parts)
 # (they register 3H, 3G, HULL, 3V, 2M, 3T, 3TP, 3S, 3R, 3RH, 3U)
 from .pipeline import (CHAIN_ALIASES, DEFAULT_CHAIN, HULL_CHAIN, PAPER_CHAINS, FitOptions, FitResult, StageRecord, fit,
                        parse_chain)

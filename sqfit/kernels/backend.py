@@ -79,7 +79,8 @@ def compiled(part="rays"):
     (:mod:`sqfit.kernels.silhouette_kernels`), ``"views"`` (:mod:`sqfit.kernels.view_kernels`, the
     factor graph's), ``"outlines"`` (:mod:`sqfit.kernels.outline_kernels`, the rays' outline
     samples), ``"hull"`` (:mod:`sqfit.kernels.hull_kernels`, the visual hull's carving and EMS
-    residuals) or ``"unions"`` (:mod:`sqfit.kernels.union_kernels`, stage 3U's); each is imported (and its kernels loaded) at the first call that asks for it.
+    residuals) or ``"unions"`` (:mod:`sqfit.kernels.union_kernels`, stage 3U's); each is imported (and its
+    kernels loaded) at the first call that asks for it.
     """
     if _state["resolved"] is None:
         _state["resolved"] = _resolve(_requested())
