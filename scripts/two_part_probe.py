@@ -3,8 +3,8 @@
 Usage::
 
     OPENBLAS_NUM_THREADS=1 python scripts/two_part_probe.py [--scene scenes/household.toml] \
-        [--kinds chair laptop ...] [--trials 10] [--seed 0] [--mu 0.2] [--gate 0.12] [--union-min 0.85] \
-        [--differences] [--limits DIR] [--records FILE]
+        [--kinds chair laptop ...] [--trials 10] [--seed 0] [--mu 0.2] [--differences] \
+        [--limits DIR] [--records FILE]
 
 The measurement behind stage 3U (:mod:`sqfit.fitting.two_parts`, chain ``two-parts``), which it
 takes its union fit from. An open laptop or a chair's seat and back are two slabs at an angle; their
@@ -15,10 +15,9 @@ from the default's fit as 3U does (:func:`~sqfit.fitting.two_parts.fit_union` fr
 for the IoUs' Jacobian by forward differences), and reports what each rule would keep: the part of
 higher estimated 3D IoU with the union (3U's :func:`~sqfit.fitting.two_parts.pick_part`), the part
 whose own silhouettes match the masks better, the better of the two parts (known only from the
-mesh), and the gated pick: the first rule's part only where the union matches the masks better than
-the default's fit by at least ``--gate`` in mean silhouette IoU and matches them at least at
-``--union-min``, else the default's fit (3U's rule; unlike 3U, the probe fits the union whether or not 3T's
-trigger holds).
+mesh), and the gated pick: the first rule's part only where the union passes 3U's gate
+(:func:`~sqfit.fitting.two_parts.passes_gate`), else the default's fit (unlike 3U, the probe fits the
+union whether or not 3T's trigger holds).
 
 Per trial it prints the default's 3D IoU against the mesh and its silhouettes' mean IoU with the
 (opened) masks, the union's, the rules' picks, the better of the two parts, the gated pick and the
@@ -43,7 +42,7 @@ import sqfit  # noqa: E402
 from sqfit.fitting.costs import ObservationSet  # noqa: E402
 from sqfit.fitting.least_volume import bulk_observations  # noqa: E402
 from sqfit.fitting.stages import to_superquadric  # noqa: E402
-from sqfit.fitting.two_parts import (GATE, SEED, UNION_MIN, UNION_POINTS, fit_union, l_starts,  # noqa: E402
+from sqfit.fitting.two_parts import (SEED, UNION_POINTS, fit_union, l_starts, passes_gate,  # noqa: E402
                                      union_ious, union_sample)
 from sqfit.geometry.superquadric import contains, volume  # noqa: E402
 from sqfit.metrics import iou_3d_mesh  # noqa: E402
@@ -61,9 +60,10 @@ def trial_row(scene, index, renderer, mu, cache, differences=False):
     xi = fit.to_vector()
     t0 = time.process_time()
     bulk = bulk_observations(obs) or obs
-    single = union_ious(xi[None, None], bulk)[0].mean()
+    singles = union_ious(xi[None, None], bulk)[0]
     best = min((fit_union(start, bulk, mu, volume(fit), differences) for start in l_starts(xi)), key=lambda t: t[2])
     X, union = best[0], best[1]
+    passes = passes_gate(singles, union_ious(X[None], bulk)[0])
     parts = [to_superquadric(x) for x in X]
     seconds = time.process_time() - t0
     rng = np.random.default_rng(SEED)
@@ -72,7 +72,8 @@ def trial_row(scene, index, renderer, mu, cache, differences=False):
     estimate = [s / (volume(q) + vol - s) for s, q in zip(share, parts)]
     alone = union_ious(X[:, None], bulk).mean(axis=1)
     ious = [iou_3d_mesh(q, obj.mesh) for q in parts]
-    return {"trial": index, "default": iou_3d_mesh(fit, obj.mesh), "single_sil": float(single), "union_sil": float(union),
+    return {"trial": index, "default": iou_3d_mesh(fit, obj.mesh), "single_sil": float(singles.mean()),
+            "union_sil": float(union), "passes": passes,
             "parts": ious, "by_union": ious[int(np.argmax(estimate))], "by_silhouette": ious[int(np.argmax(alone))],
             "limit": object_limit(obj, cache).iou, "seconds": seconds, "parts_xi": X.tolist()}
 
@@ -84,10 +85,6 @@ def main(argv=None):
     parser.add_argument("--trials", type=int, default=10)
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--mu", type=float, default=0.2, help="weight of the parts' volume (default 0.2)")
-    parser.add_argument("--gate", type=float, default=GATE,
-                        help=f"silhouette gain of the union that lets a part replace the default's fit (default {GATE})")
-    parser.add_argument("--union-min", type=float, default=UNION_MIN,
-                        help=f"the union's mean silhouette IoU below which the default's fit is kept (default {UNION_MIN})")
     parser.add_argument("--differences", action="store_true",
                         help="the IoUs' Jacobian by forward differences (slower) instead of union_gradient")
     parser.add_argument("--limits", default=None, help="directory of cached limits (an experiment's DIR/limits)")
@@ -95,8 +92,6 @@ def main(argv=None):
     args = parser.parse_args(argv)
     if not args.mu >= 0:
         parser.error(f"--mu must be >= 0, got {args.mu}")
-    if not 0.0 <= args.union_min <= 1.0:
-        parser.error(f"--union-min must be in [0, 1], got {args.union_min}")
     if args.trials < 1:
         parser.error(f"--trials must be >= 1, got {args.trials}")
     with open(args.scene, "rb") as f:
@@ -112,8 +107,7 @@ def main(argv=None):
         for index in range(args.trials):
             row = trial_row(scene, index, renderer, args.mu, cache, args.differences)
             row["best_part"] = max(row["parts"])
-            passes = row["union_sil"] - row["single_sil"] >= args.gate and row["union_sil"] >= args.union_min
-            row["gated"] = row["by_union"] if passes else row["default"]
+            row["gated"] = row["by_union"] if row["passes"] else row["default"]
             rows.append(row)
             print(f"{kind} {index:3d}: " + ", ".join(f"{c} {row[c]:.3f}" for c in columns), flush=True)
             if args.records:

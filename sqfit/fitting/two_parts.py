@@ -19,7 +19,8 @@ fits the *union* of two superquadrics to the masks with their thin parts opened 
 - keeping the start of the lowest objective (:func:`fit_union`).
 
 Where the union matches the masks better than 3V's fit by at least :data:`GATE` in mean silhouette
-IoU, and at least :data:`UNION_MIN` (noisy masks of one superquadric, below), the part of the higher
+IoU and by :data:`VIEW_GATE` in the median view, and at least at :data:`UNION_MIN` (noisy masks of
+one superquadric, an opened mask that disagrees with the others), the part of the higher
 estimated 3D IoU with the union (:func:`pick_part`) replaces 3V's fit; else 3V's fit is kept. Where 3V's fit matches the opened masks above ``1 - GATE`` no union can pass
 the gate, and none is fitted.
 
@@ -45,9 +46,9 @@ from ..geometry.silhouette import batch_silhouettes, vertex_velocities
 from ..geometry.superquadric import contains, euler_to_matrix, unit_volumes, volume
 from ..kernels.backend import compiled
 
-__all__ = ["THIN", "VERTICES", "EVALUATIONS", "EDGE_POINTS", "UNION_POINTS", "SEED", "GATE", "UNION_MIN", "MU",
+__all__ = ["THIN", "VERTICES", "EVALUATIONS", "EDGE_POINTS", "UNION_POINTS", "SEED", "GATE", "UNION_MIN", "VIEW_GATE", "MU",
            "l_starts", "union_overlap", "union_ious", "union_gradient", "volumes", "fit_union", "union_sample", "pick_part",
-           "two_part_stage"]
+           "passes_gate", "two_part_stage"]
 
 #: A start's slabs are this share of the fit's box thick.
 THIN = 0.15
@@ -74,6 +75,14 @@ GATE = 0.12
 #: unions that passed the gate matched at 0.85-0.97 (the other six at 0.73-0.84, gains of 0.04-0.23
 #: given up).
 UNION_MIN = 0.85
+#: The union's gain over 3V's fit, in silhouette IoU, that the median view must show: the two parts must
+#: match most views better, not one view that disagrees with the others. Where one view carried the
+#: gain, a part that explains that view alone was kept: a table of seed 4 whose opened mask in one view
+#: 3V's fit matched at 0.06 (the others at 0.83-0.98; 3D IoU 0.661 -> 0.006), a monitor of seed 0
+#: (0.199 -> 0.039), two fits of ``paper-noisy`` (median gains -0.04 to 0.07); the 65 chairs,
+#: laptops and monitors of seeds 0 and 4 that passed :data:`GATE` and :data:`UNION_MIN` otherwise have
+#: 0.11-0.71.
+VIEW_GATE = 0.1
 #: Weight of the parts' total volume (over 3V's fit's) in the union's least squares.
 MU = 0.2
 
@@ -269,10 +278,19 @@ def pick_part(X):
     return int(np.argmax([s / (volume(q) + total - s) for s, q in zip(shares, parts)]))
 
 
+def passes_gate(singles, unions):
+    """Whether two parts whose union's silhouettes match the opened masks at ``unions`` (IoU per view)
+    may replace a fit that matches them at ``singles``: better by :data:`GATE` on average and by
+    :data:`VIEW_GATE` in the median view, and at least :data:`UNION_MIN` on average."""
+    singles, unions = np.asarray(singles, dtype=np.float64), np.asarray(unions, dtype=np.float64)
+    return bool(unions.mean() - singles.mean() >= GATE and unions.mean() >= UNION_MIN
+                and np.median(unions - singles) >= VIEW_GATE)
+
+
 @register("3U")
 def two_part_stage(state, obs, options):
     """Stage 3U: stage 3V, then, where 3T's trigger holds, one of two superquadrics fitted together
-    to the opened masks where they match them better by :data:`GATE` (module docstring)."""
+    to the opened masks where their union matches them better (:func:`passes_gate`; module docstring)."""
     base = least_volume_stage(state, obs, options)
     base = replace(base, message="3U: " + base.message)
     if not triggers(state, obs):
@@ -281,18 +299,21 @@ def two_part_stage(state, obs, options):
         return replace(base, message=base.message + "; a view is cut by the image border or occluded: no two parts")
     try:
         bulk = bulk_observations(obs) or obs
-        single = float(union_ious(np.array([[base.xi, base.xi]], dtype=np.float64), bulk)[0].mean())
+        singles = union_ious(np.array([[base.xi, base.xi]], dtype=np.float64), bulk)[0]
+        single = float(singles.mean())
         if single > 1.0 - GATE:
             return replace(base, message=base.message + f"; its silhouettes match the opened masks at {single:.3f}: "
                                                         f"two parts cannot gain {GATE}")
         reference = volume(to_superquadric(base.xi))
         fits = [fit_union(start, bulk, MU, reference) for start in l_starts(np.asarray(base.xi, dtype=np.float64))]
+        X, union, _, _ = min(fits, key=lambda fit: fit[2])
+        unions = union_ious(X[None], bulk)[0]
     except (StageError, *NUMERICAL_ERRORS) as exc:
         return replace(base, message=base.message + f"; the two parts' fit failed ({exc}): kept 3V's fit")
-    X, union, _, _ = min(fits, key=lambda fit: fit[2])
     nfev = base.nfev + sum(fit[3] for fit in fits)
-    detail = f"two parts match the opened masks at {union:.3f}, 3V's fit at {single:.3f}"
-    if union - single < GATE or union < UNION_MIN:
+    detail = (f"two parts match the opened masks at {union:.3f}, 3V's fit at {single:.3f} (median view: "
+              f"{float(np.median(unions - singles)):+.3f})")
+    if not passes_gate(singles, unions):
         return replace(base, nfev=nfev, message=f"{base.message}; {detail}: kept 3V's fit")
     part = pick_part(X)
     return FitState(X[part], cost=None, status=base.status, nfev=nfev,  # no cost of the single part's own
