@@ -13,7 +13,7 @@ wedge between them. For each trial this fits the *union* of two superquadrics to
 from the default's fit as 3U does (:func:`~sqfit.fitting.two_parts.fit_union` from each of
 :func:`~sqfit.fitting.two_parts.l_starts`; ``--mu`` the weight of the parts' volume; ``--differences``
 for the IoUs' Jacobian by forward differences), and reports what each rule would keep: the part of
-higher estimated 3D IoU with the union (3U's :func:`~sqfit.fitting.two_parts.pick_part`), the part
+higher 3D IoU with the union, the larger (3U's :func:`~sqfit.fitting.two_parts.pick_part`), the part
 whose own silhouettes match the masks better, the better of the two parts (known only from the
 mesh), and the gated pick: the first rule's part only where the union passes 3U's gate
 (:func:`~sqfit.fitting.two_parts.passes_gate`), else the default's fit (unlike 3U, the probe fits the
@@ -42,9 +42,8 @@ import sqfit  # noqa: E402
 from sqfit.fitting.costs import ObservationSet  # noqa: E402
 from sqfit.fitting.least_volume import bulk_observations  # noqa: E402
 from sqfit.fitting.stages import to_superquadric  # noqa: E402
-from sqfit.fitting.two_parts import (SEED, UNION_POINTS, fit_union, l_starts, passes_gate,  # noqa: E402
-                                     union_ious, union_sample)
-from sqfit.geometry.superquadric import contains, volume  # noqa: E402
+from sqfit.fitting.two_parts import fit_union, l_starts, passes_gate, pick_part, union_ious  # noqa: E402
+from sqfit.geometry.superquadric import volume  # noqa: E402
 from sqfit.metrics import iou_3d_mesh  # noqa: E402
 from sqsim.imaging.render import get_renderer  # noqa: E402
 from sqsim.imaging.trial import observations, simulate_trial  # noqa: E402
@@ -66,15 +65,11 @@ def trial_row(scene, index, renderer, mu, cache, differences=False):
     passes = passes_gate(singles, union_ious(X[None], bulk)[0])
     parts = [to_superquadric(x) for x in X]
     seconds = time.process_time() - t0
-    rng = np.random.default_rng(SEED)
-    sample, vol = union_sample(parts, UNION_POINTS, rng)
-    share = [contains(q, sample).mean() * vol for q in parts]
-    estimate = [s / (volume(q) + vol - s) for s, q in zip(share, parts)]
     alone = union_ious(X[:, None], bulk).mean(axis=1)
     ious = [iou_3d_mesh(q, obj.mesh) for q in parts]
     return {"trial": index, "default": iou_3d_mesh(fit, obj.mesh), "single_sil": float(singles.mean()),
             "union_sil": float(union), "passes": passes,
-            "parts": ious, "by_union": ious[int(np.argmax(estimate))], "by_silhouette": ious[int(np.argmax(alone))],
+            "parts": ious, "by_union": ious[pick_part(X)], "by_silhouette": ious[int(np.argmax(alone))],
             "limit": object_limit(obj, cache).iou, "seconds": seconds, "parts_xi": X.tolist()}
 
 

@@ -91,13 +91,16 @@ def test_the_compiled_union_overlap_agrees_with_shapely():
     assert np.allclose(fast, slow, atol=1e-9)
 
 
-def test_the_union_sample_lies_in_the_parts_and_its_volume_is_theirs():
-    a = sqfit.Superquadric((1.0, 1.0, 1.0), (1.0, 1.0), (0.0, 0.0, 0.0), (0.0, 0.0, 0.0))
-    b = sqfit.Superquadric((0.5, 0.5, 0.5), (1.0, 1.0), (5.0, 0.0, 0.0), (0.0, 0.0, 0.0))  # apart from a
-    points, vol = two_parts.union_sample([a, b], 5000, np.random.default_rng(0))
-    assert len(points) == 5000 and np.all(contains(a, points) | contains(b, points))
-    exact = 4.0 / 3.0 * np.pi * (1.0 + 0.5**3)
-    assert abs(vol / exact - 1.0) < 0.05
+def test_the_part_kept_is_the_one_of_higher_3d_iou_with_the_union():
+    a = sqfit.Superquadric((1.0, 0.2, 1.0), (0.5, 0.5), (0.0, 0.0, 0.0), (0.0, 0.0, 0.0))  # a slab
+    b = sqfit.Superquadric((0.2, 1.0, 0.7), (0.5, 0.5), (0.9, 0.7, 0.1), (0.0, 0.0, 0.3))  # another, crossing it
+    rng = np.random.default_rng(0)
+    points = rng.uniform(-3.0, 3.0, (400000, 3))
+    in_a, in_b = contains(a, points), contains(b, points)
+    iou = [(in_q & (in_a | in_b)).sum() / (in_a | in_b).sum() for in_q in (in_a, in_b)]  # Monte Carlo
+    X = np.stack([a.to_vector(), b.to_vector()])
+    assert two_parts.pick_part(X) == int(np.argmax(iou)) and abs(iou[0] - iou[1]) > 0.05
+    assert two_parts.pick_part(X[::-1]) == 1 - int(np.argmax(iou))
 
 
 def test_the_union_overlap_kernel_on_known_squares():
