@@ -73,9 +73,10 @@ def add_arguments(parser):
     parser.add_argument("--chain", default=DEFAULT_CHAIN,
                         help="stages joined by '-', e.g. 1-2-3D-3A; or 'default', 'hull' (the visual-hull baseline), "
                              "'tolerant' (the default with 3R also re-fitted from the visual hull's fit, slower where it "
-                             "acts, and 3T without the part gate), 'two-parts' (the default, then on chairs and laptops one of two "
-                             "superquadrics fitted together to the masks: seconds per object where it acts). The default ends with 3V: where no superquadric "
-                             "grazes the outline, G2 on the mask contours, also from a fit of the masks with thin parts "
+                             "acts, and 3T without the part gate), 'two-parts' (the default, then on chairs and "
+                             "laptops one of two superquadrics fitted together to the masks: seconds per object where "
+                             "it acts). The default ends with 3V: where no superquadric grazes the outline, G2 on the mask "
+                             "contours, also from a fit of the masks with thin parts "
                              "opened away, each kept only where what it leaves out is a part seen in several views (legs, "
                              "stands); of the fits that match the contours alike, the one of least volume")
     parser.add_argument("--samples", type=int, default=C.DEFAULT_SAMPLES, help="samples N per observation")
