@@ -75,8 +75,8 @@ def add_arguments(parser):
                              "'tolerant' (the default with 3R also re-fitted from the visual hull's fit, slower where it "
                              "acts, and 3T without the part gate), 'two-parts' (the default, then on chairs and "
                              "laptops one of two superquadrics fitted together to the masks: seconds per object where "
-                             "it acts). The default ends with 3V: where no superquadric grazes the outline, G2 on the mask "
-                             "contours, also from a fit of the masks with thin parts "
+                             "it acts). The default ends with 3V: where no superquadric grazes the outline, G2 on the "
+                             "mask contours, also from a fit of the masks with thin parts "
                              "opened away, each kept only where what it leaves out is a part seen in several views (legs, "
                              "stands); of the fits that match the contours alike, the one of least volume")
     parser.add_argument("--samples", type=int, default=C.DEFAULT_SAMPLES, help="samples N per observation")
