@@ -4,8 +4,7 @@ Above :mod:`sqfit.views`. Stages are registered by name in :data:`STAGES` (paper
 ``2``, ``3A``-``3F`` in :mod:`.stages`; ``3G`` in :mod:`.grazing`; ``3S`` in :mod:`.restarts`;
 ``3H`` in :mod:`.axis_screen`; ``2M`` in :mod:`.moments`; ``3T`` in :mod:`.outline`; ``3TP`` in :mod:`.parts`;
 ``3V`` in :mod:`.least_volume`; ``3U`` in :mod:`.two_parts`; ``3R`` in :mod:`.trimmed`; ``HULL`` in :mod:`.hull`),
-and a chain is a
-dash-joined list of them (``"1-2M-3H"``).
+and a chain is a dash-joined list of them (``"1-2M-3H"``).
 
 - :mod:`.costs` — the paper's costs: R-IOU (G2), the analytic G3-G5, penalty, bounds;
 - :mod:`.line_gauge` — where a ray comes closest to a superquadric: the gauge's minimum along lines;

@@ -27,6 +27,9 @@ compute the same numbers per view and per vertex:
   point's answer is the numpy test's bit for bit): which occluding pixels lie in an observation's
   polygon, once per view of every observation set the factor graph's re-fits build.
 
+The Sutherland-Hodgman helpers (:func:`clip_convex`, :func:`clipped_contour`, :func:`clip_buffers`,
+:func:`convex_sign`, :func:`polygon_area`) are public: :mod:`sqfit.kernels.union_kernels` clips with them.
+
 Sums run in index order (numpy's pairwise sums and BLAS may round differently: IoUs agree to
 1e-12). No ``fastmath``. Importing this module imports numba; :mod:`sqfit.kernels.backend` does that
 lazily, and the kernels are cached next to this file (``cache=True``). Constants of the numpy code
