@@ -61,14 +61,14 @@ def trial_row(scene, index, renderer, mu, cache, differences=False):
     bulk = bulk_observations(obs) or obs
     singles = union_ious(xi[None, None], bulk)[0]
     best = min((fit_union(start, bulk, mu, volume(fit), differences) for start in l_starts(xi)), key=lambda t: t[2])
-    X, union = best[0], best[1]
-    passes = passes_gate(singles, union_ious(X[None], bulk)[0])
+    X, unions = best[0], best[1]
+    passes = passes_gate(singles, unions)
     parts = [to_superquadric(x) for x in X]
     seconds = time.process_time() - t0
     alone = union_ious(X[:, None], bulk).mean(axis=1)
     ious = [iou_3d_mesh(q, obj.mesh) for q in parts]
     return {"trial": index, "default": iou_3d_mesh(fit, obj.mesh), "single_sil": float(singles.mean()),
-            "union_sil": float(union), "passes": passes,
+            "union_sil": float(unions.mean()), "passes": passes,
             "parts": ious, "by_union": ious[pick_part(X)], "by_silhouette": ious[int(np.argmax(alone))],
             "limit": object_limit(obj, cache).iou, "seconds": seconds, "parts_xi": X.tolist()}
 

@@ -244,7 +244,7 @@ def test_the_stage_keeps_the_part_where_the_gate_passes(monkeypatch, union, kept
     three_v = sqfit.fit(obs).superquadric.to_vector()
     part = three_v.copy()
     part[0:3] *= 0.5
-    monkeypatch.setattr(two_parts, "fit_union", lambda *args, **kw: (np.stack([part, three_v]), 0.95, 0.1, 1))
+    monkeypatch.setattr(two_parts, "fit_union", lambda *args, **kw: (np.stack([part, three_v]), np.full(4, 0.95), 0.1, 1))
     monkeypatch.setattr(two_parts, "passes_gate", lambda singles, unions: union)
     monkeypatch.setattr(two_parts, "pick_part", lambda X: 0)
     fit = sqfit.fit(obs, chain="two-parts")

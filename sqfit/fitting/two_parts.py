@@ -191,7 +191,7 @@ def union_gradient(X, obs):
     polys, valid, _, unit_points, points = batch_silhouettes(X, obs.rotations, obs.centers, obs.intrinsics, VERTICES,
                                                              touching=True)
     inter, union, ok = (q[0] for q in union_overlap(X[None], obs, (polys, valid)))
-    areas, simple = obs.contour_arrays()[3], obs.contour_arrays()[2]
+    stacked, starts, simple, areas = obs.contour_arrays()
     iou = np.where(ok, inter / (union + areas - inter), 0.0)
     grad = np.zeros((len(obs), 22))
     if not valid.all():
@@ -199,7 +199,6 @@ def union_gradient(X, obs):
     velocities = vertex_velocities(X, unit_points, points, obs.rotations, obs.intrinsics)  # (2, v, K, 2, 11)
     kernels = compiled("unions")
     if kernels is not None:
-        stacked, starts = obs.contour_arrays()[:2]
         d_inter, d_union = kernels.union_edge_sums(np.ascontiguousarray(polys), np.ascontiguousarray(velocities),
                                                    stacked, starts, np.flatnonzero(simple), EDGE_POINTS)
         rest = np.flatnonzero(~simple)
@@ -225,8 +224,9 @@ def volumes(X):
 def fit_union(start, obs, mu, reference, differences=False):
     """Least squares from ``start`` ``(2, 11)``: ``1 - IoU`` per view and ``mu`` x the parts' volume
     over ``reference``; the IoUs' Jacobian from :func:`union_gradient`, or by forward differences
-    (``differences``; the volume's always). Returns the parts ``(2, 11)``, the union's mean silhouette
-    IoU, the objective (the sum of the residuals) and the evaluations."""
+    (``differences``; the volume's always). Returns the parts ``(2, 11)``, the union's silhouette IoU
+    per view (:func:`union_ious` at the parts), the objective (the sum of the residuals) and the
+    evaluations."""
     shape = start.shape
     lower = np.tile(np.r_[[1e-3] * 3, 0.05, 0.05, [-np.inf] * 6], shape[0])
     upper = np.tile(np.r_[[np.inf] * 3, 1.9, 1.9, [np.inf] * 6], shape[0])
@@ -249,7 +249,7 @@ def fit_union(start, obs, mu, reference, differences=False):
 
     x0 = np.clip(start.ravel(), lower + 1e-6, upper - 1e-6)
     res = least_squares(residuals, x0, jac=jacobian, bounds=(lower, upper), x_scale="jac", max_nfev=EVALUATIONS)
-    return res.x.reshape(shape), 1.0 - res.fun[:-1].mean(), float(res.fun.sum()), int(res.nfev)
+    return res.x.reshape(shape), 1.0 - res.fun[:-1], float(res.fun.sum()), int(res.nfev)
 
 
 def pick_part(X):
@@ -291,12 +291,11 @@ def two_part_stage(state, obs, options):
                                                         f"two parts cannot gain {GATE}")
         reference = volume(to_superquadric(base.xi))
         fits = [fit_union(start, bulk, MU, reference) for start in l_starts(np.asarray(base.xi, dtype=np.float64))]
-        X, union, _, _ = min(fits, key=lambda fit: fit[2])
-        unions = union_ious(X[None], bulk)[0]
+        X, unions, _, _ = min(fits, key=lambda fit: fit[2])
     except (StageError, *NUMERICAL_ERRORS) as exc:
         return replace(base, message=base.message + f"; the two parts' fit failed ({exc}): kept 3V's fit")
     nfev = base.nfev + sum(fit[3] for fit in fits)
-    detail = (f"two parts match the opened masks at {union:.3f}, 3V's fit at {single:.3f} (median view: "
+    detail = (f"two parts match the opened masks at {unions.mean():.3f}, 3V's fit at {single:.3f} (median view: "
               f"{float(np.median(unions - singles)):+.3f})")
     if not passes_gate(singles, unions):
         return replace(base, nfev=nfev, message=f"{base.message}; {detail}: kept 3V's fit")
