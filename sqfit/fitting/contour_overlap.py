@@ -16,7 +16,7 @@ import numpy as np
 
 from ..kernels.backend import compiled
 
-__all__ = ["CONVEX_TOL", "contour_ious"]
+__all__ = ["CONVEX_TOL", "contour_overlaps", "contour_ious"]
 
 
 #: :func:`sqfit.kernels.silhouette_kernels.contour_overlaps`: a silhouette vertex may turn the wrong
@@ -25,21 +25,20 @@ __all__ = ["CONVEX_TOL", "contour_ious"]
 CONVEX_TOL = 1e-9
 
 
-def contour_ious(polys, valid, obs, views, clip, hidden_inter, hidden_union):
-    """IoU ``(b, len(views))`` of silhouettes ``polys`` ``(b, v, K, 2)`` with the mask contours of
-    ``views`` (of the ObservationSet ``obs``), the silhouettes clipped to the image where ``clip``
-    ``(len(views),) bool``, the hidden-pixel counts (broadcastable to ``(b, len(views))``) out of
-    both intersection and union (:func:`sqfit.fitting.costs.visible_iou`); 0 where not ``valid``.
-    Compiled (``contour_overlaps``) where the kernels are, the silhouette convex and the contour
-    simple: on household masks of ~240 contour vertices 21 us per pair against shapely's 69 us
-    (module docstring); shapely for the rest (the silhouette made valid first) and without numba.
-    The two agree to rounding (tested)."""
+def contour_overlaps(polys, valid, obs, views, clip):
+    """``(inter, area)``, each ``(b, len(views))``: the area of each silhouette of ``polys``
+    ``(b, v, K, 2)`` overlapping the mask contour of each of ``views`` (of the ObservationSet
+    ``obs``), and the silhouette's area, both clipped to the image where ``clip`` ``(len(views),)
+    bool``; 0 where not ``valid``. Compiled (``contour_overlaps``) where the kernels are, the
+    silhouette convex and the contour simple: on household masks of ~240 contour vertices 21 us per
+    pair against shapely's 69 us (module docstring); shapely for the rest (the silhouette made valid
+    first) and without numba. The two agree to rounding (tested)."""
     import shapely
 
     b, views = len(polys), np.asarray(views, dtype=np.int64)
     inter, area = np.zeros((b, len(views))), np.zeros((b, len(views)))
     todo = valid[:, views].copy()
-    shapes, (stacked, starts, simple, areas) = obs.contour_shapes(), obs.contour_arrays()
+    shapes, (stacked, starts, simple, _) = obs.contour_shapes(), obs.contour_arrays()
     kernels = compiled("silhouettes")
     if kernels is not None and todo.any():
         rows, cols = np.nonzero(todo & simple[views])
@@ -56,6 +55,18 @@ def contour_ious(polys, valid, obs, views, clip, hidden_inter, hidden_union):
         sil = np.where(clip[cols], shapely.intersection(sil, shapely.polygons(obs.frames[views[cols]])), sil)
         inter[rows, cols] = shapely.area(shapely.intersection(sil, shapes[views[cols]]))
         area[rows, cols] = shapely.area(sil)
+    return inter, area
+
+
+def contour_ious(polys, valid, obs, views, clip, hidden_inter, hidden_union):
+    """IoU ``(b, len(views))`` of silhouettes ``polys`` ``(b, v, K, 2)`` with the mask contours of
+    ``views`` (of the ObservationSet ``obs``), the silhouettes clipped to the image where ``clip``
+    ``(len(views),) bool``, the hidden-pixel counts (broadcastable to ``(b, len(views))``) out of
+    both intersection and union (:func:`sqfit.fitting.costs.visible_iou`); 0 where not ``valid``.
+    The overlaps are :func:`contour_overlaps`'."""
+    views = np.asarray(views, dtype=np.int64)
+    inter, area = contour_overlaps(polys, valid, obs, views, clip)
+    areas = obs.contour_arrays()[3]
     union = area + areas[views] - inter - hidden_union
     with np.errstate(divide="ignore", invalid="ignore"):
         iou = np.where(union > 0, np.maximum(inter - hidden_inter, 0.0) / union, 0.0)
