@@ -8,6 +8,7 @@ Above :mod:`sqfit.geometry`, :mod:`sqfit.formats` and :mod:`sqfit.kernels`, belo
 - :mod:`.rays` — camera rays through outline points, the grazing-ray stages' data;
 - :mod:`.carving` — the visual hull: voxel carving of the masks, honouring the labels;
 - :mod:`.opening` — a mask's outline with its thin parts (legs, a stand) opened away (stage 3V's bulk fit);
+- :mod:`.consistency` — whether the masks agree under the cameras: their epipolar tangents (stage 3W's gate);
 - :mod:`.dataset` — reading (and writing masks of) datasets in the ``sqsim generate`` format, and
   observations from instance-id images;
 - :mod:`.sequence` — image sequences with odometry (TUM trajectories, lazily read frames);
