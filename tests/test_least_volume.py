@@ -15,6 +15,7 @@ from sqfit.views.opening import MIN_REMOVED, OPEN_FRACTION, opened
 from _helpers import sq_vector
 
 CAMERA = paper_trial(0).observations[0].camera  # 640 x 480
+THREE_V = "1-2M-3H-3R-3V"  # the default up to 3V (3W after it: tests/test_weighted_overlap.py)
 
 
 def _table_mask():
@@ -59,7 +60,7 @@ def test_a_lamp_becomes_its_shade(household):
     (3D IoU 0.19 against the mesh); the fits of the masks without the pole match the contours as well
     and claim less volume: 3V keeps one, about the shade."""
     lamp, obs = household("lamp", 0, 1)
-    gated, default = sqfit.fit(obs, "1-2M-3H-3R-3TP"), sqfit.fit(obs)
+    gated, default = sqfit.fit(obs, "1-2M-3H-3R-3TP"), sqfit.fit(obs, THREE_V)
     assert [s.name for s in default.stages][-1] == "3V"
     message = default.stages[-1].message
     assert "kept 3TP's fit" not in message and any(f"kept {c}" in message for c in least_volume.CANDIDATES), message
@@ -81,7 +82,7 @@ def test_noisy_masks_of_a_pinched_superquadric_stay_pinched(paper_noisy):
     of the outline out, so the masks may be of one superquadric: 3V does not make it square (that
     matched the contours within 0.01 and lost 0.075)."""
     _, obs = paper_noisy(25)
-    fit = sqfit.fit(obs)
+    fit = sqfit.fit(obs, THREE_V)
     message = fit.stages[-1].message
     assert "no part left out" in message and "pinched slab" not in message, message
     assert least_volume.squared_slab(fit.superquadric.to_vector()) is not None
@@ -92,7 +93,7 @@ def test_noisy_masks_of_a_superquadric_keep_3tps_fit(paper_noisy):
     from the bulk fit scores higher on the contours (0.78 against 0.73) but leaves no part of the
     outline out, and without that gate 3V would keep it (3D IoU 0.33 against 0.58)."""
     _, obs = paper_noisy(69)
-    gated, default = sqfit.fit(obs, "1-2M-3H-3R-3TP"), sqfit.fit(obs)
+    gated, default = sqfit.fit(obs, "1-2M-3H-3R-3TP"), sqfit.fit(obs, THREE_V)
     message = default.stages[-1].message
     assert "3A from the bulk fit: 0 outlier rays in stretches" in message and "kept 3TP's fit" in message, message
     np.testing.assert_array_equal(default.superquadric.to_vector(), gated.superquadric.to_vector())
@@ -128,7 +129,7 @@ def test_a_monitor_screen_fitted_as_a_diamond_becomes_a_board(household):
     with a diamond section (e2 1.9; 3D IoU 0.535); the masks match the board of the same volume as well,
     0.046 (the screen's best superquadric: 0.05), and 3V returns it (0.642)."""
     monitor, obs = household("monitor", 0, 8)
-    fit = sqfit.fit(obs)
+    fit = sqfit.fit(obs, THREE_V)
     assert "a pinched slab" in fit.stages[-1].message, fit.stages[-1].message
     sq = fit.superquadric
     assert sq.shape[1] == least_volume.SQUARE_SHAPE and min(sq.size) < 0.06

@@ -203,7 +203,7 @@ def test_stage_3g_is_registered_and_ends_the_default():
     assert "3G" in sqfit.STAGES
     # 2M: moments start; 3H: axis screen, then 3G (tests/test_axis_search.py); 3R: tests/test_trimmed_stage.py;
     # 3V: tests/test_least_volume.py
-    assert sqfit.DEFAULT_CHAIN == "1-2M-3H-3R-3V"
+    assert sqfit.DEFAULT_CHAIN == "1-2M-3H-3R-3V-3W"
 
 
 @pytest.mark.parametrize("seed", [0, 3])

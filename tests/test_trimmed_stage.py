@@ -11,6 +11,8 @@ from sqfit.fitting.grazing import outline_rays
 from sqfit.metrics import iou_3d
 from sqfit.testing import paper_cameras, paper_trial, polygon_mask
 
+THREE_V = "1-2M-3H-3R-3V"  # the default up to 3V: these tests look at 3R (3W after 3V: tests/test_weighted_overlap.py)
+
 
 def _mug_observations(seed=0):
     """A mug: an upright cylinder-like body and a handle (a flat ring-like superquadric on its side)."""
@@ -27,8 +29,9 @@ def _mug_observations(seed=0):
 
 def test_a_mug_lets_its_handle_go():
     body, obs = _mug_observations()
-    plain, default, tolerant = sqfit.fit(obs, "1-2M-3H"), sqfit.fit(obs), sqfit.fit(obs, "tolerant")
-    assert [s.name for s in default.stages][-2:] == ["3R", "3V"] and [s.name for s in tolerant.stages][-2:] == ["3RH", "3T"]
+    plain, default, tolerant = sqfit.fit(obs, "1-2M-3H"), sqfit.fit(obs, THREE_V), sqfit.fit(obs, "tolerant")
+    assert [s.name for s in default.stages][-2:] == ["3R", "3V"]
+    assert [s.name for s in tolerant.stages][-2:] == ["3RH", "3T"]
     assert trimmed.MIN_COST < plain.stages[-1].cost <= sqfit.fitting.outline.TRIGGER_COST
     assert "kept it" in default.stages[-2].message, default.stages[-2].message
     assert iou_3d(default.superquadric, body) > iou_3d(plain.superquadric, body) + 0.05
@@ -37,7 +40,7 @@ def test_a_mug_lets_its_handle_go():
     # offset is idle, so by default 3H ends with plain 3G and reports none either: kept on request)
     assert plain.outline_offset_px is None and "nuisances were idle" in plain.stages[-1].message
     kept = {"idle_nuisances_plain": False}
-    plain, default = sqfit.fit(obs, "1-2M-3H", options=kept), sqfit.fit(obs, options=kept)
+    plain, default = sqfit.fit(obs, "1-2M-3H", options=kept), sqfit.fit(obs, THREE_V, options=kept)
     assert plain.outline_offset_px is not None and "kept it" in default.stages[-2].message
     assert default.outline_offset_px is None
 
@@ -126,7 +129,7 @@ def test_cylinder_starts_keep_centre_and_turn_each_axis_to_z():
 def test_clean_superquadrics_pass_unchanged():
     for seed in range(3):
         obs = paper_trial(seed).observations
-        plain, default = sqfit.fit(obs, "1-2M-3H"), sqfit.fit(obs)
+        plain, default = sqfit.fit(obs, "1-2M-3H"), sqfit.fit(obs, THREE_V)
         np.testing.assert_array_equal(plain.superquadric.to_vector(), default.superquadric.to_vector())
         assert [s.name for s in default.stages][-2:] == ["3R", "3V"]
         assert all("kept the input" in s.message for s in default.stages[-2:])
@@ -140,7 +143,7 @@ def test_3r_starts_from_the_visual_hull_where_the_input_is_pinched(household, mo
     from sqfit.metrics import iou_3d_mesh
 
     mug, obs = household("mug", 0, 3)
-    plain, default, hull = sqfit.fit(obs, "1-2M-3H"), sqfit.fit(obs), sqfit.fit(obs, "1-2M-3H-3RH")
+    plain, default, hull = sqfit.fit(obs, "1-2M-3H"), sqfit.fit(obs, THREE_V), sqfit.fit(obs, "1-2M-3H-3RH")
     assert max(plain.superquadric.to_vector()[3:5]) >= trimmed.PINCHED
     refit = default.stages[-2]
     # from the visual hull's fit or a cylinder about its axes: both end in the same fit, and which
@@ -150,11 +153,11 @@ def test_3r_starts_from_the_visual_hull_where_the_input_is_pinched(household, mo
     assert iou_3d_mesh(default.superquadric, mug.mesh) > iou_3d_mesh(plain.superquadric, mug.mesh) + 0.1
     # with the pinch rule off (PINCHED above the input's exponents) 3R keeps the input; 3RH still carves
     monkeypatch.setattr(trimmed, "PINCHED", 2.0)
-    assert "kept the input" in sqfit.fit(obs).stages[-2].message
+    assert "kept the input" in sqfit.fit(obs, THREE_V).stages[-2].message
     np.testing.assert_array_equal(sqfit.fit(obs, "1-2M-3H-3RH").superquadric.to_vector(), hull.superquadric.to_vector())
     # where 3R keeps a re-fit, 3RH keeps the same one without carving
     body, obs = _mug_observations()
-    np.testing.assert_array_equal(sqfit.fit(obs).superquadric.to_vector(),
+    np.testing.assert_array_equal(sqfit.fit(obs, THREE_V).superquadric.to_vector(),
                                   sqfit.fit(obs, "1-2M-3H-3RH").superquadric.to_vector())
 
 
@@ -164,11 +167,11 @@ def test_a_refit_whose_silhouettes_leave_the_masks_is_not_kept(household, monkey
     far, huge minimum (half-axes of 200-1850 m) whose truncated cost is nearly 0; its silhouettes miss
     the masks (R-IOU-M 0.002), so 3R keeps the input."""
     _, obs = household("laptop", 4, 4)
-    res = sqfit.fit(obs)
+    res = sqfit.fit(obs, THREE_V)
     refit = res.stages[-2]
     assert refit.name == "3R" and "kept the input" in refit.message
     assert "its silhouettes leave the masks" in refit.message, refit.message
     assert max(res.superquadric.to_vector()[:3]) < 5.0
     monkeypatch.setattr(trimmed, "MIN_OVERLAP", 0.0)  # without the check the far, huge fit is kept
-    assert max(sqfit.fit(obs).superquadric.to_vector()[:3]) > 100.0
+    assert max(sqfit.fit(obs, THREE_V).superquadric.to_vector()[:3]) > 100.0
 

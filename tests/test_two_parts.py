@@ -1,5 +1,6 @@
 """Stage 3U (sqfit.fitting.two_parts): its L-shaped starts, the union's silhouette IoU, gradient and sample, its
-kernels, the stage on a true superquadric and on a chair; scripts/two_part_probe.py's arguments."""
+kernels, the stage on a true superquadric and on a chair (the default's fit where it keeps no part);
+scripts/two_part_probe.py's arguments."""
 
 import importlib.util
 from dataclasses import replace
@@ -186,13 +187,13 @@ def test_the_volumes_are_the_parts_volumes_as_a_fit_reads_them():
     assert np.allclose(two_parts.volumes(X), expected, rtol=1e-12)
 
 
-def test_the_stage_keeps_3vs_fit_on_a_true_superquadric():
+def test_the_stage_keeps_the_defaults_fit_on_a_true_superquadric():
     trial = paper_trial(1)
-    three_v = sqfit.fit(trial.observations)
+    default = sqfit.fit(trial.observations)
     three_u = sqfit.fit(trial.observations, chain="two-parts")
-    assert three_u.chain == "1-2M-3H-3R-3U" and three_v.chain == "1-2M-3H-3R-3V"
-    assert np.array_equal(three_u.superquadric.to_vector(), three_v.superquadric.to_vector())
-    assert three_u.stages[-1].message.startswith("3U: 3V")
+    assert three_u.chain == "1-2M-3H-3R-3U" and default.chain == "1-2M-3H-3R-3V-3W"
+    assert np.array_equal(three_u.superquadric.to_vector(), default.superquadric.to_vector())
+    assert three_u.stages[-1].message.startswith("3U: 3T's trigger does not hold; 3W: ")
 
 
 def _chair(index):
@@ -209,9 +210,9 @@ def test_on_a_chair_the_stage_keeps_one_of_two_parts_closer_to_the_chair():
     from sqfit.metrics import iou_3d_mesh
 
     chair, obs = _chair(1)
-    three_v, three_u = sqfit.fit(obs), sqfit.fit(obs, chain="two-parts")
+    three_v, three_u = sqfit.fit(obs, chain="1-2M-3H-3R-3V"), sqfit.fit(obs, chain="two-parts")
     message = three_u.stages[-1].message
-    assert "two parts match the opened masks at" in message and message.endswith("of two"), message
+    assert message.startswith("3U: two parts match the opened masks at") and ": kept part" in message, message
     # the default fills the wedge between seat and back; the part is the seat or the back
     before, after = iou_3d_mesh(three_v.superquadric, chair.mesh), iou_3d_mesh(three_u.superquadric, chair.mesh)
     assert before < 0.2 and after > before + 0.2
@@ -238,14 +239,16 @@ def test_the_gate_asks_the_union_to_match_the_masks_better_on_average_in_most_vi
     assert two_parts.passes_gate([0.83, 0.50, 0.70, 0.70], [0.93, 0.90, 0.82, 0.82])  # the median view: +0.12
 
 
-@pytest.mark.parametrize("union, kept", [(True, "part"), (False, "3V")])
+@pytest.mark.parametrize("union, kept", [(True, "part"), (False, "default")])
 def test_the_stage_keeps_the_part_where_the_gate_passes(monkeypatch, union, kept):
     _, obs = _chair(1)
-    three_v = sqfit.fit(obs).superquadric.to_vector()
+    three_v = sqfit.fit(obs, chain="1-2M-3H-3R-3V").superquadric.to_vector()
+    default = sqfit.fit(obs).superquadric.to_vector()
+    assert not np.array_equal(default, three_v)  # 3W moved it
     part = three_v.copy()
     part[0:3] *= 0.5
     monkeypatch.setattr(two_parts, "fit_union", lambda *args, **kw: (np.stack([part, three_v]), np.full(4, 0.95), 0.1, 1))
     monkeypatch.setattr(two_parts, "passes_gate", lambda singles, unions: union)
     monkeypatch.setattr(two_parts, "pick_part", lambda X: 0)
     fit = sqfit.fit(obs, chain="two-parts")
-    assert np.array_equal(fit.superquadric.to_vector(), part if kept == "part" else three_v)
+    assert np.array_equal(fit.superquadric.to_vector(), part if kept == "part" else default)

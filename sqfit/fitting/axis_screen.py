@@ -1,4 +1,4 @@
-"""Stage 3H (the default's last stage): choose the superquadric's axes, then fit 3G.
+"""Stage 3H (in the default chain): choose the superquadric's axes, then fit 3G.
 
 3G (:mod:`sqfit.fitting.grazing`) is a local method, and the start it gets from stage 2 (PCA of the
 back-projected samples: an ellipsoid, ``e = (1, 1)``) does not say which local axis carries the

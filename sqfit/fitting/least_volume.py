@@ -1,4 +1,4 @@
-"""Stage 3V (the default's last stage): of the fits that match the outlines alike, the one of least volume.
+"""Stage 3V (in the default chain, before 3W): of the fits that match the outlines alike, the one of least volume.
 
 Four masks leave a superquadric's 3D shape open where no superquadric grazes the outline: on a
 monitor, a lamp or a chair, fits of very different 3D IoU against the object match the mask

@@ -1,4 +1,4 @@
-"""Stage 3TP (the default's last stage): stage 3T's fit, kept only where what it lets go is a part.
+"""Stage 3TP (in the default chain, run by 3V): stage 3T's fit, kept only where what it lets go is a part.
 
 Stage 3T (:mod:`sqfit.fitting.outline`) replaces a fit whose grazing cost could not be met by the fit
 that overlaps the mask contours best. On a table, a monitor or a lamp that is the top, the screen or

@@ -43,8 +43,11 @@ PAPER_CHAINS = ("3A", "3B", "1-3A", "1-2-3A", "1-2-3B", "3E", "1-3E", "1-2-3C", 
 #: :mod:`sqfit.fitting.parts`, G2 on the mask contours where 3G's cost is high (stage 3T), kept only where
 #: what it lets go is such a stretch in several views (a table's legs, a monitor's stand); 3V:
 #: :mod:`sqfit.fitting.least_volume`, 3TP, then, where 3T's trigger holds, of 3TP's fit and fits of the masks
-#: with their thin parts opened away that match the contours alike, the one of least volume (docs/real-objects.md).
-DEFAULT_CHAIN = "1-2M-3H-3R-3V"
+#: with their thin parts opened away that match the contours alike, the one of least volume (docs/real-objects.md);
+#: 3W: :mod:`sqfit.fitting.weighted_overlap`, where the silhouettes do not match the mask contours (and the
+#: cameras and outlines were not corrected), the fit of the highest overlap with silhouette pixels outside the mask
+#: weighted twice.
+DEFAULT_CHAIN = "1-2M-3H-3R-3V-3W"
 #: Chain of :func:`fit` when a starting superquadric is given (``initial=``) and no chain is: a
 #: local refinement from it.
 INITIAL_CHAIN = "3G"
@@ -53,11 +56,11 @@ INITIAL_CHAIN = "3G"
 #: (G2 on the mask contours wherever 3G's cost is high: monitors, chairs and laptops gain a little more,
 #: noisy masks of true superquadrics can lose); opt-in (the carving runs wherever 3R keeps nothing),
 #: measured in docs/real-objects.md.
-TOLERANT_CHAIN = DEFAULT_CHAIN.replace("-3R-", "-3RH-").removesuffix("-3V") + "-3T"
+TOLERANT_CHAIN = DEFAULT_CHAIN.replace("-3R-", "-3RH-").removesuffix("-3V-3W") + "-3T"
 #: The default with stage 3U in place of 3V (3V, then where 3T's trigger holds one of two superquadrics fitted
 #: together to the opened masks, where their union matches them much better: chairs, laptops); opt-in (seconds
 #: of CPU per object where it fits the two), measured in docs/real-objects.md, "Stage 3U".
-TWO_PART_CHAIN = DEFAULT_CHAIN.removesuffix("-3V") + "-3U"
+TWO_PART_CHAIN = DEFAULT_CHAIN.removesuffix("-3V-3W") + "-3U"
 #: Names that stand for a whole chain wherever a chain is given (:func:`parse_chain`); ``hull`` is the
 #: visual-hull baseline (:data:`sqfit.fitting.hull.HULL_CHAIN`), ``tolerant`` :data:`TOLERANT_CHAIN`,
 #: ``two-parts`` :data:`TWO_PART_CHAIN`.

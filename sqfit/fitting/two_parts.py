@@ -21,13 +21,16 @@ fits the *union* of two superquadrics to the masks with their thin parts opened 
 Where the union matches the masks better than 3V's fit by at least :data:`GATE` in mean silhouette
 IoU and by :data:`VIEW_GATE` in the median view, and at least at :data:`UNION_MIN` (noisy masks of
 one superquadric, an opened mask that disagrees with the others; :func:`passes_gate`), the part of
-the higher 3D IoU with the union, the larger (:func:`pick_part`), replaces 3V's fit; else 3V's fit is
-kept. Where 3V's fit matches the opened masks above ``1 - GATE`` no union can pass the gate, and none
-is fitted. Which part is the better one the masks hardly say (a few px of thickness): on 5 of 240 chairs,
+the higher 3D IoU with the union, the larger (:func:`pick_part`), replaces 3V's fit; else the stage
+ends as the default does, in stage 3W (:mod:`sqfit.fitting.weighted_overlap`) on 3V's fit, so that
+``two-parts`` differs from the default only where it keeps a part. Where 3V's fit matches the opened
+masks above ``1 - GATE`` no union can pass the gate, and none is fitted. Which part is the better one
+the masks hardly say (a few px of thickness): on 5 of 240 chairs,
 laptops, monitors and tables the part kept was worse than 3V's fit, by up to 0.39.
 
-Measured (``sqsim experiment scenes/household.toml --chains default,two-parts``, 20 objects per kind,
-median 3D IoU, seeds 0 / 4 / 2, the last not looked at while the gate was set): chairs 0.085 / 0.090 /
+Measured before stage 3W joined the default (``sqsim experiment scenes/household.toml --chains
+default,two-parts``, 20 objects per kind, median 3D IoU, seeds 0 / 4 / 2, the last not looked at while
+the gate was set; the default then ``1-2M-3H-3R-3V``, and 3U without 3W): chairs 0.085 / 0.090 /
 0.086 -> 0.188 / 0.193 / 0.255, laptops 0.092 / 0.097 / 0.103 -> 0.245 / 0.163 / 0.118, monitors
 0.534 / 0.484 / 0.571 -> 0.614 / 0.549 / 0.577; other kinds and the guard scenes unchanged.
 docs/real-objects.md, "Stage 3U". Where it fits the union it costs seconds of CPU per object (most
@@ -44,6 +47,7 @@ from scipy.optimize import least_squares
 from .contour_overlap import CONVEX_TOL
 from .least_volume import bulk_observations, least_volume_stage
 from .outline import triggers
+from .weighted_overlap import weighted_overlap_stage
 from .stages import NUMERICAL_ERRORS, FitState, StageError, register, to_superquadric
 from ..constants import SHAPE_DOMAIN
 from ..geometry.silhouette import batch_silhouettes, vertex_velocities
@@ -275,30 +279,35 @@ def passes_gate(singles, unions):
 @register("3U")
 def two_part_stage(state, obs, options):
     """Stage 3U: stage 3V, then, where 3T's trigger holds, one of two superquadrics fitted together
-    to the opened masks where their union matches them better (:func:`passes_gate`; module docstring)."""
+    to the opened masks where their union matches them better (:func:`passes_gate`); elsewhere stage
+    3W on 3V's fit, as the default ends (module docstring)."""
     base = least_volume_stage(state, obs, options)
-    base = replace(base, message="3U: " + base.message)
+
+    def default(why):
+        ended = weighted_overlap_stage(base, obs, options)
+        return replace(ended, message=f"3U: {why}; {ended.message}; {base.message}")
+
     if not triggers(state, obs):
-        return base
+        return default("3T's trigger does not hold")
     if (obs.border_views | obs.occluded_views).any():
-        return replace(base, message=base.message + "; a view is cut by the image border or occluded: no two parts")
+        return default("a view is cut by the image border or occluded: no two parts")
     try:
         bulk = bulk_observations(obs) or obs
         singles = union_ious(np.array([[base.xi, base.xi]], dtype=np.float64), bulk)[0]
         single = float(singles.mean())
         if single > 1.0 - GATE:
-            return replace(base, message=base.message + f"; its silhouettes match the opened masks at {single:.3f}: "
-                                                        f"two parts cannot gain {GATE}")
+            return default(f"3V's silhouettes match the opened masks at {single:.3f}: two parts cannot gain {GATE}")
         reference = volume(to_superquadric(base.xi))
         fits = [fit_union(start, bulk, MU, reference) for start in l_starts(np.asarray(base.xi, dtype=np.float64))]
         X, unions, _, _ = min(fits, key=lambda fit: fit[2])
     except (StageError, *NUMERICAL_ERRORS) as exc:
-        return replace(base, message=base.message + f"; the two parts' fit failed ({exc}): kept 3V's fit")
-    nfev = base.nfev + sum(fit[3] for fit in fits)
+        return default(f"the two parts' fit failed ({exc})")
+    nfev = sum(fit[3] for fit in fits)
     detail = (f"two parts match the opened masks at {unions.mean():.3f}, 3V's fit at {single:.3f} (median view: "
               f"{float(np.median(unions - singles)):+.3f})")
     if not passes_gate(singles, unions):
-        return replace(base, nfev=nfev, message=f"{base.message}; {detail}: kept 3V's fit")
+        ended = default(f"{detail}: not kept")
+        return replace(ended, nfev=ended.nfev + nfev)
     part = pick_part(X)
-    return FitState(X[part], cost=None, status=base.status, nfev=nfev,  # no cost of the single part's own
-                    message=f"{base.message}; {detail}: kept part {part} of two")
+    return FitState(X[part], cost=None, status=base.status, nfev=base.nfev + nfev,  # no cost of the single part's own
+                    message=f"3U: {detail}: kept part {part} of two; {base.message}")

@@ -1,0 +1,148 @@
+"""Stage 3W (sqfit.fitting.weighted_overlap): the weighted overlap, its gate, its fit, and the stage on a true
+superquadric and on a plant pot; contour_overlaps against shapely."""
+
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+import pytest
+import shapely
+from scipy.spatial.transform import Rotation
+
+import sqfit
+from sqfit.fitting import CHAIN_ALIASES
+from sqfit.fitting import weighted_overlap as wo
+from sqfit.fitting.contour_overlap import contour_overlaps
+from sqfit.fitting.costs import ObservationSet
+from sqfit.fitting.outline import contour_score
+from sqfit.fitting.stages import FitState, to_superquadric
+from sqfit.geometry.camera import Camera
+from sqfit.geometry.silhouette import batch_silhouettes
+from sqfit.geometry.superquadric import Superquadric, volume
+from sqfit.testing import paper_cameras, paper_trial, polygon_mask
+from sqfit.views.observation import Observation
+from sqfit.views.visibility import BORDER
+
+SCENES = Path(__file__).resolve().parents[1] / "scenes"
+V3 = "1-2M-3H-3R-3V"
+
+
+def _household(kind, index, seed=0):
+    from sqsim.imaging.render import get_renderer
+    from sqsim.imaging.trial import observations, simulate_trial
+    from sqsim.world.scene import load_scene
+
+    scene = load_scene(SCENES / "household.toml", overrides={"objects.catalogue": [kind], "experiment.seed": seed})
+    sim = simulate_trial(scene, index, get_renderer(scene.masks.renderer, scene.intrinsics))
+    return sim.objects[0], list(observations(sim, sim.objects[0].id, scene))
+
+
+def _turned(camera, degrees):
+    pose = camera.pose.copy()
+    pose[:3, :3] = Rotation.from_rotvec([0.0, 0.0, np.radians(degrees)]).as_matrix() @ pose[:3, :3]
+    return Camera(camera.intrinsics, pose)
+
+
+@pytest.fixture(scope="module")
+def plant_pot():
+    return _household("plant_pot", 2)
+
+
+def test_the_default_ends_in_3w_and_the_other_chains_keep_their_stages():
+    assert sqfit.DEFAULT_CHAIN == "1-2M-3H-3R-3V-3W"
+    assert CHAIN_ALIASES["two-parts"] == "1-2M-3H-3R-3U"
+    assert CHAIN_ALIASES["tolerant"] == "1-2M-3H-3RH-3T"
+
+
+def test_the_overlaps_are_shapelys_and_weight_one_is_the_iou(plant_pot):
+    _, observations = plant_pot
+    obs = ObservationSet(observations)
+    x = sqfit.fit(observations, chain=V3).superquadric.to_vector()
+    X = np.stack([x, x * np.r_[[1.1] * 3, [1.0] * 8]])
+    polys, valid = batch_silhouettes(X, obs.rotations, obs.centers, obs.intrinsics, wo.VERTICES)[:2]
+    inter, area = contour_overlaps(polys, valid, obs, np.arange(len(obs)), np.zeros(len(obs), dtype=bool))
+    shapes = obs.contour_shapes()
+    for row in range(2):
+        for view in range(len(obs)):
+            silhouette = shapely.Polygon(polys[row, view])
+            assert np.isclose(inter[row, view], silhouette.intersection(shapes[view]).area, rtol=1e-9)
+            assert np.isclose(area[row, view], silhouette.area, rtol=1e-9)
+    masks = obs.contour_arrays()[3]
+    assert np.allclose(wo.weighted_ious(X, obs, 1.0), inter / (area + masks - inter))
+    # the contour score (3T's measure, its silhouettes of more vertices) is the mean IoU where no view is cut
+    state = FitState(x)
+    assert np.isclose(contour_score(state, obs), wo.weighted_ious(x[None], obs, 1.0).mean(), atol=1e-3)
+
+
+def test_excess_costs_more_than_a_miss():
+    trial = paper_trial(0)
+    obs, x = ObservationSet(trial.observations), trial.gt.to_vector()
+    grown, shrunk = x.copy(), x.copy()
+    grown[0:3] *= 1.1
+    shrunk[0:3] /= 1.1
+    plain = wo.weighted_ious(np.stack([grown, shrunk]), obs, 1.0)
+    weighted = wo.weighted_ious(np.stack([grown, shrunk]), obs, 2.0)
+    assert np.all(weighted <= plain + 1e-12)
+    # growing by 10 % adds excess, which now costs twice; shrinking adds misses, which cost as before
+    assert np.all(plain[0] - weighted[0] > 0.05) and np.allclose(weighted[1], plain[1], atol=2e-3)
+
+
+def test_the_gate_names_why_it_keeps_the_input(plant_pot):
+    _, observations = plant_pot
+    obs = ObservationSet(observations)
+    x = sqfit.fit(observations, chain=V3).superquadric.to_vector()
+    state = FitState(x)
+    assert wo.gate(state, obs) is None
+    assert "cameras were corrected" in wo.gate(replace(state, camera_corrections=np.zeros((4, 3))), obs)
+    assert "outline offset 0.40 px" in wo.gate(replace(state, outline_offsets=np.array([-0.4])), obs)
+    assert wo.gate(replace(state, outline_offsets=np.array([0.2])), obs) is None
+    cut = [replace(o, contour_labels=np.where(np.arange(len(o.contour_labels)) < 5, BORDER, o.contour_labels))
+           if i == 0 else o for i, o in enumerate(observations)]
+    assert "cut by the image border" in wo.gate(state, ObservationSet(cut))
+    turned = [replace(o, camera=_turned(o.camera, 1.0)) if i == 0 else o for i, o in enumerate(observations)]
+    assert "epipolar tangents disagree by" in wo.gate(state, ObservationSet(turned))
+    true = paper_trial(1)
+    message = wo.gate(FitState(true.gt.to_vector()), ObservationSet(true.observations))
+    assert message.startswith("its silhouettes match the mask contours at 0.9")
+
+
+def test_the_gate_asks_for_two_views_whose_tangents_can_be_compared():
+    sq = Superquadric([1.0, 1.0, 1.0], [1.0, 1.0], [0.0, 0.0, 0.0], [0.0, 0.0, 0.0])
+    cameras = paper_cameras(2)  # facing each other across the object: no outermost tangent plane
+    obs = ObservationSet([Observation.from_mask(c, polygon_mask(sq, c), 50, "uniform", 0) for c in cameras])
+    poor = sq.to_vector() * np.r_[[1.4] * 3, [1.0] * 8]  # matches the masks at about 0.5
+    assert wo.gate(FitState(poor), obs) == "no two views' epipolar tangents can be compared"
+
+
+def test_the_stage_keeps_the_input_on_a_true_superquadric():
+    trial = paper_trial(1)
+    default, three_v = sqfit.fit(trial.observations), sqfit.fit(trial.observations, chain=V3)
+    assert np.array_equal(default.superquadric.to_vector(), three_v.superquadric.to_vector())
+    assert "kept the input" in default.stages[-1].message
+
+
+def test_on_a_plant_pot_the_stage_lets_the_leaves_go(plant_pot):
+    from sqfit.metrics import iou_3d_mesh
+
+    pot, observations = plant_pot
+    three_v, default = sqfit.fit(observations, chain=V3), sqfit.fit(observations)
+    message = default.stages[-1].message
+    assert message.startswith("3W: weighted overlap (w = 2)"), message
+    obs = ObservationSet(observations)
+    before, after = (wo.weighted_ious(fit.superquadric.to_vector()[None], obs).mean() for fit in (three_v, default))
+    assert after > before
+    assert volume(default.superquadric) < 0.97 * volume(three_v.superquadric)
+    assert iou_3d_mesh(default.superquadric, pot.mesh) > iou_3d_mesh(three_v.superquadric, pot.mesh) + 0.01
+
+
+def test_the_fit_keeps_to_its_bounds(plant_pot):
+    _, observations = plant_pot
+    obs = ObservationSet(observations)
+    x = sqfit.fit(observations, chain=V3).superquadric.to_vector()
+    thin = x.copy()
+    thin[0] = 0.05  # below size_min: that half-axis may not shrink further, the others not below 0.1
+    y, before, after, nfev = wo.fit_weighted(thin, obs, 0.1)
+    assert y[0] >= 0.05 - 1e-12 and np.all(y[1:3] >= 0.1 - 1e-12)
+    assert np.all((y[3:5] >= 0.01) & (y[3:5] <= 2.0))
+    assert after >= before and nfev > 0
+    assert np.isfinite(volume(to_superquadric(y)))
