@@ -75,10 +75,13 @@ def add_arguments(parser):
                              "'tolerant' (the default with 3R also re-fitted from the visual hull's fit, slower where it "
                              "acts, and 3T without the part gate), 'two-parts' (the default, then on chairs and "
                              "laptops one of two superquadrics fitted together to the masks: seconds per object where "
-                             "it acts). The default ends with 3V: where no superquadric grazes the outline, G2 on the "
-                             "mask contours, also from a fit of the masks with thin parts "
-                             "opened away, each kept only where what it leaves out is a part seen in several views (legs, "
-                             "stands); of the fits that match the contours alike, the one of least volume")
+                             "it acts). The default ends with 3V and 3W. 3V: where no superquadric grazes the "
+                             "outline, G2 on the mask contours, also from a fit of the masks with thin parts opened "
+                             "away, each kept only where what it leaves out is a part seen in several views (legs, "
+                             "stands); of the fits that match the contours alike, the one of least volume. 3W: where "
+                             "the silhouettes still do not match the masks and the masks agree under the cameras, "
+                             "the fit of the highest overlap with a silhouette pixel outside the mask weighted "
+                             "twice (arms, leaves, poles let go)")
     parser.add_argument("--samples", type=int, default=C.DEFAULT_SAMPLES, help="samples N per observation")
     parser.add_argument("--sampling", default="uniform", choices=SAMPLING_METHODS)
     parser.add_argument("--polygon", default="hull", choices=POLYGON_KINDS,

@@ -70,7 +70,7 @@ def add_arguments(parser):
     parser.add_argument("--chains", default=None,
                         help="comma-separated chains, e.g. 1-2-3D-3A,1-2-3D; 'default' = sqfit.DEFAULT_CHAIN, "
                              "'hull' = the visual-hull baseline (HULL), 'tolerant' = the default with 3RH for 3R (3R's re-fit also "
-                             "from the visual hull's fit) and 3T for 3V (no part gate, no least-volume choice), "
+                             "from the visual hull's fit) and 3T for 3V-3W (no part gate, no least-volume choice), "
                              "'two-parts' = the default, then one of two superquadrics fitted together to the masks "
                              "(chairs, laptops), "
                              "'paper' = all 13 chains of the paper's Table II (default: the scene's)")
