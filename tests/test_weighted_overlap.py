@@ -96,6 +96,8 @@ def test_the_gate_names_why_it_keeps_the_input(plant_pot):
     assert "cameras were corrected" in wo.gate(replace(state, camera_corrections=np.zeros((4, 3))), obs)
     assert "outline offset 0.40 px" in wo.gate(replace(state, outline_offsets=np.array([-0.4])), obs)
     assert wo.gate(replace(state, outline_offsets=np.array([0.2])), obs) is None
+    assert "it grazes the outline" in wo.gate(replace(state, cost=0.5 * wo.GRAZED_COST), obs)
+    assert wo.gate(replace(state, cost=2.0 * wo.GRAZED_COST), obs) is None
     cut = [replace(o, contour_labels=np.where(np.arange(len(o.contour_labels)) < 5, BORDER, o.contour_labels))
            if i == 0 else o for i, o in enumerate(observations)]
     assert "cut by the image border" in wo.gate(state, ObservationSet(cut))
