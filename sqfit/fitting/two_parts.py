@@ -47,8 +47,8 @@ from scipy.optimize import least_squares
 from .contour_overlap import CONVEX_TOL
 from .least_volume import bulk_observations, least_volume_stage
 from .outline import triggers
-from .weighted_overlap import weighted_overlap_stage
 from .stages import NUMERICAL_ERRORS, FitState, StageError, register, to_superquadric
+from .weighted_overlap import weighted_overlap_stage
 from ..constants import SHAPE_DOMAIN
 from ..geometry.silhouette import batch_silhouettes, vertex_velocities
 from ..geometry.superquadric import euler_to_matrix, unit_volumes, volume
