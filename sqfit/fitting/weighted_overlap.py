@@ -100,8 +100,9 @@ def gate(state, obs):
         return "a view is cut by the image border or occluded"
     if state.camera_corrections is not None:
         return "the cameras were corrected"
-    if state.outline_offsets is not None and np.abs(state.outline_offsets).max() > OFFSET_MAX:
-        return f"outline offset {np.abs(state.outline_offsets).max():.2f} px > {OFFSET_MAX}"
+    offset = None if state.outline_offsets is None else float(np.abs(state.outline_offsets).max())
+    if offset is not None and offset > OFFSET_MAX:
+        return f"outline offset {offset:.2f} px > {OFFSET_MAX}"
     if state.cost is not None and state.cost <= GRAZED_COST:
         return f"its 3G cost {state.cost:.1e} <= {GRAZED_COST:g}: it grazes the outline"
     score = contour_score(state, obs)
@@ -110,8 +111,9 @@ def gate(state, obs):
     disagreement = tangent_disagreement(obs.observations)
     if not np.isfinite(disagreement).any():
         return "no two views' epipolar tangents can be compared"
-    if np.nanmax(disagreement) > CONSISTENT_PX:
-        return f"the masks' epipolar tangents disagree by {np.nanmax(disagreement):.1f} px > {CONSISTENT_PX}"
+    worst = float(np.nanmax(disagreement))
+    if worst > CONSISTENT_PX:
+        return f"the masks' epipolar tangents disagree by {worst:.1f} px > {CONSISTENT_PX}"
     return None
 
 

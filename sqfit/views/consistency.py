@@ -35,10 +35,14 @@ __all__ = ["WRAP", "tangent_disagreement"]
 WRAP = 0.8 * np.pi
 
 
-def _angles(observation, baseline, u1, u2):
-    """The pencil angle of the plane through the baseline and each outline vertex's ray."""
+def _world_rays(observation, pixels):
+    """World directions of the rays through ``pixels`` ``(n, 2)`` of the observation's camera."""
     camera = observation.camera
-    rays = bearings(camera, observation.contour) @ camera.rotation.T
+    return bearings(camera, pixels) @ camera.rotation.T
+
+
+def _angles(rays, baseline, u1, u2):
+    """The pencil angle of the plane through the baseline and each of ``rays`` (world directions)."""
     normals = np.cross(baseline, rays)
     return np.arctan2(normals @ u2, normals @ u1)
 
@@ -62,6 +66,8 @@ def tangent_disagreement(observations):
     diagonal and where the pair is left out (a baseline through the object, coincident centres)."""
     v = len(observations)
     out = np.full((v, v), np.nan)
+    rays = [_world_rays(o, o.contour) for o in observations]  # per view, not per pair
+    centroid_rays = [_world_rays(o, o.centroid[None])[0] for o in observations]
     for i in range(v):
         for j in range(i + 1, v):
             ci, cj = observations[i].camera.center, observations[j].camera.center
@@ -69,14 +75,12 @@ def tangent_disagreement(observations):
             if np.linalg.norm(baseline) < 1e-9:
                 continue
             # the pencil's angles, from the plane through view i's centroid ray
-            camera = observations[i].camera
-            ray = bearings(camera, observations[i].centroid[None])[0] @ camera.rotation.T
-            u1 = np.cross(baseline, ray)
+            u1 = np.cross(baseline, centroid_rays[i])
             if np.linalg.norm(u1) < 1e-12:
                 continue
             u1 /= np.linalg.norm(u1)
             u2 = np.cross(baseline / np.linalg.norm(baseline), u1)
-            angles = [_angles(observations[k], baseline, u1, u2) for k in (i, j)]
+            angles = [_angles(rays[k], baseline, u1, u2) for k in (i, j)]
             if any(np.ptp(a) > WRAP or np.abs(a).max() > WRAP for a in angles):
                 continue
             worst = 0.0
