@@ -81,7 +81,7 @@ def add_arguments(parser):
                              "stands); of the fits that match the contours alike, the one of least volume. 3W: where "
                              "the silhouettes still do not match the masks and the masks agree under the cameras, "
                              "the fit of the highest overlap with a silhouette pixel outside the mask weighted "
-                             "twice (arms, leaves, poles let go)")
+                             "twice (arms, leaves, poles let go), from the fit and from cylinder-like starts")
     parser.add_argument("--samples", type=int, default=C.DEFAULT_SAMPLES, help="samples N per observation")
     parser.add_argument("--sampling", default="uniform", choices=SAMPLING_METHODS)
     parser.add_argument("--polygon", default="hull", choices=POLYGON_KINDS,

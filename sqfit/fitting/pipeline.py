@@ -45,8 +45,8 @@ PAPER_CHAINS = ("3A", "3B", "1-3A", "1-2-3A", "1-2-3B", "3E", "1-3E", "1-2-3C", 
 #: :mod:`sqfit.fitting.least_volume`, 3TP, then, where 3T's trigger holds, of 3TP's fit and fits of the masks
 #: with their thin parts opened away that match the contours alike, the one of least volume (docs/real-objects.md);
 #: 3W: :mod:`sqfit.fitting.weighted_overlap`, where the silhouettes do not match the mask contours (and the
-#: cameras and outlines were not corrected), the fit of the highest overlap with silhouette pixels outside the mask
-#: weighted twice.
+#: masks agree under the cameras, their outlines not offset), the fit of the highest overlap with silhouette pixels
+#: outside the mask weighted twice, from the input and cylinder-like starts.
 DEFAULT_CHAIN = "1-2M-3H-3R-3V-3W"
 #: Chain of :func:`fit` when a starting superquadric is given (``initial=``) and no chain is: a
 #: local refinement from it.
