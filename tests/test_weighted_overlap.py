@@ -164,3 +164,16 @@ def test_a_mug_rounded_by_its_handle_is_refitted_from_a_cylinder_start():
     chosen = default.superquadric.to_vector()
     assert wo.weighted_ious(chosen[None], obs).mean() > wo.weighted_ious(alone[None], obs).mean()
     assert iou_3d_mesh(default.superquadric, mug.mesh) > iou_3d_mesh(to_superquadric(alone), mug.mesh) + 0.05
+
+
+def test_a_start_that_fails_leaves_the_others(monkeypatch):
+    mug, observations = _household("mug", 0, seed=4)
+    real = wo.cylinder_starts
+
+    def one_broken(xi):
+        return [np.full(11, np.nan), *real(xi)[1:]]
+
+    monkeypatch.setattr(wo, "cylinder_starts", one_broken)
+    message = sqfit.fit(observations).stages[-1].message
+    assert message.startswith("3W: weighted overlap (w = 2)"), message
+    assert "(1 failed: the cylinder about axis 0:" in message, message

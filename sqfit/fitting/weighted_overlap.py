@@ -173,19 +173,28 @@ def weighted_overlap_stage(state, obs, options):
     why = gate(state, obs)
     if why is not None:
         return replace(state, message=f"3W: {why}: kept the input")
+    screened, failed = {}, []  # start's name -> fit_weighted's result; the starts that failed
+    for k, start in enumerate([state.xi, *cylinder_starts(state.xi)]):
+        name = "the input" if k == 0 else f"the cylinder about axis {k - 1}"
+        try:
+            screened[name] = fit_weighted(start, obs, options.size_min_m, evaluations=SCREEN_EVALUATIONS)
+        except (StageError, *NUMERICAL_ERRORS) as exc:
+            failed.append(f"{name}: {exc}")
+    if "the input" not in screened:
+        return replace(state, message=f"3W: the weighted fit failed ({'; '.join(failed)}): kept the input")
+    start = max(screened, key=lambda name: screened[name][2])
+    before, nfev = screened["the input"][1], sum(t[3] for t in screened.values())
     try:
-        screened = [fit_weighted(start, obs, options.size_min_m, evaluations=SCREEN_EVALUATIONS)
-                    for start in [state.xi, *cylinder_starts(state.xi)]]
-        best = max(range(len(screened)), key=lambda k: screened[k][2])
-        x, _, after, nfev = fit_weighted(screened[best][0], obs, options.size_min_m,
+        x, _, after, more = fit_weighted(screened[start][0], obs, options.size_min_m,
                                          evaluations=EVALUATIONS - SCREEN_EVALUATIONS)
-        before = screened[0][1]
-        nfev += sum(t[3] for t in screened)
-    except (StageError, *NUMERICAL_ERRORS) as exc:
-        return replace(state, message=f"3W: the weighted fit failed ({exc}): kept the input")
+        nfev += more
+    except (StageError, *NUMERICAL_ERRORS) as exc:  # the screen's result stands
+        x, after = screened[start][0], screened[start][2]
+        failed.append(f"{start}, continued: {exc}")
     if not after > before:
         return replace(state, nfev=state.nfev + nfev,
                        message=f"3W: weighted overlap {before:.3f}, no better fit found: kept the input")
-    start = "the input" if best == 0 else f"the cylinder about axis {best - 1}"
+    if failed:
+        start += f" ({len(failed)} failed: {'; '.join(failed)})"
     return FitState(x, cost=None, status=state.status, nfev=state.nfev + nfev,
                     message=f"3W: weighted overlap (w = {EXCESS_WEIGHT:g}) {before:.3f} -> {after:.3f} from {start}")
