@@ -4,7 +4,6 @@ from dataclasses import replace
 
 import numpy as np
 import pytest
-from scipy.spatial.transform import Rotation
 
 from sqfit.geometry.camera import Camera
 from sqfit.geometry.superquadric import Superquadric
@@ -12,11 +11,7 @@ from sqfit.testing import paper_cameras, paper_trial, polygon_mask
 from sqfit.views.consistency import tangent_disagreement
 from sqfit.views.observation import Observation
 
-
-def _turned(camera, degrees, axis=(0.0, 0.0, 1.0)):
-    pose = camera.pose.copy()
-    pose[:3, :3] = Rotation.from_rotvec(np.radians(degrees) * np.asarray(axis)).as_matrix() @ pose[:3, :3]
-    return Camera(camera.intrinsics, pose)
+from _helpers import turned_pose
 
 
 @pytest.mark.parametrize("seed", [0, 1, 2])
@@ -30,7 +25,8 @@ def test_exact_masks_agree_to_about_half_a_pixel(seed):
 def test_a_camera_turned_by_one_degree_disagrees_by_pixels():
     trial = paper_trial(0)
     obs = list(trial.observations)
-    obs[1] = replace(obs[1], camera=_turned(obs[1].camera, 1.0))  # the mask stays: the pose is wrong
+    panned = turned_pose(obs[1].camera.pose, np.radians([0.0, 1.0, 0.0]))  # 1 deg about the camera's y axis
+    obs[1] = replace(obs[1], camera=Camera(obs[1].camera.intrinsics, panned))  # the mask stays: the pose is wrong
     disagreement = tangent_disagreement(obs)
     # 1 deg at fx = 400 px is about 7 px
     assert np.nanmax(disagreement[1]) > 3.0 and np.nanmax(disagreement[:, 1]) > 3.0

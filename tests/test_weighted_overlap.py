@@ -2,12 +2,10 @@
 superquadric, on a plant pot and on a mug; contour_overlaps against shapely."""
 
 from dataclasses import replace
-from pathlib import Path
 
 import numpy as np
 import pytest
 import shapely
-from scipy.spatial.transform import Rotation
 
 import sqfit
 from sqfit.fitting import CHAIN_ALIASES
@@ -23,29 +21,14 @@ from sqfit.testing import paper_cameras, paper_trial, polygon_mask
 from sqfit.views.observation import Observation
 from sqfit.views.visibility import BORDER
 
-SCENES = Path(__file__).resolve().parents[1] / "scenes"
+from _helpers import turned_pose
+
 V3 = "1-2M-3H-3R-3V"
 
 
-def _household(kind, index, seed=0):
-    from sqsim.imaging.render import get_renderer
-    from sqsim.imaging.trial import observations, simulate_trial
-    from sqsim.world.scene import load_scene
-
-    scene = load_scene(SCENES / "household.toml", overrides={"objects.catalogue": [kind], "experiment.seed": seed})
-    sim = simulate_trial(scene, index, get_renderer(scene.masks.renderer, scene.intrinsics))
-    return sim.objects[0], list(observations(sim, sim.objects[0].id, scene))
-
-
-def _turned(camera, degrees):
-    pose = camera.pose.copy()
-    pose[:3, :3] = Rotation.from_rotvec([0.0, 0.0, np.radians(degrees)]).as_matrix() @ pose[:3, :3]
-    return Camera(camera.intrinsics, pose)
-
-
-@pytest.fixture(scope="module")
-def plant_pot():
-    return _household("plant_pot", 2)
+@pytest.fixture
+def plant_pot(household):
+    return household("plant_pot", 0, 2)
 
 
 def test_the_default_ends_in_3w_and_the_other_chains_keep_their_stages():
@@ -102,7 +85,9 @@ def test_the_gate_names_why_it_keeps_the_input(plant_pot):
     cut = [replace(o, contour_labels=np.where(np.arange(len(o.contour_labels)) < 5, BORDER, o.contour_labels))
            if i == 0 else o for i, o in enumerate(observations)]
     assert "cut by the image border" in wo.gate(state, ObservationSet(cut))
-    turned = [replace(o, camera=_turned(o.camera, 1.0)) if i == 0 else o for i, o in enumerate(observations)]
+    first = observations[0].camera
+    panned = Camera(first.intrinsics, turned_pose(first.pose, np.radians([0.0, 1.0, 0.0])))  # 1 deg about its y axis
+    turned = [replace(observations[0], camera=panned), *observations[1:]]
     assert "epipolar tangents disagree by" in wo.gate(state, ObservationSet(turned))
     true = paper_trial(1)
     message = wo.gate(FitState(true.gt.to_vector()), ObservationSet(true.observations))
@@ -151,10 +136,10 @@ def test_the_fit_keeps_to_its_bounds(plant_pot):
     assert np.isfinite(volume(to_superquadric(y)))
 
 
-def test_a_mug_rounded_by_its_handle_is_refitted_from_a_cylinder_start():
+def test_a_mug_rounded_by_its_handle_is_refitted_from_a_cylinder_start(household):
     from sqfit.metrics import iou_3d_mesh
 
-    mug, observations = _household("mug", 0, seed=4)
+    mug, observations = household("mug", 4, 0)
     three_v, default = sqfit.fit(observations, chain=V3), sqfit.fit(observations)
     assert three_v.superquadric.shape[0] > 0.4  # the handle rounded the input's ends
     message = default.stages[-1].message
@@ -166,8 +151,8 @@ def test_a_mug_rounded_by_its_handle_is_refitted_from_a_cylinder_start():
     assert iou_3d_mesh(default.superquadric, mug.mesh) > iou_3d_mesh(to_superquadric(alone), mug.mesh) + 0.05
 
 
-def test_a_start_that_fails_leaves_the_others(monkeypatch):
-    mug, observations = _household("mug", 0, seed=4)
+def test_a_start_that_fails_leaves_the_others(monkeypatch, household):
+    mug, observations = household("mug", 4, 0)
     real = wo.cylinder_starts
 
     def one_broken(xi):
