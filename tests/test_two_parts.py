@@ -21,7 +21,6 @@ from sqfit.testing import paper_trial
 from sqfit.views.visibility import BORDER
 
 SCRIPT = Path(__file__).resolve().parents[1] / "scripts" / "two_part_probe.py"
-SCENES = Path(__file__).resolve().parents[1] / "scenes"
 
 
 def _script():
@@ -196,20 +195,16 @@ def test_the_stage_keeps_the_defaults_fit_on_a_true_superquadric():
     assert three_u.stages[-1].message.startswith("3U: 3T's trigger does not hold; 3W: ")
 
 
-def _chair(index):
-    from sqsim.imaging.render import get_renderer
-    from sqsim.imaging.trial import observations, simulate_trial
-    from sqsim.world.scene import load_scene
-
-    scene = load_scene(SCENES / "household.toml", overrides={"objects.catalogue": ["chair"], "experiment.seed": 0})
-    sim = simulate_trial(scene, index, get_renderer(scene.masks.renderer, scene.intrinsics))
-    return sim.objects[0], list(observations(sim, sim.objects[0].id, scene))
+@pytest.fixture
+def chair_trial(household):
+    """Chair 1 of ``scenes/household.toml`` (seed 0): the object and its observations."""
+    return household("chair", 0, 1)
 
 
-def test_on_a_chair_the_stage_keeps_one_of_two_parts_closer_to_the_chair():
+def test_on_a_chair_the_stage_keeps_one_of_two_parts_closer_to_the_chair(chair_trial):
     from sqfit.metrics import iou_3d_mesh
 
-    chair, obs = _chair(1)
+    chair, obs = chair_trial
     three_v, three_u = sqfit.fit(obs, chain="1-2M-3H-3R-3V"), sqfit.fit(obs, chain="two-parts")
     message = three_u.stages[-1].message
     assert message.startswith("3U: two parts match the opened masks at") and ": kept part" in message, message
@@ -219,8 +214,8 @@ def test_on_a_chair_the_stage_keeps_one_of_two_parts_closer_to_the_chair():
     assert volume(three_u.superquadric) < 0.5 * volume(three_v.superquadric)
 
 
-def test_the_stage_does_not_fit_two_parts_where_a_view_is_cut(monkeypatch):
-    chair, obs = _chair(1)
+def test_the_stage_does_not_fit_two_parts_where_a_view_is_cut(monkeypatch, chair_trial):
+    chair, obs = chair_trial
     calls = []
     monkeypatch.setattr(two_parts, "fit_union", lambda *args, **kw: calls.append(1))
     cut = [replace(o, contour_labels=np.where(np.arange(len(o.contour_labels)) < 5, BORDER, o.contour_labels))
@@ -240,8 +235,8 @@ def test_the_gate_asks_the_union_to_match_the_masks_better_on_average_in_most_vi
 
 
 @pytest.mark.parametrize("union, kept", [(True, "part"), (False, "default")])
-def test_the_stage_keeps_the_part_where_the_gate_passes(monkeypatch, union, kept):
-    _, obs = _chair(1)
+def test_the_stage_keeps_the_part_where_the_gate_passes(monkeypatch, union, kept, chair_trial):
+    _, obs = chair_trial
     three_v = sqfit.fit(obs, chain="1-2M-3H-3R-3V").superquadric.to_vector()
     default = sqfit.fit(obs).superquadric.to_vector()
     assert not np.array_equal(default, three_v)  # 3W moved it
