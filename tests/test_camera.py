@@ -4,7 +4,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from sqfit import Camera, Intrinsics, back_project, look_at, project
-from sqfit.geometry.camera import pixel_centers
+from sqfit.geometry.camera import pixel_centers, world_bearings
 
 INTR = Intrinsics(640, 480, 400.0, 300.0, 320.0, 240.0)
 
@@ -40,6 +40,14 @@ def test_project_back_project_round_trip(angle, height, depth, u, v):
     uv, d = project(cam, pts)
     np.testing.assert_allclose(uv, [[u, v]], atol=1e-6)
     np.testing.assert_allclose(d, [depth], rtol=1e-9)
+
+
+def test_world_bearings_reach_back_projected_points_at_their_depth():
+    cam = camera_at((6.0, -8.0, 3.0), (0.5, 0.2, -0.4))
+    pixels, depth = np.array([[10.0, 20.0], [320.0, 240.0], [600.0, 470.0]]), np.array([1.0, 7.5, 30.0])
+    rays = world_bearings(cam, pixels)
+    np.testing.assert_allclose(cam.center + rays * depth[:, None], back_project(cam, pixels, depth), atol=1e-9)
+    np.testing.assert_allclose(rays @ cam.rotation[:, 2], 1.0)  # unit depth along the optical axis
 
 
 def test_pixel_centre_convention():

@@ -39,7 +39,7 @@ import numpy as np
 from .. import constants as C
 from ..kernels.backend import compiled
 from .._checks import check_shape
-from ..geometry.camera import Camera, bearings
+from ..geometry.camera import Camera, world_bearings
 from ..views.observation import Observation
 from ..geometry.polygon import MIN_EDGE, batch_iou, convex_iou_jacobian, half_planes
 from .contour_overlap import contour_ious
@@ -110,7 +110,7 @@ class ObservationSet:
         self.rotations, self.centers, self.intrinsics = camera_arrays([o.camera for o in obs])
         counts = [len(o.samples) for o in obs]
         self.view_of_sample = np.repeat(np.arange(len(obs)), counts)
-        self.rays = np.concatenate([bearings(o.camera, o.samples) @ o.camera.rotation.T for o in obs])
+        self.rays = np.concatenate([world_bearings(o.camera, o.samples) for o in obs])
         self.origins = self.centers[self.view_of_sample]
         self.border_views = np.array([bool(np.any(o.contour_labels == BORDER)) for o in obs], dtype=bool)
         self.frames = image_rectangles([(o.camera.intrinsics.width, o.camera.intrinsics.height) for o in obs])

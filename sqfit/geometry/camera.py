@@ -19,7 +19,8 @@ import numpy as np
 
 from .._checks import check_positive, check_shape
 
-__all__ = ["Intrinsics", "Camera", "rigid_pose_fault", "look_at", "project", "back_project", "bearings", "pixel_centers"]
+__all__ = ["Intrinsics", "Camera", "rigid_pose_fault", "look_at", "project", "back_project", "bearings", "world_bearings",
+           "pixel_centers"]
 
 
 @dataclass(frozen=True)
@@ -234,6 +235,22 @@ def bearings(camera, pixels):
     out = np.empty((len(pixels), 3))
     out[:, 0], out[:, 1], out[:, 2] = (pixels[:, 0] - k.cx) / k.fx, (pixels[:, 1] - k.cy) / k.fy, 1.0
     return out
+
+
+def world_bearings(camera, pixels):
+    """World-frame directions of the rays through image points: :func:`bearings` rotated into the
+    world (unit camera-frame depth, not unit length).
+
+    Parameters
+    ----------
+    camera : Camera
+    pixels : (n, 2) float
+
+    Returns
+    -------
+    rays : (n, 3) float
+    """
+    return bearings(camera, pixels) @ camera.rotation.T
 
 
 def pixel_centers(rows, cols):

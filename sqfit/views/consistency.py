@@ -26,19 +26,13 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..geometry.camera import bearings
+from ..geometry.camera import world_bearings
 
 __all__ = ["WRAP", "tangent_disagreement"]
 
 #: A pair is left out where one view's outline spans more than this angle (radians) of the pencil of
 #: planes through the two centres: the baseline passes through or near the object.
 WRAP = 0.8 * np.pi
-
-
-def _world_rays(observation, pixels):
-    """World directions of the rays through ``pixels`` ``(n, 2)`` of the observation's camera."""
-    camera = observation.camera
-    return bearings(camera, pixels) @ camera.rotation.T
 
 
 def _angles(rays, baseline, u1, u2):
@@ -66,8 +60,8 @@ def tangent_disagreement(observations):
     diagonal and where the pair is left out (a baseline through the object, coincident centres)."""
     v = len(observations)
     out = np.full((v, v), np.nan)
-    rays = [_world_rays(o, o.contour) for o in observations]  # per view, not per pair
-    centroid_rays = [_world_rays(o, o.centroid[None])[0] for o in observations]
+    rays = [world_bearings(o.camera, o.contour) for o in observations]  # per view, not per pair
+    centroid_rays = [world_bearings(o.camera, o.centroid[None])[0] for o in observations]
     for i in range(v):
         for j in range(i + 1, v):
             ci, cj = observations[i].camera.center, observations[j].camera.center

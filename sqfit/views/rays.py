@@ -28,7 +28,7 @@ from functools import cache
 import numpy as np
 
 from .._checks import check_shape
-from ..geometry.camera import bearings
+from ..geometry.camera import world_bearings
 from ..geometry.outline import outward_normals  # re-exported: the normals of 3G's band rays
 from ..kernels.backend import compiled
 from .observation import Observation, arc_lengths
@@ -253,7 +253,7 @@ def contour_rays(observations, n_contour=64, band_px=0.0, n_inside=0, smooth_px=
         points, modes, two_sided, normals, radii, weights, *hinges = o.derived(key, lambda: _view_rays(o, *args))
         cam = o.camera
         rotation = cam.rotation
-        directions = bearings(cam, points) @ rotation.T
+        directions = world_bearings(cam, points)
         k = cam.intrinsics
         offsets = (normals * [-1.0 / k.fx, -1.0 / k.fy]) @ rotation[:, :2].T
         parts.append((cam.center, directions, modes, weights, i, two_sided, offsets, radii, hinges))
