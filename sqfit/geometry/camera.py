@@ -238,18 +238,8 @@ def bearings(camera, pixels):
 
 
 def world_bearings(camera, pixels):
-    """World-frame directions of the rays through image points: :func:`bearings` rotated into the
-    world (unit camera-frame depth, not unit length).
-
-    Parameters
-    ----------
-    camera : Camera
-    pixels : (n, 2) float
-
-    Returns
-    -------
-    rays : (n, 3) float
-    """
+    """World-frame directions ``(n, 3)`` of the rays through image points ``pixels`` ``(n, 2)`` of
+    ``camera``: :func:`bearings` rotated into the world (unit camera-frame depth, not unit length)."""
     return bearings(camera, pixels) @ camera.rotation.T
 
 
