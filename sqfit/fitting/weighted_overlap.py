@@ -144,13 +144,16 @@ def fit_weighted(x, obs, size_min, weight=None, evaluations=EVALUATIONS):
     upper = np.r_[[np.inf] * 3, [SHAPE_DOMAIN[1]] * 2, [np.inf] * 6]
     margin = 1e-9 * np.maximum(np.abs(x0), 1.0)
     x0 = np.clip(x0, lower + margin, upper - margin)  # strictly inside, as least_squares asks
-    columns = [0]
+    columns, start = [0], []  # start: the residuals at x0, where least_squares evaluates first
 
     def rows(X):
         return np.sqrt(np.maximum(1.0 - weighted_ious(X, obs, weight), 1e-12))
 
     def residuals(v):
-        return rows(v[None])[0]
+        r = rows(v[None])[0]
+        if not start and np.array_equal(v, x0):
+            start.append(r)
+        return r
 
     def jacobian(v):
         h = STEP * np.maximum(np.abs(v), 1.0)
@@ -161,7 +164,8 @@ def fit_weighted(x, obs, size_min, weight=None, evaluations=EVALUATIONS):
 
     scale = np.r_[x0[:3], 0.2, 0.2, [x0[:3].mean()] * 3, 0.1, 0.1, 0.1]
     res = least_squares(residuals, x0, jac=jacobian, bounds=(lower, upper), x_scale=scale, max_nfev=evaluations)
-    before, after = 1.0 - float(np.mean(residuals(x0) ** 2)), 1.0 - float(np.mean(res.fun ** 2))
+    before = 1.0 - float(np.mean((start[0] if start else residuals(x0)) ** 2))
+    after = 1.0 - float(np.mean(res.fun ** 2))
     return res.x, before, after, int(res.nfev) + columns[0]
 
 
