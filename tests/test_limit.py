@@ -160,11 +160,18 @@ def test_experiment_records_and_summarises_the_limit_once_per_object(tmp_path):
         pair = [r for r in records if r["trial"] == trial]
         assert pair[0]["limit"] == pair[1]["limit"]  # one search per object, shared by its chains
         assert 0.5 < pair[0]["metrics"]["iou_limit"] <= 1.0
+        # the limit's silhouettes, placed in the world, match the masks (a can's nearly exactly)
+        agreement = pair[0]["metrics"]["r_iou_m_contour_limit"]
+        assert agreement == pair[1]["metrics"]["r_iou_m_contour_limit"]
+        assert agreement > (0.9 if pair[0]["gt"]["item"] == "can" else 0.5)
     assert len(list((tmp_path / "limits").glob("*.json"))) == 2
     entry = summary["chains"][sqfit.DEFAULT_CHAIN]
     ratios = [r["metrics"]["iou"] / r["metrics"]["iou_limit"] for r in records if r["chain"] == sqfit.DEFAULT_CHAIN]
     assert entry["iou_over_limit"]["median"] == pytest.approx(np.median(ratios))
     assert set(entry["by_item"]) <= {"can", "mug"} and sum(e["fits"] for e in entry["by_item"].values()) == 2
+    limits_agree = [r["metrics"]["r_iou_m_contour_limit"] for r in records if r["chain"] == sqfit.DEFAULT_CHAIN]
+    assert entry["r_iou_m_contour_limit"]["median"] == pytest.approx(np.median(limits_agree))
+    assert all("r_iou_m_contour" in e and "r_iou_m_contour_limit" in e for e in entry["by_item"].values())
     assert "iou_limit" in summary
     table = (tmp_path / "table.md").read_text()
     assert "Limit M" in table and "IOU/Limit M" in table and "| kind |" in table

@@ -49,7 +49,9 @@ def summarize(records, chains, scene_name, seed, trials, resampled):
         With representation limits in the records of non-superquadric ground truths
         (``metrics.iou_limit``), also ``iou_limit`` (over objects) at the top, ``iou_limit`` and
         ``iou_over_limit`` (per-record IOU / limit) per chain, and per chain ``by_item``: the same
-        with ``iou`` and ``fits`` per household kind (``gt.item``).
+        with ``iou``, ``r_iou_m_contour`` and ``fits`` per household kind (``gt.item``); where the
+        records carry ``metrics.r_iou_m_contour_limit`` (the limit's silhouettes against the mask
+        contours), its stats beside ``iou_limit``.
     """
     out = {"scene": scene_name, "trials": int(trials), "resampled": int(resampled), "seed": int(seed), "chains": {}}
     limited = has_limits(records)
@@ -71,6 +73,7 @@ def summarize(records, chains, scene_name, seed, trials, resampled):
                     by_item.setdefault(r["gt"]["item"], []).append(r)
             if by_item:
                 entry["by_item"] = {item: {"fits": len(sub), "iou": stats([r["metrics"]["iou"] for r in sub]),
+                                           "r_iou_m_contour": stats([r["metrics"]["r_iou_m_contour"] for r in sub]),
                                            **_limit_stats(sub)} for item, sub in sorted(by_item.items())}
         out["chains"][chain] = entry
     return out
@@ -82,11 +85,17 @@ def has_limits(records):
 
 
 def _limit_stats(rows):
-    """``iou_limit`` and ``iou_over_limit`` stats of the rows that carry a limit."""
+    """``iou_limit`` and ``iou_over_limit`` stats of the rows that carry a limit, and where they carry
+    it, ``r_iou_m_contour_limit``: the mean IoU of the limit's silhouettes with the mask contours (to
+    set beside a chain's ``r_iou_m_contour``: whether the masks favour the fit or the limit)."""
     rows = [r for r in rows if "iou_limit" in r["metrics"]]
     limits = np.array([r["metrics"]["iou_limit"] for r in rows])
     ious = np.array([r["metrics"]["iou"] for r in rows])
-    return {"iou_limit": stats(limits), "iou_over_limit": stats(ious / np.maximum(limits, 1e-12))}
+    out = {"iou_limit": stats(limits), "iou_over_limit": stats(ious / np.maximum(limits, 1e-12))}
+    agreeing = [r for r in rows if "r_iou_m_contour_limit" in r["metrics"]]
+    if agreeing:
+        out["r_iou_m_contour_limit"] = stats([r["metrics"]["r_iou_m_contour_limit"] for r in agreeing])
+    return out
 
 
 def _row_values(entry):

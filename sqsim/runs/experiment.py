@@ -34,10 +34,12 @@ Intermediate stages are scored with a coarser 3D IoU grid (``STAGE_IOU_CELLS``, 
 Representation limit (``experiment.limit = true``, the default): each object whose ground truth is
 not a superquadric is searched once per trial for its best superquadric
 (:func:`sqsim.world.limit.object_limit`; cached per mesh and pose in memory and in ``DIR/limits/``),
-and every record of the object carries ``metrics.iou_limit`` (its 3D IoU with the mesh) and
+and every record of the object carries ``metrics.iou_limit`` (its 3D IoU with the mesh),
+``metrics.r_iou_m_contour_limit`` (the limit's silhouettes against the mask contours, as
+``r_iou_m_contour``: where it is below a chain's, the masks favour that chain's fit over the limit) and
 ``limit`` (``iou``, ``params``, ``seconds``, ``cached``). A superquadric ground truth has the
-limit 1 by definition: nothing is searched or written (its records are unchanged). ``summary.json`` then adds ``iou_limit`` and ``iou_over_limit``
-(per-record IoU / limit) to each chain and, when the ground truths are household objects, the
+limit 1 by definition: nothing is searched or written (its records are unchanged). ``summary.json`` then adds ``iou_limit``, ``iou_over_limit``
+(per-record IoU / limit) and ``r_iou_m_contour_limit`` to each chain and, when the ground truths are household objects, the
 same per ``gt.item`` under ``by_item`` (:func:`sqsim.reports.experiment.summarize`).
 """
 
@@ -342,6 +344,9 @@ def fit_trial(scene_dict, index, chains, limits=None):
             limit_metrics = {}
             if limit is not None:
                 limit_metrics = {"iou_limit": limit.iou}
+                if obs:  # how well the limit's silhouettes match the masks: do the masks favour it?
+                    limit_metrics["r_iou_m_contour_limit"] = r_iou(limit.superquadric, [o.camera for o in obs],
+                                                                   [o.contour for o in obs])
                 base["limit"] = limit.to_dict()
             if obs_error is not None:
                 records.append({**base, "status": "bad_observation", "message": obs_error, "warnings": [],
