@@ -2,7 +2,8 @@
 
 Usage::
 
-    python scripts/household_table.py RUN_DIR [RUN_DIR ...] [--chains default,hull] [--ratio 0.95] [--margin 0.03]
+    python scripts/household_table.py RUN_DIR [RUN_DIR ...] [--chains default,hull] [--ratio 0.95] [--margin 0.03] \
+        [--silhouettes]
 
 Each ``RUN_DIR`` is an ``sqsim experiment`` output of a household or mesh-file scene (e.g. one per
 kind: README "Real objects", "Where the default stands"); their records are pooled by kind
@@ -13,6 +14,13 @@ over the limit (ratio of the medians), the first chain minus the second, and bot
 per object; each cell gives the seeds in ascending order, separated by ``/``. Bold where the issue
 "Real objects"'s targets hold: IoU / limit at least ``--ratio``, the difference at least ``--margin``.
 A run without limits (``experiment.limit = false``) leaves those cells empty.
+
+``--silhouettes``: a second table, whether the masks favour the first chain's fit or the limit: per
+kind the median mean IoU of the first chain's silhouettes with the mask contours
+(``metrics.r_iou_m_contour``), the same of the limit superquadric's (``metrics.r_iou_m_contour_limit``,
+written by ``sqsim experiment`` since 2026-12-02) and on how many objects the limit's match better.
+Where the limit's match worse on every object, no fit that matches the masks better finds it: the gap
+to the limit is volume the masks do not show (README "Real objects", "What the masks can show").
 """
 
 from __future__ import annotations
@@ -74,6 +82,34 @@ def kind_rows(pooled, first, second):
     return out
 
 
+def silhouette_rows(pooled, first):
+    """Per kind and seed: ``{kind: {seed: dict(fit, limit, better, n)}}``, the medians of the first chain's
+    and of the limit's silhouette IoU with the mask contours and the objects where the limit's is higher,
+    over the records that carry both (None and 0 where none do)."""
+    out = {}
+    for kind in sorted(pooled, key=lambda k: KINDS.index(k) if k in KINDS else len(KINDS)):
+        out[kind] = {}
+        for seed, chains in sorted(pooled[kind].items()):
+            both = [r["metrics"] for r in chains.get(first, []) if "r_iou_m_contour_limit" in r["metrics"]]
+            fit = np.array([m["r_iou_m_contour"] for m in both])
+            limit = np.array([m["r_iou_m_contour_limit"] for m in both])
+            out[kind][seed] = {"fit": float(np.median(fit)) if both else None,
+                               "limit": float(np.median(limit)) if both else None,
+                               "better": int((limit > fit).sum()), "n": len(both)}
+    return out
+
+
+def silhouette_markdown(rows, name):
+    """The Markdown table of :func:`silhouette_rows`."""
+    lines = [f"| kind | {name}'s silhouettes | the limit's | the limit's match better |", "|---|---|---|---|"]
+    for kind, seeds in rows.items():
+        s = list(seeds.values())
+        better = " / ".join(f"{x['better']} of {x['n']}" if x["n"] else "–" for x in s)
+        lines.append(f"| {kind.replace('_', ' ')} | {_cell([x['fit'] for x in s], '{:.3f}')} | "
+                     f"{_cell([x['limit'] for x in s], '{:.3f}')} | {better} |")
+    return "\n".join(lines)
+
+
 def _cell(values, fmt, target=None):
     def one(v):
         if v is None:
@@ -107,14 +143,19 @@ def main(argv=None):
                         "(aliases are expanded: default = sqfit.DEFAULT_CHAIN, hull = the visual-hull baseline)")
     parser.add_argument("--ratio", type=float, default=0.95, help="bold IoU / limit at or above this")
     parser.add_argument("--margin", type=float, default=0.03, help="bold the difference at or above this")
+    parser.add_argument("--silhouettes", action="store_true", help="also the table of the first chain's and the "
+                        "limit's silhouettes against the masks (module docstring)")
     args = parser.parse_args(argv)
     names = args.chains.split(",")
     if len(names) != 2:
         raise SystemExit(f"--chains needs two chains, got {args.chains!r}")
     chains = [CHAIN_ALIASES.get(c, c) for c in names]
-    rows = kind_rows(_runs(args.run_dirs), *chains)
+    pooled = _runs(args.run_dirs)
+    rows = kind_rows(pooled, *chains)
     labels = [f"`{n}`" if n in CHAIN_ALIASES else n for n in names]
     print(markdown(rows, labels, args.ratio, args.margin))
+    if args.silhouettes:
+        print("\n" + silhouette_markdown(silhouette_rows(pooled, chains[0]), labels[0]))
     seeds = sorted({seed for seeds in rows.values() for seed in seeds})
     counts = sorted({x["n"] for seeds in rows.values() for x in seeds.values()})
     print(f"\nseeds {' / '.join(map(str, seeds))}; objects per kind and seed: {', '.join(map(str, counts))}")

@@ -60,3 +60,18 @@ def test_mesh_file_objects_are_grouped_by_file_name(tmp_path):
     (run / "trials.jsonl").write_text("\n".join(json.dumps(r) for r in lines) + "\n")
     out = subprocess.run([sys.executable, str(SCRIPT), str(run)], capture_output=True, text=True, check=True).stdout
     assert "| duck vhacd | 0.600 | 0.500 | 0.700 | 0.86 | **+0.100** | 100 / 300 |" in out
+
+
+def test_the_silhouettes_table_counts_where_the_limit_matches_the_masks_better(tmp_path):
+    d = sqfit.DEFAULT_CHAIN
+    run = tmp_path / "bowls"
+    _run_dir(run, 0, [("bowl", d, 0.5, 0.7, 0.1), ("bowl", d, 0.6, 0.7, 0.1), ("bowl", d, 0.4, 0.7, 0.1)])
+    lines = [json.loads(line) for line in (run / "trials.jsonl").read_text().splitlines()]
+    for r, (fit, limit) in zip(lines, [(0.9, 0.7), (0.8, 0.85), (0.7, 0.6)]):
+        r["metrics"].update(r_iou_m_contour=fit, r_iou_m_contour_limit=limit)
+    (run / "trials.jsonl").write_text("\n".join(json.dumps(r) for r in lines) + "\n")
+    out = subprocess.run([sys.executable, str(SCRIPT), str(run), "--silhouettes"], capture_output=True, text=True,
+                         check=True).stdout
+    assert "| bowl | 0.800 | 0.700 | 1 of 3 |" in out.splitlines()
+    plain = subprocess.run([sys.executable, str(SCRIPT), str(run)], capture_output=True, text=True, check=True).stdout
+    assert "the limit's match better" not in plain
