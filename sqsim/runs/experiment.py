@@ -38,9 +38,10 @@ and every record of the object carries ``metrics.iou_limit`` (its 3D IoU with th
 ``metrics.r_iou_m_contour_limit`` (the limit's silhouettes against the mask contours, as
 ``r_iou_m_contour``: where it is below a chain's, the masks favour that chain's fit over the limit) and
 ``limit`` (``iou``, ``params``, ``seconds``, ``cached``). A superquadric ground truth has the
-limit 1 by definition: nothing is searched or written (its records are unchanged). ``summary.json`` then adds ``iou_limit``, ``iou_over_limit``
-(per-record IoU / limit) and ``r_iou_m_contour_limit`` to each chain and, when the ground truths are household objects, the
-same per ``gt.item`` under ``by_item`` (:func:`sqsim.reports.experiment.summarize`).
+limit 1 by definition: nothing is searched or written (its records are unchanged). ``summary.json``
+then adds ``iou_limit``, ``iou_over_limit`` (per-record IoU / limit) and ``r_iou_m_contour_limit`` to
+each chain and, when the ground truths are household objects, the same per ``gt.item`` under
+``by_item`` (:func:`sqsim.reports.experiment.summarize`).
 """
 
 from __future__ import annotations
