@@ -19,8 +19,8 @@ A run without limits (``experiment.limit = false``) leaves those cells empty.
 kind the median mean IoU of the first chain's silhouettes with the mask contours
 (``metrics.r_iou_m_contour``), the same of the limit superquadric's (``metrics.r_iou_m_contour_limit``,
 written by ``sqsim experiment`` since 2026-12-02) and on how many objects the limit's match better.
-Where the limit's match worse on every object, no fit that matches the masks better finds it: the gap
-to the limit is volume the masks do not show (README "Real objects", "What the masks can show").
+Where the limit's match worse on every object, matching the masks better does not lead towards it: what
+separates fit and limit is not in the masks (README "Real objects", "Do the masks favour the limit?").
 """
 
 from __future__ import annotations
