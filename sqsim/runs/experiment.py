@@ -323,18 +323,24 @@ def fit_trial(scene_dict, index, chains, limits=None):
         except ValueError as exc:
             obs, obs_error = [], str(exc)
 
+        cams, contours = [o.camera for o in obs], [o.contour for o in obs]
+
         def score(sq, cells):
             if sq is None:
                 return {"iou": 0.0, "r_iou": 0.0, "r_iou_m": 0.0, "r_iou_m_contour": 0.0}
             iou = iou_3d(sq, obj.superquadric, cells) if obj.superquadric is not None else iou_3d_mesh(sq, obj.mesh)
-            cams = [o.camera for o in obs]
             return {
                 "iou": iou,
                 "r_iou": r_iou(sq, sim.true_cameras, gt_polygons) if gt_polygons else 0.0,
                 "r_iou_m": r_iou(sq, cams, [o.hull for o in obs]) if obs else 0.0,
-                "r_iou_m_contour": r_iou(sq, cams, [o.contour for o in obs]) if obs else 0.0,
+                "r_iou_m_contour": r_iou(sq, cams, contours) if obs else 0.0,
             }
 
+        limit_metrics = {}  # the same for every chain of the object
+        if limit is not None:
+            limit_metrics = {"iou_limit": limit.iou}
+            if obs:  # how well the limit's silhouettes match the masks: do the masks favour it?
+                limit_metrics["r_iou_m_contour_limit"] = r_iou(limit.superquadric, cams, contours)
         for chain in chains:
             base = {"trial": index, "object": obj.id, "chain": chain, "gt": obj.to_dict(),
                     "resampled": sim.resampled, "cameras": [c.pose.tolist() for c in sim.true_cameras],
@@ -342,12 +348,7 @@ def fit_trial(scene_dict, index, chains, limits=None):
                     "visible_fraction": sim.visible_fraction[oi].round(4).tolist(),
                     "cut_fraction": sim.cut_fraction[oi].round(4).tolist(),
                     "border_cut": sim.border_cut[oi].tolist()}
-            limit_metrics = {}
             if limit is not None:
-                limit_metrics = {"iou_limit": limit.iou}
-                if obs:  # how well the limit's silhouettes match the masks: do the masks favour it?
-                    limit_metrics["r_iou_m_contour_limit"] = r_iou(limit.superquadric, [o.camera for o in obs],
-                                                                   [o.contour for o in obs])
                 base["limit"] = limit.to_dict()
             if obs_error is not None:
                 records.append({**base, "status": "bad_observation", "message": obs_error, "warnings": [],
