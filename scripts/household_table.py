@@ -67,10 +67,15 @@ def _median(records, value):
     return float(np.median(values)) if values else None
 
 
+def _kinds(pooled):
+    """The kinds of ``pooled`` in the README's order (:data:`KINDS`), others (mesh files) after them."""
+    return sorted(pooled, key=lambda k: KINDS.index(k) if k in KINDS else len(KINDS))
+
+
 def kind_rows(pooled, first, second):
     """Per kind and seed the medians: ``{kind: {seed: dict(a, b, limit, ms_a, ms_b)}}`` (None where missing)."""
     out = {}
-    for kind in sorted(pooled, key=lambda k: KINDS.index(k) if k in KINDS else len(KINDS)):
+    for kind in _kinds(pooled):
         out[kind] = {}
         for seed, chains in sorted(pooled[kind].items()):
             a, b = chains.get(first, []), chains.get(second, [])
@@ -87,7 +92,7 @@ def silhouette_rows(pooled, first):
     and of the limit's silhouette IoU with the mask contours and the objects where the limit's is higher,
     over the records that carry both (None and 0 where none do)."""
     out = {}
-    for kind in sorted(pooled, key=lambda k: KINDS.index(k) if k in KINDS else len(KINDS)):
+    for kind in _kinds(pooled):
         out[kind] = {}
         for seed, chains in sorted(pooled[kind].items()):
             both = [r["metrics"] for r in chains.get(first, []) if "r_iou_m_contour_limit" in r["metrics"]]
