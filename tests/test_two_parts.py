@@ -149,6 +149,38 @@ def test_the_unions_gradient_follows_its_finite_differences():
         assert (grad * diff).sum() > 0.99 * np.linalg.norm(grad) * np.linalg.norm(diff)
 
 
+def test_the_union_fit_lowers_its_objective_and_returns_what_it_found():
+    """L-BFGS-B from two shrunken, displaced copies of a true superquadric: the parts it returns are the
+    best point it evaluated, below the start, within its budget (its last line search may end past it),
+    and their IoUs are the union's."""
+    trial = paper_trial(3)
+    obs, xi = ObservationSet(trial.observations), trial.gt.to_vector()
+    start = np.stack([xi, xi])
+    start[:, 0:3] *= [[0.6, 0.7, 0.8], [0.8, 0.6, 0.7]]
+    start[0, 5:8] += 0.2
+    reference = volume(trial.gt)
+
+    def objective(X):
+        volume_term = two_parts.MU * two_parts.volumes(X[None])[0] / reference
+        return (1.0 - two_parts.union_ious(X[None], obs)[0]).sum() + volume_term
+
+    for differences in (False, True):
+        X, ious, value, nfev = two_parts.fit_union(start, obs, two_parts.MU, reference, differences=differences)
+        assert X.shape == (2, 11) and 0 < nfev <= two_parts.EVALUATIONS + 20  # the last line search ends
+        assert np.array_equal(ious, two_parts.union_ious(X[None], obs)[0])
+        assert value == pytest.approx(objective(X)) and value < objective(start) - 0.1
+        assert ious.mean() > 0.9
+
+
+def test_the_union_fits_variables_are_scaled_by_the_starts_size():
+    start = np.zeros((2, 11))
+    start[0, 0:3], start[1, 0:3] = [0.2, -1.5, 0.3], [0.4, 0.5, 0.6]
+    scale = two_parts.union_scale(start)
+    assert scale.shape == (22,)
+    assert np.array_equal(scale[0:11], [1.5, 1.5, 1.5, 0.5, 0.5, 1.5, 1.5, 1.5, 0.5, 0.5, 0.5])
+    assert np.array_equal(scale[11:], scale[0:11])
+
+
 def test_bad_arguments_are_refused_by_name(capsys):
     probe = _script()
     for argv, message in ((["--trials", "0"], "--trials must be >= 1, got 0"), (["--mu", "-1"], "--mu must be >= 0")):
