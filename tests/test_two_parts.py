@@ -179,6 +179,7 @@ def test_the_union_fits_variables_are_scaled_by_the_starts_size():
     assert scale.shape == (22,)
     assert np.array_equal(scale[0:11], [1.5, 1.5, 1.5, 0.5, 0.5, 1.5, 1.5, 1.5, 0.5, 0.5, 0.5])
     assert np.array_equal(scale[11:], scale[0:11])
+    assert np.all(two_parts.union_scale(np.zeros((2, 11))) > 0)  # never a zero scale to divide by
 
 
 def test_bad_arguments_are_refused_by_name(capsys):

@@ -239,8 +239,9 @@ def volumes(X):
 
 def union_scale(start):
     """``(22,)``: the scale of :func:`fit_union`'s variables at ``start`` ``(2, 11)``: the largest half-axis
-    of the start's parts for half-axes and centres, 0.5 for exponents and angles."""
-    size = float(np.abs(np.asarray(start)[:, 0:3]).max())
+    of the start's parts (at least 1e-3 m, the half-axes' bound) for half-axes and centres, 0.5 for
+    exponents and angles."""
+    size = max(float(np.abs(np.asarray(start)[:, 0:3]).max()), 1e-3)
     return np.tile(np.r_[[size] * 3, 0.5, 0.5, [size] * 3, [0.5] * 3], len(start))
 
 
