@@ -76,6 +76,8 @@ VERTICES = 48
 #: 3; 300 gave no more (laptops of seed 0). docs/real-objects.md, "3U's union fit: 200 evaluations per
 #: start instead of 100" and "3U's union fit by L-BFGS-B".
 EVALUATIONS = 200
+#: Lower bound (m) of the parts' half-axes in the union's fit, and of its variables' scale (:func:`union_scale`).
+_MIN_HALF_AXIS = 1e-3
 #: Relative forward-difference step of the volume's (and, with ``differences``, the IoUs') Jacobian.
 STEP = 1e-3
 #: Midpoints per silhouette edge of the union's gradient (:func:`union_gradient`).
@@ -241,7 +243,7 @@ def union_scale(start):
     """``(22,)``: the scale of :func:`fit_union`'s variables at ``start`` ``(2, 11)``: the largest half-axis
     of the start's parts (at least 1e-3 m, the half-axes' bound) for half-axes and centres, 0.5 for
     exponents and angles."""
-    size = max(float(np.abs(np.asarray(start)[:, 0:3]).max()), 1e-3)
+    size = max(float(np.abs(np.asarray(start)[:, 0:3]).max()), _MIN_HALF_AXIS)
     return np.tile(np.r_[[size] * 3, 0.5, 0.5, [size] * 3, [0.5] * 3], len(start))
 
 
@@ -263,7 +265,7 @@ def fit_union(start, obs, mu, reference, differences=False):
     and the mean 3D IoU of ``two-parts`` rose on 7 of 9 runs; docs/real-objects.md, "3U's union fit by
     L-BFGS-B"."""
     shape = start.shape
-    lower = np.tile(np.r_[[1e-3] * 3, 0.05, 0.05, [-np.inf] * 6], shape[0])
+    lower = np.tile(np.r_[[_MIN_HALF_AXIS] * 3, 0.05, 0.05, [-np.inf] * 6], shape[0])
     upper = np.tile(np.r_[[np.inf] * 3, 1.9, 1.9, [np.inf] * 6], shape[0])
     x0 = np.clip(start.ravel(), lower + 1e-6, upper - 1e-6)
     scale = union_scale(start)
