@@ -280,3 +280,27 @@ def test_the_stage_keeps_the_part_where_the_gate_passes(monkeypatch, union, kept
     monkeypatch.setattr(two_parts, "pick_part", lambda X: 0)
     fit = sqfit.fit(obs, chain="two-parts")
     assert np.array_equal(fit.superquadric.to_vector(), part if kept == "part" else default)
+
+
+def test_the_stage_polishes_the_union_it_keeps_without_the_volume_term(monkeypatch, chair_trial):
+    """The twelve starts are fitted with the volume term, the union kept is fitted again without it (from
+    where it ended), and the part kept comes from that polished union."""
+    _, obs = chair_trial
+    three_v = sqfit.fit(obs, chain="1-2M-3H-3R-3V").superquadric.to_vector()
+    fitted, polished = np.stack([three_v, three_v]), np.stack([three_v, three_v])
+    fitted[0, 0:3] *= 0.5
+    polished[1, 0:3] *= 0.4
+    calls = []
+
+    def fit_union(start, obs, mu, reference, **kw):
+        calls.append((np.array(start), mu))
+        return (polished if mu == 0 else fitted), np.full(len(obs), 0.95), 0.1, 1
+
+    monkeypatch.setattr(two_parts, "fit_union", fit_union)
+    monkeypatch.setattr(two_parts, "passes_gate", lambda singles, unions: True)
+    monkeypatch.setattr(two_parts, "pick_part", lambda X: 1)
+    fit = sqfit.fit(obs, chain="two-parts")
+    assert [mu for _, mu in calls] == [two_parts.MU] * 12 + [0.0]
+    assert np.array_equal(calls[-1][0], fitted)
+    assert np.array_equal(fit.superquadric.to_vector(), polished[1])
+    assert "polished without the volume term" in fit.stages[-1].message
