@@ -8,8 +8,9 @@ from sqfit.metrics import iou_3d, iou_3d_mesh
 from sqfit.testing import paper_trial
 
 
-def test_the_default_runs_3v_then_3w_and_tolerant_ends_with_ungated_3t():
-    assert sqfit.DEFAULT_CHAIN == "1-2M-3H-3R-3V-3W"  # 3V runs 3TP first (tests/test_least_volume.py)
+def test_the_default_runs_3u_whole_runs_3v_then_3w_and_tolerant_ends_with_ungated_3t():
+    assert sqfit.DEFAULT_CHAIN == "1-2M-3H-3R-3U"  # 3U runs 3V, which runs 3TP first (tests/test_least_volume.py)
+    assert sqfit.fitting.pipeline.WHOLE_CHAIN == "1-2M-3H-3R-3V-3W"
     assert sqfit.fitting.pipeline.TOLERANT_CHAIN == "1-2M-3H-3RH-3T"
     assert (parts.PART_RAYS, parts.PART_VIEWS) == (8, 2)
 

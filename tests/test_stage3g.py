@@ -202,8 +202,9 @@ def test_outward_normals_validation():
 def test_stage_3g_is_registered_and_the_default_chain_is_pinned():
     assert "3G" in sqfit.STAGES
     # 2M: moments start; 3H: axis screen, then 3G (tests/test_axis_search.py); 3R: tests/test_trimmed_stage.py;
-    # 3V: tests/test_least_volume.py; 3W: tests/test_weighted_overlap.py
-    assert sqfit.DEFAULT_CHAIN == "1-2M-3H-3R-3V-3W"
+    # 3U: tests/test_two_parts.py, running 3V (tests/test_least_volume.py) and, where it keeps no part, 3W
+    # (tests/test_weighted_overlap.py)
+    assert sqfit.DEFAULT_CHAIN == "1-2M-3H-3R-3U"
 
 
 @pytest.mark.parametrize("seed", [0, 3])

@@ -1,5 +1,5 @@
 """Stage 3U (sqfit.fitting.two_parts): its L-shaped starts, the union's silhouette IoU, gradient and sample, its
-kernels, the stage on a true superquadric and on a chair (the default's fit where it keeps no part);
+kernels, the stage on a true superquadric and on a chair (the `whole` chain's fit where it keeps no part);
 scripts/two_part_probe.py's arguments."""
 
 import importlib.util
@@ -219,12 +219,12 @@ def test_the_volumes_are_the_parts_volumes_as_a_fit_reads_them():
     assert np.allclose(two_parts.volumes(X), expected, rtol=1e-12)
 
 
-def test_the_stage_keeps_the_defaults_fit_on_a_true_superquadric():
+def test_the_default_keeps_the_whole_chains_fit_on_a_true_superquadric():
     trial = paper_trial(1)
-    default = sqfit.fit(trial.observations)
-    three_u = sqfit.fit(trial.observations, chain="two-parts")
-    assert three_u.chain == "1-2M-3H-3R-3U" and default.chain == "1-2M-3H-3R-3V-3W"
-    assert np.array_equal(three_u.superquadric.to_vector(), default.superquadric.to_vector())
+    whole = sqfit.fit(trial.observations, chain="whole")
+    three_u = sqfit.fit(trial.observations)
+    assert three_u.chain == "1-2M-3H-3R-3U" and whole.chain == "1-2M-3H-3R-3V-3W"
+    assert np.array_equal(three_u.superquadric.to_vector(), whole.superquadric.to_vector())
     assert three_u.stages[-1].message.startswith("3U: 3T's trigger does not hold; 3W: ")
 
 
@@ -271,10 +271,10 @@ def test_the_gate_asks_the_union_to_match_the_masks_better_on_average_in_most_vi
 def test_the_stage_keeps_the_part_where_the_gate_passes(monkeypatch, union, kept, chair_trial):
     _, obs = chair_trial
     three_v = sqfit.fit(obs, chain="1-2M-3H-3R-3V").superquadric.to_vector()
-    default = sqfit.fit(obs).superquadric.to_vector()
+    default = sqfit.fit(obs, chain="whole").superquadric.to_vector()
     assert not np.array_equal(default, three_v)  # 3W moved it
     part = three_v.copy()
-    part[0:3] *= 0.5
+    part[0:3] = [0.05, 0.5, 0.6]  # a slab
     monkeypatch.setattr(two_parts, "fit_union", lambda *args, **kw: (np.stack([part, three_v]), np.full(4, 0.95), 0.1, 1))
     monkeypatch.setattr(two_parts, "passes_gate", lambda singles, unions: union)
     monkeypatch.setattr(two_parts, "pick_part", lambda X: 0)
@@ -289,7 +289,7 @@ def test_the_stage_polishes_the_union_it_keeps_without_the_volume_term(monkeypat
     three_v = sqfit.fit(obs, chain="1-2M-3H-3R-3V").superquadric.to_vector()
     fitted, polished = np.stack([three_v, three_v]), np.stack([three_v, three_v])
     fitted[0, 0:3] *= 0.5
-    polished[1, 0:3] *= 0.4
+    polished[1, 0:3] = [0.5, 0.05, 0.4]  # a slab
     calls = []
 
     def fit_union(start, obs, mu, reference, **kw):
@@ -304,3 +304,32 @@ def test_the_stage_polishes_the_union_it_keeps_without_the_volume_term(monkeypat
     assert np.array_equal(calls[-1][0], fitted)
     assert np.array_equal(fit.superquadric.to_vector(), polished[1])
     assert "polished without the volume term" in fit.stages[-1].message
+
+
+def test_a_part_is_a_slab_between_a_sheet_and_a_bar():
+    slab = np.r_[0.05, 0.5, 0.6, 0.2, 0.2, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0]
+    assert two_parts.is_slab(slab) and two_parts.is_slab(slab * np.r_[-1, 1, 1, [1] * 8])  # the signs do not matter
+    low, high = two_parts.SLAB
+    for ratio, slab_or_not in ((low, True), (high, True), (low * 0.9, False), (high * 1.1, False)):
+        xi = slab.copy()
+        xi[0:3] = [0.6, ratio * 0.5, 0.5]  # in any order
+        assert two_parts.is_slab(xi) == slab_or_not
+    bottle_body = slab.copy()
+    bottle_body[0:3] = [0.3, 0.31, 1.2]  # round: not two slabs' part
+    assert not two_parts.is_slab(bottle_body)
+
+
+@pytest.mark.parametrize("thinnest", [1e-3, 0.3])
+def test_the_stage_keeps_no_part_that_is_not_a_slab(monkeypatch, chair_trial, thinnest):
+    """A part collapsed to a sheet (the union fit's bound) or as thick as it is wide: 3W on 3V's fit, as ``whole``."""
+    _, obs = chair_trial
+    three_v = sqfit.fit(obs, chain="1-2M-3H-3R-3V").superquadric.to_vector()
+    whole = sqfit.fit(obs, chain="whole").superquadric.to_vector()
+    part = three_v.copy()
+    part[0:3] = [thinnest, 0.5, 0.6]
+    monkeypatch.setattr(two_parts, "fit_union", lambda *args, **kw: (np.stack([part, three_v]), np.full(4, 0.95), 0.1, 1))
+    monkeypatch.setattr(two_parts, "passes_gate", lambda singles, unions: True)
+    monkeypatch.setattr(two_parts, "pick_part", lambda X: 0)
+    fit = sqfit.fit(obs)
+    assert np.array_equal(fit.superquadric.to_vector(), whole)
+    assert "would not be a slab" in fit.stages[-1].message

@@ -31,9 +31,9 @@ def plant_pot(household):
     return household("plant_pot", 0, 2)
 
 
-def test_the_default_ends_in_3w_and_the_other_chains_keep_their_stages():
-    assert sqfit.DEFAULT_CHAIN == "1-2M-3H-3R-3V-3W"
-    assert CHAIN_ALIASES["two-parts"] == "1-2M-3H-3R-3U"
+def test_whole_ends_in_3w_and_the_other_chains_keep_their_stages():
+    assert CHAIN_ALIASES["whole"] == "1-2M-3H-3R-3V-3W"
+    assert CHAIN_ALIASES["two-parts"] == CHAIN_ALIASES["default"] == sqfit.DEFAULT_CHAIN == "1-2M-3H-3R-3U"
     assert CHAIN_ALIASES["tolerant"] == "1-2M-3H-3RH-3T"
 
 
@@ -104,23 +104,23 @@ def test_the_gate_asks_for_two_views_whose_tangents_can_be_compared():
 
 def test_the_stage_keeps_the_input_on_a_true_superquadric():
     trial = paper_trial(1)
-    default, three_v = sqfit.fit(trial.observations), sqfit.fit(trial.observations, chain=V3)
-    assert np.array_equal(default.superquadric.to_vector(), three_v.superquadric.to_vector())
-    assert "kept the input" in default.stages[-1].message
+    whole, three_v = sqfit.fit(trial.observations, chain="whole"), sqfit.fit(trial.observations, chain=V3)
+    assert np.array_equal(whole.superquadric.to_vector(), three_v.superquadric.to_vector())
+    assert "kept the input" in whole.stages[-1].message
 
 
 def test_on_a_plant_pot_the_stage_lets_the_leaves_go(plant_pot):
     from sqfit.metrics import iou_3d_mesh
 
     pot, observations = plant_pot
-    three_v, default = sqfit.fit(observations, chain=V3), sqfit.fit(observations)
-    message = default.stages[-1].message
+    three_v, whole = sqfit.fit(observations, chain=V3), sqfit.fit(observations, chain="whole")
+    message = whole.stages[-1].message
     assert message.startswith("3W: weighted overlap (w = 2)"), message
     obs = ObservationSet(observations)
-    before, after = (wo.weighted_ious(fit.superquadric.to_vector()[None], obs).mean() for fit in (three_v, default))
+    before, after = (wo.weighted_ious(fit.superquadric.to_vector()[None], obs).mean() for fit in (three_v, whole))
     assert after > before
-    assert volume(default.superquadric) < 0.97 * volume(three_v.superquadric)
-    assert iou_3d_mesh(default.superquadric, pot.mesh) > iou_3d_mesh(three_v.superquadric, pot.mesh) + 0.01
+    assert volume(whole.superquadric) < 0.97 * volume(three_v.superquadric)
+    assert iou_3d_mesh(whole.superquadric, pot.mesh) > iou_3d_mesh(three_v.superquadric, pot.mesh) + 0.01
 
 
 def test_the_fit_keeps_to_its_bounds(plant_pot):
@@ -140,15 +140,15 @@ def test_a_mug_rounded_by_its_handle_is_refitted_from_a_cylinder_start(household
     from sqfit.metrics import iou_3d_mesh
 
     mug, observations = household("mug", 4, 0)
-    three_v, default = sqfit.fit(observations, chain=V3), sqfit.fit(observations)
+    three_v, whole = sqfit.fit(observations, chain=V3), sqfit.fit(observations, chain="whole")
     assert three_v.superquadric.shape[0] > 0.4  # the handle rounded the input's ends
-    message = default.stages[-1].message
+    message = whole.stages[-1].message
     assert "from the cylinder about axis" in message, message
     obs = ObservationSet(observations)
     alone = wo.fit_weighted(three_v.superquadric.to_vector(), obs, 0.1)[0]
-    chosen = default.superquadric.to_vector()
+    chosen = whole.superquadric.to_vector()
     assert wo.weighted_ious(chosen[None], obs).mean() > wo.weighted_ious(alone[None], obs).mean()
-    assert iou_3d_mesh(default.superquadric, mug.mesh) > iou_3d_mesh(to_superquadric(alone), mug.mesh) + 0.05
+    assert iou_3d_mesh(whole.superquadric, mug.mesh) > iou_3d_mesh(to_superquadric(alone), mug.mesh) + 0.05
 
 
 def test_a_start_that_fails_leaves_the_others(monkeypatch, household):
@@ -159,6 +159,6 @@ def test_a_start_that_fails_leaves_the_others(monkeypatch, household):
         return [np.full(11, np.nan), *real(xi)[1:]]
 
     monkeypatch.setattr(wo, "cylinder_starts", one_broken)
-    message = sqfit.fit(observations).stages[-1].message
+    message = sqfit.fit(observations, chain="whole").stages[-1].message
     assert message.startswith("3W: weighted overlap (w = 2)"), message
     assert "(1 failed: the cylinder about axis 0:" in message, message

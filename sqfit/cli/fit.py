@@ -71,17 +71,19 @@ def add_arguments(parser):
                      help=f"largest time between an image and its pose (default {DEFAULT_MAX_TIME_DIFF})")
     parser.add_argument("-o", "--output", required=True, help="JSON-lines file to write")
     parser.add_argument("--chain", default=DEFAULT_CHAIN,
-                        help="stages joined by '-', e.g. 1-2-3D-3A; or 'default', 'hull' (the visual-hull baseline), "
-                             "'tolerant' (the default with 3R also re-fitted from the visual hull's fit, slower where it "
-                             "acts, and 3T without the part gate), 'two-parts' (the default, then on chairs and "
-                             "laptops one of two superquadrics fitted together to the masks: seconds per object where "
-                             "it acts). The default ends with 3V and 3W. 3V: where no superquadric grazes the "
-                             "outline, G2 on the mask contours, also from a fit of the masks with thin parts opened "
-                             "away, each kept only where what it leaves out is a part seen in several views (legs, "
-                             "stands); of the fits that match the contours alike, the one of least volume. 3W: where "
-                             "the silhouettes still do not match the masks and the masks agree under the cameras, "
-                             "the fit of the highest overlap with a silhouette pixel outside the mask weighted "
-                             "twice (arms, leaves, poles let go), from the fit and from cylinder-like starts")
+                        help="stages joined by '-', e.g. 1-2-3D-3A; or 'default', 'whole' (one superquadric for "
+                             "the whole object: the default without its two parts, faster on furniture), 'hull' (the "
+                             "visual-hull baseline), 'tolerant' (whole with 3R also re-fitted from the visual hull's "
+                             "fit, slower where it acts, and 3T without the part gate). The default ends with 3U: 3V "
+                             "(where no superquadric grazes the outline, G2 on the mask contours, also from a fit of "
+                             "the masks with thin parts opened away, each kept only where what it leaves out is a part "
+                             "seen in several views, legs, stands; of the fits that match the contours alike, the one "
+                             "of least volume), then where the masks show two slabs at an angle (chairs, laptops, "
+                             "monitors) one of two superquadrics fitted together to them (about 2 s per object where "
+                             "it fits the two); elsewhere 3W: where the silhouettes still do not match the masks and "
+                             "the masks agree under the cameras, the fit of the highest overlap with a silhouette "
+                             "pixel outside the mask weighted twice (arms, leaves, poles let go), from the fit and "
+                             "from cylinder-like starts")
     parser.add_argument("--samples", type=int, default=C.DEFAULT_SAMPLES, help="samples N per observation")
     parser.add_argument("--sampling", default="uniform", choices=SAMPLING_METHODS)
     parser.add_argument("--polygon", default="hull", choices=POLYGON_KINDS,

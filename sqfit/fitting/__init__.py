@@ -20,10 +20,11 @@ and a chain is a dash-joined list of them (``"1-2M-3H"``).
 - :mod:`.parts` — stage 3TP: 3T, kept only where what it lets go is a part (legs, a stand);
 - :mod:`.least_volume` — stage 3V: 3TP, then of the fits that match the contours alike
   (3TP's, one of the masks with thin parts opened away) the one of least volume;
-- :mod:`.weighted_overlap` — stage 3W (the default's last stage): where no superquadric matches the masks, a
-  silhouette pixel outside the mask costs twice a mask pixel the silhouette misses;
-- :mod:`.two_parts` — stage 3U (chain ``two-parts``): 3V, then one of two superquadrics fitted together to the
-  opened masks where their union matches them much better (chairs, laptops);
+- :mod:`.weighted_overlap` — stage 3W (chain ``whole``'s last stage, and the default's where 3U keeps no part):
+  where no superquadric matches the masks, a silhouette pixel outside the mask costs twice a mask pixel the
+  silhouette misses;
+- :mod:`.two_parts` — stage 3U (the default's last stage): 3V, then one of two superquadrics fitted together to
+  the opened masks where their union matches them much better (chairs, laptops, monitors), else 3W;
 - :mod:`.trimmed` — stages 3R (default chain) and 3RH (chain ``tolerant``, which also ends in 3T without 3TP's
   gate: 3R, then from the visual hull's fit):
   3G without the outline rays no superquadric grazes;

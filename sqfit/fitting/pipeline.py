@@ -31,7 +31,7 @@ from ..geometry.superquadric import Superquadric
 from ..views.visibility import BORDER
 
 __all__ = ["fit", "FitOptions", "FitResult", "StageRecord", "PAPER_CHAINS", "DEFAULT_CHAIN",
-           "INITIAL_CHAIN", "HULL_CHAIN", "TOLERANT_CHAIN", "CHAIN_ALIASES", "parse_chain"]
+           "INITIAL_CHAIN", "HULL_CHAIN", "TOLERANT_CHAIN", "WHOLE_CHAIN", "CHAIN_ALIASES", "parse_chain"]
 
 #: The 13 chains of the paper's Table II, in its row order.
 PAPER_CHAINS = ("3A", "3B", "1-3A", "1-2-3A", "1-2-3B", "3E", "1-3E", "1-2-3C", "1-2-3D", "1-2-3E",
@@ -46,8 +46,15 @@ PAPER_CHAINS = ("3A", "3B", "1-3A", "1-2-3A", "1-2-3B", "3E", "1-3E", "1-2-3C", 
 #: with their thin parts opened away that match the contours alike, the one of least volume (docs/real-objects.md);
 #: 3W: :mod:`sqfit.fitting.weighted_overlap`, where the silhouettes do not match the mask contours (and the
 #: masks agree under the cameras, their outlines not offset), the fit of the highest overlap with silhouette pixels
-#: outside the mask weighted twice, from the input and cylinder-like starts.
-DEFAULT_CHAIN = "1-2M-3H-3R-3V-3W"
+#: outside the mask weighted twice, from the input and cylinder-like starts. :data:`WHOLE_CHAIN` (``whole``): one
+#: superquadric for the whole object, the default until 2026-12-02.
+WHOLE_CHAIN = "1-2M-3H-3R-3V-3W"
+#: The default: :data:`WHOLE_CHAIN` with stage 3U (:mod:`sqfit.fitting.two_parts`) in place of 3V and 3W: 3V, then
+#: where 3T's trigger holds and the masks show two slabs at an angle (chairs, laptops, monitors), one of two
+#: superquadrics fitted together to the opened masks, where their union matches them much better; elsewhere 3W as
+#: in :data:`WHOLE_CHAIN`, whose fits it keeps bit for bit where it keeps no part. Costs about 2 s of CPU per
+#: object where it fits the union (furniture, lamps, toys); docs/real-objects.md, "Stage 3U" and after it.
+DEFAULT_CHAIN = WHOLE_CHAIN.removesuffix("-3V-3W") + "-3U"
 #: Chain of :func:`fit` when a starting superquadric is given (``initial=``) and no chain is: a
 #: local refinement from it.
 INITIAL_CHAIN = "3G"
@@ -56,16 +63,14 @@ INITIAL_CHAIN = "3G"
 #: (G2 on the mask contours wherever 3G's cost is high: monitors, chairs and laptops gain a little more,
 #: noisy masks of true superquadrics can lose); opt-in (the carving runs wherever 3R keeps nothing),
 #: measured in docs/real-objects.md.
-TOLERANT_CHAIN = DEFAULT_CHAIN.replace("-3R-", "-3RH-").removesuffix("-3V-3W") + "-3T"
-#: The default with stage 3U in place of 3V (3V, then where 3T's trigger holds one of two superquadrics fitted
-#: together to the opened masks, where their union matches them much better: chairs, laptops); opt-in (seconds
-#: of CPU per object where it fits the two), measured in docs/real-objects.md, "Stage 3U".
-TWO_PART_CHAIN = DEFAULT_CHAIN.removesuffix("-3V-3W") + "-3U"
+TOLERANT_CHAIN = WHOLE_CHAIN.replace("-3R-", "-3RH-").removesuffix("-3V-3W") + "-3T"
+#: Stage 3U's chain, the default since 2026-12-02 (``two-parts``, its name while it was opt-in).
+TWO_PART_CHAIN = DEFAULT_CHAIN
 #: Names that stand for a whole chain wherever a chain is given (:func:`parse_chain`); ``hull`` is the
 #: visual-hull baseline (:data:`sqfit.fitting.hull.HULL_CHAIN`), ``tolerant`` :data:`TOLERANT_CHAIN`,
-#: ``two-parts`` :data:`TWO_PART_CHAIN`.
+#: ``whole`` :data:`WHOLE_CHAIN`, ``two-parts`` :data:`TWO_PART_CHAIN`.
 CHAIN_ALIASES = {"default": DEFAULT_CHAIN, "hull": HULL_CHAIN, "tolerant": TOLERANT_CHAIN,
-                 "two-parts": TWO_PART_CHAIN}
+                 "whole": WHOLE_CHAIN, "two-parts": TWO_PART_CHAIN}
 #: Values of ``FitOptions.outline_offset``: one outline offset per object, or one per view.
 OUTLINE_OFFSETS = ("object", "view")
 #: Stages that compute their start from the masks alone and would discard ``initial``.
