@@ -327,7 +327,8 @@ def test_the_stage_keeps_no_part_that_is_not_a_slab(monkeypatch, chair_trial, th
     whole = sqfit.fit(obs, chain="whole").superquadric.to_vector()
     part = three_v.copy()
     part[0:3] = [thinnest, 0.5, 0.6]
-    monkeypatch.setattr(two_parts, "fit_union", lambda *args, **kw: (np.stack([part, three_v]), np.full(4, 0.95), 0.1, 1))
+    union = np.stack([part, three_v])
+    monkeypatch.setattr(two_parts, "fit_union", lambda *args, **kw: (union, np.full(4, 0.95), 0.1, 1))
     monkeypatch.setattr(two_parts, "passes_gate", lambda singles, unions: True)
     monkeypatch.setattr(two_parts, "pick_part", lambda X: 0)
     fit = sqfit.fit(obs)

@@ -72,10 +72,10 @@ def add_arguments(parser):
     parser.add_argument("--trials", type=int, default=None, help="number of trials (default: the scene's)")
     parser.add_argument("--chains", default=None,
                         help="comma-separated chains, e.g. 1-2-3D-3A,1-2-3D; 'default' = sqfit.DEFAULT_CHAIN, "
-                             "'whole' = one superquadric for the whole object (the default with 3V-3W for 3U, the default "
-                             "until 2026-12-02), 'hull' = the visual-hull baseline (HULL), 'tolerant' = whole with 3RH "
-                             "for 3R (3R's re-fit also from the visual hull's fit) and 3T for 3V-3W (no part gate, no "
-                             "least-volume choice), "
+                             "'whole' = one superquadric for the whole object (the default with 3V-3W for 3U, "
+                             "the default until 2026-12-02), 'hull' = the visual-hull baseline (HULL), "
+                             "'tolerant' = whole with 3RH for 3R (3R's re-fit also from the visual hull's fit) and "
+                             "3T for 3V-3W (no part gate, no least-volume choice), "
                              "'paper' = all 13 chains of the paper's Table II (default: the scene's)")
     parser.add_argument("--seed", type=int, default=None, help="experiment seed (default: the scene's)")
     parser.add_argument("--workers", type=int, default=1, help="local worker processes")
