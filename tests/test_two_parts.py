@@ -267,19 +267,19 @@ def test_the_gate_asks_the_union_to_match_the_masks_better_on_average_in_most_vi
     assert two_parts.passes_gate([0.83, 0.50, 0.70, 0.70], [0.93, 0.90, 0.82, 0.82])  # the median view: +0.12
 
 
-@pytest.mark.parametrize("union, kept", [(True, "part"), (False, "default")])
+@pytest.mark.parametrize("union, kept", [(True, "part"), (False, "whole")])
 def test_the_stage_keeps_the_part_where_the_gate_passes(monkeypatch, union, kept, chair_trial):
     _, obs = chair_trial
     three_v = sqfit.fit(obs, chain="1-2M-3H-3R-3V").superquadric.to_vector()
-    default = sqfit.fit(obs, chain="whole").superquadric.to_vector()
-    assert not np.array_equal(default, three_v)  # 3W moved it
+    whole = sqfit.fit(obs, chain="whole").superquadric.to_vector()
+    assert not np.array_equal(whole, three_v)  # 3W moved it
     part = three_v.copy()
     part[0:3] = [0.05, 0.5, 0.6]  # a slab
     monkeypatch.setattr(two_parts, "fit_union", lambda *args, **kw: (np.stack([part, three_v]), np.full(4, 0.95), 0.1, 1))
     monkeypatch.setattr(two_parts, "passes_gate", lambda singles, unions: union)
     monkeypatch.setattr(two_parts, "pick_part", lambda X: 0)
     fit = sqfit.fit(obs, chain="two-parts")
-    assert np.array_equal(fit.superquadric.to_vector(), part if kept == "part" else default)
+    assert np.array_equal(fit.superquadric.to_vector(), part if kept == "part" else whole)
 
 
 def test_the_stage_polishes_the_union_it_keeps_without_the_volume_term(monkeypatch, chair_trial):
