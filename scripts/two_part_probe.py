@@ -6,20 +6,20 @@ Usage::
         [--kinds chair laptop ...] [--trials 10] [--seed 0] [--mu 0.2] [--differences] \
         [--limits DIR] [--records FILE]
 
-The measurement behind stage 3U (:mod:`sqfit.fitting.two_parts`, chain ``two-parts``), which it
-takes its union fit from. An open laptop or a chair's seat and back are two slabs at an angle; their
-best single superquadric (the representation limit) is one slab, but the default's fit fills the
-wedge between them. For each trial this fits the *union* of two superquadrics to the opened masks
-from the default's fit as 3U does (:func:`~sqfit.fitting.two_parts.fit_union` from each of
-:func:`~sqfit.fitting.two_parts.l_starts`; ``--mu`` the weight of the parts' volume; ``--differences``
-for the IoUs' Jacobian by forward differences), and reports what each rule would keep: the part of
-higher 3D IoU with the union, the larger (3U's :func:`~sqfit.fitting.two_parts.pick_part`), the part
-whose own silhouettes match the masks better, the better of the two parts (known only from the
-mesh), and the gated pick: the first rule's part only where the union passes 3U's gate
-(:func:`~sqfit.fitting.two_parts.passes_gate`), else the default's fit (unlike 3U, the probe fits the
-union whether or not 3T's trigger holds).
+The measurement behind stage 3U (:mod:`sqfit.fitting.two_parts`, chain ``two-parts``), which it takes
+its union fit from. An open laptop or a chair's seat and back are two slabs at an angle; their best
+single superquadric (the representation limit) is one slab, but chain ``whole``'s fit (the default
+before 3U joined it) fills the wedge between them. For each trial this fits the *union* of two
+superquadrics to the opened masks from ``whole``'s fit much as 3U does from 3V's
+(:func:`~sqfit.fitting.two_parts.fit_union` from each of :func:`~sqfit.fitting.two_parts.l_starts`;
+``--mu`` the weight of the parts' volume; ``--differences`` for the IoUs' Jacobian by forward
+differences), and reports what each rule would keep: the part of higher 3D IoU with the union, the
+larger (3U's :func:`~sqfit.fitting.two_parts.pick_part`), the part whose own silhouettes match the masks
+better, the better of the two parts (known only from the mesh), and the gated pick: the first rule's
+part only where the union passes 3U's gate (:func:`~sqfit.fitting.two_parts.passes_gate`), else
+``whole``'s fit (unlike 3U, the probe fits the union whether or not 3T's trigger holds).
 
-Per trial it prints the default's 3D IoU against the mesh and its silhouettes' mean IoU with the
+Per trial it prints ``whole``'s 3D IoU against the mesh and its silhouettes' mean IoU with the
 (opened) masks, the union's, the rules' picks, the better of the two parts, the gated pick and the
 limit; then per kind the medians. ``--records FILE`` appends one JSON line per trial (parts'
 parameters included).
@@ -55,7 +55,7 @@ def trial_row(scene, index, renderer, mu, cache, differences=False):
     sim = simulate_trial(scene, index, renderer)
     obj = sim.objects[0]
     obs = ObservationSet(list(observations(sim, obj.id, scene)))
-    fit = sqfit.fit(obs.observations).superquadric
+    fit = sqfit.fit(obs.observations, chain="whole").superquadric
     xi = fit.to_vector()
     t0 = time.process_time()
     bulk = bulk_observations(obs) or obs
