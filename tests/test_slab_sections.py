@@ -6,7 +6,7 @@ import pytest
 import sqfit
 from sqfit.fitting import axis_screen
 from sqfit.fitting.axis_screen import PLAIN_SHAPE_MIN, SQUARE_SECTION_BELOW, square_section_fit
-from sqfit.geometry.slab import SLAB_ASPECT, thin_section
+from sqfit.geometry.slab import SLAB_ASPECT, aspect, thin_section
 from sqfit.metrics import iou_3d_mesh
 
 from _helpers import sq_vector
@@ -20,8 +20,16 @@ from _helpers import sq_vector
     ([0.2, 0.3, 2.0], None),     # a beam: thin in two axes
 ])
 def test_thin_section(size, section):
-    assert thin_section(sq_vector(size, [0.5, 0.5])) == section
+    xi = sq_vector(size, [0.5, 0.5])
+    assert thin_section(xi) == section
     assert SLAB_ASPECT == 0.5
+    assert (aspect(xi) < SLAB_ASPECT) == (section is not None)  # the same test, for positive half-axes
+
+
+def test_aspect_is_the_thinnest_half_axis_over_the_middle_one():
+    assert aspect(sq_vector([0.6, -0.05, 0.5], [0.5, 0.5])) == pytest.approx(0.1)  # signs ignored, any order
+    assert aspect([0.3, 0.3, 1.2]) == 1.0
+    assert aspect([0.0, 0.0, 1.0]) != aspect([0.0, 0.0, 1.0])  # NaN: no middle half-axis
 
 
 def test_square_section_fit_only_runs_on_slabs_with_a_nearly_square_section():

@@ -72,6 +72,7 @@ from .stages import NUMERICAL_ERRORS, FitState, StageError, register, to_superqu
 from .weighted_overlap import weighted_overlap_stage
 from ..constants import SHAPE_DOMAIN
 from ..geometry.silhouette import batch_silhouettes, vertex_velocities
+from ..geometry.slab import aspect
 from ..geometry.superquadric import euler_to_matrix, unit_volumes, volume
 from ..kernels.backend import compiled
 
@@ -334,9 +335,10 @@ def pick_part(X):
 
 def is_slab(xi):
     """Whether the superquadric ``xi`` ``(11,)`` is a slab 3U may keep: its thinnest half-axis over its
-    middle one within :data:`SLAB`."""
-    a = np.sort(np.abs(np.asarray(xi, dtype=np.float64)[0:3]))
-    return bool(SLAB[0] * a[1] <= a[0] <= SLAB[1] * a[1])
+    middle one (:func:`sqfit.geometry.slab.aspect`) within :data:`SLAB`; a narrower range than a slab of
+    :mod:`sqfit.geometry.slab` (below its ``SLAB_ASPECT``, 0.5), since a part at the union fit's bound is a
+    sheet the masks did not show."""
+    return bool(SLAB[0] <= aspect(xi) <= SLAB[1])
 
 
 def passes_gate(singles, unions):
@@ -387,9 +389,8 @@ def two_part_stage(state, obs, options):
         polished, more = X, 0
     part = pick_part(polished)
     if not is_slab(polished[part]):
-        a = np.sort(np.abs(polished[part][0:3]))
-        ended = default(f"{detail}, but the part kept would not be a slab (half-axes {a[0]:.3g} / {a[1]:.3g} / "
-                        f"{a[2]:.3g} m): not kept")
+        ended = default(f"{detail}, but the part kept would not be a slab (thinnest half-axis "
+                        f"{aspect(polished[part]):.3g} of the middle one, not in {SLAB}): not kept")
         return replace(ended, nfev=ended.nfev + nfev + more)
     return FitState(polished[part], cost=None, status=base.status, nfev=base.nfev + nfev + more,  # no cost of its own
                     message=f"3U: {detail}: kept part {part} of two, polished without the volume term; {base.message}")

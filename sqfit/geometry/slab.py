@@ -14,10 +14,19 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["SLAB_ASPECT", "thin_section"]
+__all__ = ["SLAB_ASPECT", "aspect", "thin_section"]
 
 #: A superquadric is a slab where its thinnest half-axis is below this fraction of each of the others.
 SLAB_ASPECT = 0.5
+
+
+def aspect(xi):
+    """The thinnest half-axis of ``xi`` (11 parameters, or at least the 3 of size) over its middle one,
+    signs ignored: below :data:`SLAB_ASPECT` on a slab with positive half-axes, as :func:`thin_section`
+    tests it; NaN where the middle half-axis is 0."""
+    a = np.sort(np.abs(np.asarray(xi, dtype=np.float64)[:3]))
+    with np.errstate(divide="ignore", invalid="ignore"):
+        return float(a[0] / a[1]) if a[1] > 0 else float("nan")
 
 
 def thin_section(xi):
