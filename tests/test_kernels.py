@@ -289,6 +289,34 @@ def test_silhouettes_agree(kernels, seed):
     assert np.array_equal(P_n, batch_silhouettes(X, obs.rotations, obs.centers, obs.intrinsics)[0])
 
 
+@pytest.mark.parametrize("seed", range(3))
+def test_touching_silhouettes_and_their_vertices_velocities_agree(seed):
+    # stage 3U's gradient: the silhouettes with their touching points, and the vertices' velocities from
+    # them, compiled and numpy; with a negative half-axis and exponents at and outside their range
+    from sqfit.geometry.silhouette import (E_RANGE, MAX_NEWTON, NEWTON_TOL, ZNEAR, batch_silhouettes,
+                                           vertex_velocities)
+    from sqfit.geometry.superquadric import rotation_and_derivatives
+
+    k, moving = _silhouette_kernels(), backend.compiled("velocities")
+    trial, X = _perturbed_starts(seed, 5)
+    X[1, 0] *= -1.0
+    X[2, 3:5] = [E_RANGE[0], 2.5]
+    X[3, 3:5] = [0.004, E_RANGE[1]]
+    obs = costs.ObservationSet(trial.observations)
+    cams = (obs.rotations, obs.centers, obs.intrinsics)
+    R, dR = (np.stack(m) for m in zip(*(rotation_and_derivatives(r) for r in X[:, 8:11])))
+    P_k, V_k, unit_k, points_k = k.touching_silhouettes(X, R, *cams, 48, NEWTON_TOL, MAX_NEWTON, ZNEAR, *E_RANGE)
+    P_n, V_n, _, unit_n, points_n = batch_silhouettes(X, *cams, 48, touching=True)
+    assert np.array_equal(V_k, V_n) and V_n.all()
+    assert np.abs(P_k - P_n).max() < 1e-5 and np.array_equal(P_k, k.silhouettes(X, R, *cams, 48, NEWTON_TOL,
+                                                                                 MAX_NEWTON, ZNEAR, *E_RANGE)[0])
+    assert np.abs(unit_k - unit_n).max() < 1e-6 and np.abs(points_k - points_n).max() < 1e-6
+    fast = moving.vertex_velocities(X, R, dR, unit_n, points_n, obs.rotations, obs.intrinsics, *E_RANGE)
+    slow = vertex_velocities(X, unit_n, points_n, obs.rotations, obs.intrinsics)
+    assert np.allclose(fast, slow, rtol=1e-10, atol=1e-9 * np.abs(slow).max())
+    assert np.all(fast[2, ..., 4] == 0.0) and np.all(fast[3, ..., 3] == 0.0) and np.abs(fast[3, ..., 4]).max() > 0
+
+
 def test_silhouettes_behind_the_camera_are_invalid(kernels):
     trial, X = _perturbed_starts(0, 2)
     obs = costs.ObservationSet(trial.observations)

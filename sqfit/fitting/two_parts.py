@@ -71,9 +71,9 @@ from .outline import triggers
 from .stages import NUMERICAL_ERRORS, FitState, StageError, register, to_superquadric
 from .weighted_overlap import weighted_overlap_stage
 from ..constants import SHAPE_DOMAIN
-from ..geometry.silhouette import batch_silhouettes, vertex_velocities
+from ..geometry.silhouette import E_RANGE, MAX_NEWTON, NEWTON_TOL, ZNEAR, batch_silhouettes, vertex_velocities
 from ..geometry.slab import aspect
-from ..geometry.superquadric import euler_to_matrix, unit_volumes, volume
+from ..geometry.superquadric import euler_to_matrix, rotation_and_derivatives, unit_volumes, volume
 from ..kernels.backend import compiled
 
 __all__ = ["THIN", "VERTICES", "EVALUATIONS", "EDGE_POINTS", "GATE", "UNION_MIN", "VIEW_GATE", "MU", "SLAB",
@@ -227,15 +227,25 @@ def union_gradient(X, obs):
     edge; the integrals are midpoint sums of :data:`EDGE_POINTS` points per edge (compiled,
     :func:`sqfit.kernels.union_kernels.union_edge_sums`, where the kernels are and the contour is
     simple). Within 6-12 % of central differences (cosine 0.993-0.998) on a chair and a laptop."""
-    polys, valid, _, unit_points, points = batch_silhouettes(X, obs.rotations, obs.centers, obs.intrinsics, VERTICES,
-                                                             touching=True)
+    X = np.ascontiguousarray(X, dtype=np.float64)
+    silhouettes, moving = compiled("silhouettes"), compiled("velocities")
+    if silhouettes is not None and moving is not None:
+        R, dR = (np.stack(m) for m in zip(*(rotation_and_derivatives(r) for r in X[:, 8:11])))
+        polys, valid, unit_points, points = silhouettes.touching_silhouettes(
+            X, R, obs.rotations, obs.centers, obs.intrinsics, VERTICES, NEWTON_TOL, MAX_NEWTON, ZNEAR, *E_RANGE)
+    else:
+        polys, valid, _, unit_points, points = batch_silhouettes(X, obs.rotations, obs.centers, obs.intrinsics,
+                                                                 VERTICES, touching=True)
     inter, union, ok = (q[0] for q in union_overlap(X[None], obs, (polys, valid)))
     stacked, starts, simple, areas = obs.contour_arrays()
     iou = np.where(ok, inter / (union + areas - inter), 0.0)
     grad = np.zeros((len(obs), 22))
     if not valid.all():
         return iou, grad
-    velocities = vertex_velocities(X, unit_points, points, obs.rotations, obs.intrinsics)  # (2, v, K, 2, 11)
+    if moving is not None and silhouettes is not None:
+        velocities = moving.vertex_velocities(X, R, dR, unit_points, points, obs.rotations, obs.intrinsics, *E_RANGE)
+    else:
+        velocities = vertex_velocities(X, unit_points, points, obs.rotations, obs.intrinsics)  # (2, v, K, 2, 11)
     kernels = compiled("unions")
     if kernels is not None:
         d_inter, d_union = kernels.union_edge_sums(np.ascontiguousarray(polys), np.ascontiguousarray(velocities),

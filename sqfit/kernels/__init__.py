@@ -15,6 +15,7 @@ for ``SQFIT_KERNELS=numpy``. :mod:`.backend` chooses between the two; importing 
 - :mod:`.outline_kernels` — the outline samples behind every view's rays (:mod:`sqfit.views.rays`);
 - :mod:`.hull_kernels` — the visual hull's carving and EMS residuals (:mod:`sqfit.fitting.hull`);
 - :mod:`.union_kernels` — stage 3U's two silhouettes against a mask contour (:mod:`sqfit.fitting.two_parts`);
+- :mod:`.velocity_kernels` — the silhouette vertices' velocities of 3U's gradient (:mod:`sqfit.fitting.two_parts`);
 - :mod:`.kernel_cache` — numba's on-disk cache, cleared when any kernel source changed.
 """
 

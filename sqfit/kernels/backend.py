@@ -8,7 +8,8 @@ do the silhouettes, convex IoUs and hulls of R-IOU-M (:mod:`sqfit.kernels.silhou
 factor graph's silhouette residuals (:mod:`sqfit.kernels.view_kernels`) and the outline samples
 behind every view's rays (:mod:`sqfit.kernels.outline_kernels`, for :mod:`sqfit.views.rays`) and
 the visual hull's carving and point-cloud residuals (:mod:`sqfit.kernels.hull_kernels`) and stage 3U's
-two silhouettes against a contour (:mod:`sqfit.kernels.union_kernels`). Small
+two silhouettes against a contour (:mod:`sqfit.kernels.union_kernels`) and the silhouette vertices'
+velocities of its gradient (:mod:`sqfit.kernels.velocity_kernels`). Small
 arrays make numpy pay its per-call overhead dozens of times per evaluation; the compiled loops do
 not (README, "Fitter speed").
 
@@ -35,7 +36,7 @@ KERNELS = ("auto", "numba", "numpy")
 ENV_VAR = "SQFIT_KERNELS"
 
 #: The kernel modules by part, imported at first use.
-PARTS = ("rays", "screen", "silhouettes", "views", "outlines", "hull", "unions")
+PARTS = ("rays", "screen", "silhouettes", "views", "outlines", "hull", "unions", "velocities")
 
 _state = {"choice": None, "modules": {}, "resolved": None}
 
@@ -79,8 +80,9 @@ def compiled(part="rays"):
     (:mod:`sqfit.kernels.silhouette_kernels`), ``"views"`` (:mod:`sqfit.kernels.view_kernels`, the
     factor graph's), ``"outlines"`` (:mod:`sqfit.kernels.outline_kernels`, the rays' outline
     samples), ``"hull"`` (:mod:`sqfit.kernels.hull_kernels`, the visual hull's carving and EMS
-    residuals) or ``"unions"`` (:mod:`sqfit.kernels.union_kernels`, stage 3U's); each is imported (and its
-    kernels loaded) at the first call that asks for it.
+    residuals), ``"unions"`` (:mod:`sqfit.kernels.union_kernels`, stage 3U's) or ``"velocities"``
+    (:mod:`sqfit.kernels.velocity_kernels`, the silhouette vertices' velocities of 3U's gradient); each is
+    imported (and its kernels loaded) at the first call that asks for it.
     """
     if _state["resolved"] is None:
         _state["resolved"] = _resolve(_requested())
@@ -102,6 +104,8 @@ def compiled(part="rays"):
             from . import hull_kernels as module
         elif part == "unions":
             from . import union_kernels as module
+        elif part == "velocities":
+            from . import velocity_kernels as module
         else:
             raise ValueError(f"part must be one of {PARTS}, got {part!r}")
         _state["modules"][part] = module

@@ -28,7 +28,7 @@ __all__ = ["KERNEL_MODULES", "STAMP", "source_digest", "refresh", "refresh_for"]
 
 #: The modules of compiled kernels (in ``sqfit/kernels``), any of which may call another's kernels.
 KERNEL_MODULES = ("ray_kernels", "screen_kernels", "silhouette_kernels", "view_kernels", "outline_kernels",
-                  "hull_kernels", "union_kernels")
+                  "hull_kernels", "union_kernels", "velocity_kernels")
 #: File in numba's cache directory holding the digest of the sources its kernel files were compiled from.
 STAMP = "sqfit-kernels.sha256"
 

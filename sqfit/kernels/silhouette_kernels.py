@@ -11,6 +11,8 @@ compute the same numbers per view and per vertex:
   support function and Newton iteration, but each vertex stops when its own step is below the
   tolerance (the numpy loop stops the batch when every step is), so vertices agree within that
   tolerance (1e-7 px; tested to 1e-6 px) and a score no longer depends on the batch it is in;
+  :func:`touching_silhouettes` returns their touching points too (``touching=True``: stage 3U's
+  union gradient, with :func:`sqfit.kernels.velocity_kernels.vertex_velocities`);
 - :func:`convex_iou` is :func:`~sqfit.geometry.polygon.convex_overlap`'s IoU (Cyrus-Beck clipping of
   both boundaries, Green's theorem), with the same tie rules for shared and degenerate edges;
 - :func:`clipped_iou` is :func:`sqfit.geometry.visible_iou.clipped_convex_iou_jacobian`'s IoU (the
@@ -45,8 +47,9 @@ from numba import njit
 
 from .ray_kernels import nan_max, nan_min
 
-__all__ = ["silhouettes", "convex_iou", "clipped_iou", "convex_hull", "hidden_counts", "points_in_convex", "contour_overlaps",
-           "clip_buffers", "clip_convex", "clipped_contour", "convex_sign", "polygon_area"]
+__all__ = ["silhouettes", "touching_silhouettes", "convex_iou", "clipped_iou", "convex_hull", "hidden_counts",
+           "points_in_convex", "contour_overlaps", "clip_buffers", "clip_convex", "clipped_contour", "convex_sign",
+           "polygon_area"]
 
 _TINY = 1e-300
 _JIT = dict(cache=True, error_model="numpy", nogil=True)
@@ -144,8 +147,31 @@ def silhouettes(xi, R_sq, rotations, centers, intrinsics, k, tol, max_newton, zn
     ``camera_arrays`` -> ``polygons`` ``(b, v, k, 2)``, ``valid`` ``(b, v)`` bool.
     """
     b, v = xi.shape[0], rotations.shape[0]
-    polys = np.empty((b, v, k, 2))
-    valid = np.zeros((b, v), dtype=np.bool_)
+    polys, valid, none = np.empty((b, v, k, 2)), np.zeros((b, v), dtype=np.bool_), np.empty((0, 0, 0, 3))
+    _fill(xi, R_sq, rotations, centers, intrinsics, k, tol, max_newton, znear, e_min, e_max, polys, valid, none, none)
+    return polys, valid
+
+
+@njit(**_JIT)
+def touching_silhouettes(xi, R_sq, rotations, centers, intrinsics, k, tol, max_newton, znear, e_min, e_max):
+    """:func:`silhouettes` and their touching points, as ``batch_silhouettes(..., touching=True)`` returns
+    them: ``polygons``, ``valid``, ``unit_points`` and ``points``, the last two ``(b, v, k, 3)`` (the
+    unit superquadric's, superquadric frame; the camera frames') for
+    :func:`sqfit.kernels.velocity_kernels.vertex_velocities`."""
+    b, v = xi.shape[0], rotations.shape[0]
+    polys, valid = np.empty((b, v, k, 2)), np.zeros((b, v), dtype=np.bool_)
+    unit, points = np.empty((b, v, k, 3)), np.empty((b, v, k, 3))
+    _fill(xi, R_sq, rotations, centers, intrinsics, k, tol, max_newton, znear, e_min, e_max, polys, valid, unit, points)
+    return polys, valid, unit, points
+
+
+@njit(**_JIT)
+def _fill(xi, R_sq, rotations, centers, intrinsics, k, tol, max_newton, znear, e_min, e_max, polys, valid, unit,
+          points):
+    """The loop of :func:`silhouettes` into ``polys`` and ``valid``; the touching points too into ``unit``
+    and ``points`` unless they are empty."""
+    b, v = xi.shape[0], rotations.shape[0]
+    touching = unit.shape[0] > 0
     M, Rt = np.empty((3, 3)), np.empty((3, 3))  # superquadric -> camera rotation, camera <- world
     a, c, wz = np.empty(3), np.empty(3), np.empty(3)
     ell, grad = np.empty(5), np.empty(3)
@@ -214,8 +240,10 @@ def silhouettes(xi, R_sq, rotations, centers, intrinsics, k, tol, max_newton, zn
                 polys[s, t, m, 0] = (fx * px + cx * pz) / z
                 polys[s, t, m, 1] = (fy * py + cy * pz) / z
                 finite = finite and np.isfinite(polys[s, t, m, 0]) and np.isfinite(polys[s, t, m, 1])
+                if touching:
+                    unit[s, t, m, 0], unit[s, t, m, 1], unit[s, t, m, 2] = grad[0], grad[1], grad[2]
+                    points[s, t, m, 0], points[s, t, m, 1], points[s, t, m, 2] = px, py, pz
             valid[s, t] = ok_view and finite
-    return polys, valid
 
 
 # ------------------------------------------------------------------------------------------------

@@ -65,14 +65,27 @@ def union_overlaps(polys, pairs, contours, starts, tol):
 
 
 @njit(**_JIT)
-def _outside(x, y, S):
-    """Whether ``(x, y)`` lies strictly outside the counter-clockwise convex polygon ``S``."""
+def _inside_span(x0, y0, ex, ey, S):
+    """``(lo, hi)``: the points ``(x0, y0) + s (ex, ey)`` with ``lo <= s <= hi`` lie in the closed
+    counter-clockwise convex polygon ``S``, the others strictly outside (``lo > hi``: none inside):
+    each edge's side test is linear in ``s`` (Cyrus-Beck), one pass over ``S`` per segment instead of
+    one per point."""
     k = S.shape[0]
+    lo, hi = -np.inf, np.inf
     for i in range(k):
         j = i + 1 if i + 1 < k else 0
-        if (S[j, 0] - S[i, 0]) * (y - S[i, 1]) - (S[j, 1] - S[i, 1]) * (x - S[i, 0]) < 0.0:
-            return True
-    return False
+        dx, dy = S[j, 0] - S[i, 0], S[j, 1] - S[i, 1]
+        f0 = dx * (y0 - S[i, 1]) - dy * (x0 - S[i, 0])  # >= 0 on the inner side
+        df = dx * ey - dy * ex
+        if df > 0.0:
+            lo = max(lo, -f0 / df)
+        elif df < 0.0:
+            hi = min(hi, -f0 / df)
+        elif f0 < 0.0:
+            return np.inf, -np.inf
+        if lo > hi:
+            break
+    return lo, hi
 
 
 @njit(**_JIT)
@@ -143,18 +156,25 @@ def union_edge_sums(polys, velocities, contours, starts, views, n):
                 if length <= 1e-12:
                     continue
                 nx, ny = ey / length, -ex / length
+                # the midpoints' weights of the edge's two ends, summed over those outside O (and in the contour)
+                u0, u1, i0, i1 = 0.0, 0.0, 0.0, 0.0
+                lo_s, hi_s = _inside_span(S[e, 0], S[e, 1], ex, ey, O)
                 for m in range(n):
                     s = (m + 0.5) / n
-                    x, y = S[e, 0] + s * ex, S[e, 1] + s * ey
-                    if not _outside(x, y, O):
+                    if lo_s <= s <= hi_s:  # inside O
                         continue
-                    inside = _in_contour(x, y, contours, lo, hi, y0, first, edges)
-                    w = length / n
-                    for c in range(q):
-                        w0 = nx * velocities[part, t, e, 0, c] + ny * velocities[part, t, e, 1, c]
-                        w1 = nx * velocities[part, t, f, 0, c] + ny * velocities[part, t, f, 1, c]
-                        val = w * ((1.0 - s) * w0 + s * w1)
-                        d_union[t, part * q + c] += val
-                        if inside:
-                            d_inter[t, part * q + c] += val
+                    x, y = S[e, 0] + s * ex, S[e, 1] + s * ey
+                    u0 += 1.0 - s
+                    u1 += s
+                    if _in_contour(x, y, contours, lo, hi, y0, first, edges):
+                        i0 += 1.0 - s
+                        i1 += s
+                if u0 + u1 == 0.0:
+                    continue
+                w = length / n
+                for c in range(q):
+                    w0 = nx * velocities[part, t, e, 0, c] + ny * velocities[part, t, e, 1, c]
+                    w1 = nx * velocities[part, t, f, 0, c] + ny * velocities[part, t, f, 1, c]
+                    d_union[t, part * q + c] += w * (u0 * w0 + u1 * w1)
+                    d_inter[t, part * q + c] += w * (i0 * w0 + i1 * w1)
     return d_inter, d_union
