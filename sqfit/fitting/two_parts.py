@@ -54,8 +54,12 @@ term (now): chairs 0.236 / 0.244 / 0.437, laptops 0.521 / 0.433 / 0.316, monitor
 0.726, the mean higher on all 9 runs (by 0.015-0.078). docs/real-objects.md, "Stage 3U" and after it.
 In the default chain since then (``1-2M-3H-3R-3U``; ``whole`` is the chain without it): where it keeps no
 part its fit is ``whole``'s bit for bit, and on the paper's benchmark the union is never fitted; where it fits
-the union it costs about 2 s of CPU per object (most furniture, lamps and toys, where ``whole`` takes
-0.3-1 s). Deterministic.
+the union it costs about 1.3-1.5 s of CPU per object (most furniture, lamps and toys, where ``whole`` takes
+0.3-1 s; 2 s before its evaluation was compiled, :func:`union_gradient`). Deterministic, but which part it
+keeps depends on rounding: the union's fit from twelve starts lands in one of several near-equal minima, and
+a change of the arithmetic at 1e-10 (compiled silhouettes for numpy's) changed the 3D IoU of 20-55 % of the
+chairs and laptops by more than 0.01, both ways, the medians of 20 by up to 0.14 (docs/real-objects.md,
+"3U's evaluation compiled, and its answer's dependence on rounding").
 """
 
 from __future__ import annotations
@@ -226,7 +230,11 @@ def union_gradient(X, obs):
     vertices' velocities (:func:`sqfit.geometry.silhouette.vertex_velocities`), linear along each
     edge; the integrals are midpoint sums of :data:`EDGE_POINTS` points per edge (compiled,
     :func:`sqfit.kernels.union_kernels.union_edge_sums`, where the kernels are and the contour is
-    simple). Within 6-12 % of central differences (cosine 0.993-0.998) on a chair and a laptop."""
+    simple). Within 6-12 % of central differences (cosine 0.993-0.998) on a chair and a laptop. The
+    silhouettes with their touching points and the velocities are compiled too where the kernels are
+    (:func:`sqfit.kernels.silhouette_kernels.touching_silhouettes`,
+    :func:`sqfit.kernels.velocity_kernels.vertex_velocities`): 0.52 ms an evaluation of a lamp's union
+    instead of 0.84 (``benchmarks/bench_union.py``; all numpy: 2.3 ms)."""
     X = np.ascontiguousarray(X, dtype=np.float64)
     silhouettes, moving = compiled("silhouettes"), compiled("velocities")
     if silhouettes is not None and moving is not None:

@@ -4,8 +4,8 @@
 derivative of each vertex's projection by the 11 parameters, its touching point held fixed in the
 superquadric's parametrisation. Stage 3U (:func:`sqfit.fitting.two_parts.union_gradient`) takes them
 about 2400 times per object where it fits two parts; the numpy version's stacked ``(2, v, K, 2, 3)``
-matrix products cost ~0.17 ms of a ~0.84 ms evaluation of a lamp's union, nearly all per-call
-overhead (``benchmarks/bench_union.py``).
+matrix products take 0.20 ms per call on a lamp's union, nearly all per-call overhead, this loop 0.03 ms
+(``benchmarks/bench_union.py``, 6 lamps).
 
 Sums run in index order (numpy's matmul may round differently: the velocities agree to 1e-12,
 tested). No ``fastmath``. Importing this module imports numba; :mod:`sqfit.kernels.backend` does
