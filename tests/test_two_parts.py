@@ -267,26 +267,43 @@ def test_the_gate_asks_the_union_to_match_the_masks_better_on_average_in_most_vi
     assert two_parts.passes_gate([0.83, 0.50, 0.70, 0.70], [0.93, 0.90, 0.82, 0.82])  # the median view: +0.12
 
 
-@pytest.mark.parametrize("union, kept", [(True, "part"), (False, "whole")])
-def test_the_stage_keeps_the_part_where_the_gate_passes(monkeypatch, union, kept, chair_trial):
+@pytest.fixture
+def chair_fits(chair_trial):
+    """The chair's observations, its stage-3V fit and chain ``whole``'s (3W on it)."""
     _, obs = chair_trial
-    three_v = sqfit.fit(obs, chain="1-2M-3H-3R-3V").superquadric.to_vector()
-    whole = sqfit.fit(obs, chain="whole").superquadric.to_vector()
+    return (obs, sqfit.fit(obs, chain="1-2M-3H-3R-3V").superquadric.to_vector(),
+            sqfit.fit(obs, chain="whole").superquadric.to_vector())
+
+
+def _stub_union(monkeypatch, union, gate=True, part=0):
+    """3U with its union's fit, gate and part choice replaced: ``union`` the parts ``(2, 11)`` every union fit
+    returns (matching the masks at 0.95), or a function in place of ``fit_union``; ``gate`` what
+    ``passes_gate`` says; ``part`` the index ``pick_part`` gives."""
+    if callable(union):
+        fit_union = union
+    else:
+        def fit_union(start, obs, mu, reference, **kw):
+            return union, np.full(len(obs), 0.95), 0.1, 1
+    monkeypatch.setattr(two_parts, "fit_union", fit_union)
+    monkeypatch.setattr(two_parts, "passes_gate", lambda singles, unions: gate)
+    monkeypatch.setattr(two_parts, "pick_part", lambda X: part)
+
+
+@pytest.mark.parametrize("union, kept", [(True, "part"), (False, "whole")])
+def test_the_stage_keeps_the_part_where_the_gate_passes(monkeypatch, union, kept, chair_fits):
+    obs, three_v, whole = chair_fits
     assert not np.array_equal(whole, three_v)  # 3W moved it
     part = three_v.copy()
     part[0:3] = [0.05, 0.5, 0.6]  # a slab
-    monkeypatch.setattr(two_parts, "fit_union", lambda *args, **kw: (np.stack([part, three_v]), np.full(4, 0.95), 0.1, 1))
-    monkeypatch.setattr(two_parts, "passes_gate", lambda singles, unions: union)
-    monkeypatch.setattr(two_parts, "pick_part", lambda X: 0)
+    _stub_union(monkeypatch, np.stack([part, three_v]), gate=union)
     fit = sqfit.fit(obs, chain="two-parts")
     assert np.array_equal(fit.superquadric.to_vector(), part if kept == "part" else whole)
 
 
-def test_the_stage_polishes_the_union_it_keeps_without_the_volume_term(monkeypatch, chair_trial):
+def test_the_stage_polishes_the_union_it_keeps_without_the_volume_term(monkeypatch, chair_fits):
     """The twelve starts are fitted with the volume term, the union kept is fitted again without it (from
     where it ended), and the part kept comes from that polished union."""
-    _, obs = chair_trial
-    three_v = sqfit.fit(obs, chain="1-2M-3H-3R-3V").superquadric.to_vector()
+    obs, three_v, _ = chair_fits
     fitted, polished = np.stack([three_v, three_v]), np.stack([three_v, three_v])
     fitted[0, 0:3] *= 0.5
     polished[1, 0:3] = [0.5, 0.05, 0.4]  # a slab
@@ -296,9 +313,7 @@ def test_the_stage_polishes_the_union_it_keeps_without_the_volume_term(monkeypat
         calls.append((np.array(start), mu))
         return (polished if mu == 0 else fitted), np.full(len(obs), 0.95), 0.1, 1
 
-    monkeypatch.setattr(two_parts, "fit_union", fit_union)
-    monkeypatch.setattr(two_parts, "passes_gate", lambda singles, unions: True)
-    monkeypatch.setattr(two_parts, "pick_part", lambda X: 1)
+    _stub_union(monkeypatch, fit_union, part=1)
     fit = sqfit.fit(obs, chain="two-parts")
     assert [mu for _, mu in calls] == [two_parts.MU] * 12 + [0.0]
     assert np.array_equal(calls[-1][0], fitted)
@@ -320,17 +335,12 @@ def test_a_part_is_a_slab_between_a_sheet_and_a_bar():
 
 
 @pytest.mark.parametrize("thinnest", [1e-3, 0.3])
-def test_the_stage_keeps_no_part_that_is_not_a_slab(monkeypatch, chair_trial, thinnest):
+def test_the_stage_keeps_no_part_that_is_not_a_slab(monkeypatch, chair_fits, thinnest):
     """A part collapsed to a sheet (the union fit's bound) or as thick as it is wide: 3W on 3V's fit, as ``whole``."""
-    _, obs = chair_trial
-    three_v = sqfit.fit(obs, chain="1-2M-3H-3R-3V").superquadric.to_vector()
-    whole = sqfit.fit(obs, chain="whole").superquadric.to_vector()
+    obs, three_v, whole = chair_fits
     part = three_v.copy()
     part[0:3] = [thinnest, 0.5, 0.6]
-    union = np.stack([part, three_v])
-    monkeypatch.setattr(two_parts, "fit_union", lambda *args, **kw: (union, np.full(4, 0.95), 0.1, 1))
-    monkeypatch.setattr(two_parts, "passes_gate", lambda singles, unions: True)
-    monkeypatch.setattr(two_parts, "pick_part", lambda X: 0)
+    _stub_union(monkeypatch, np.stack([part, three_v]))
     fit = sqfit.fit(obs)
     assert np.array_equal(fit.superquadric.to_vector(), whole)
     assert "would not be a slab" in fit.stages[-1].message
