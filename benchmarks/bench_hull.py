@@ -21,7 +21,7 @@ os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
 import numpy as np  # noqa: E402
 
-from _common import ROOT, scene_parser  # noqa: E402
+from _common import household_parser, rendered_objects  # noqa: E402
 
 
 def _best(fn, repeat):
@@ -34,10 +34,7 @@ def _best(fn, repeat):
 
 
 def main(argv=None):
-    parser = scene_parser(__doc__, "runs per measurement (the fastest is kept)", trials=20)
-    parser.set_defaults(scene=str(ROOT / "scenes" / "household.toml"))
-    parser.add_argument("--set", dest="overrides", action="append", default=[], metavar="SECTION.KEY=VALUE",
-                        help="scene override, as sqsim experiment's --set")
+    parser = household_parser(__doc__, "runs per measurement (the fastest is kept)", trials=20)
     parser.add_argument("--chain", default="hull", help="the chain timed whole (default: hull)")
     parser.add_argument("--kernels", default="numba,numpy", help="kernel choices to compare")
     args = parser.parse_args(argv)
@@ -47,20 +44,8 @@ def main(argv=None):
     from sqfit.fitting.hull import object_hull
     from sqfit.fitting.pointcloud import fit_points
     from sqfit.kernels import backend
-    from sqsim.imaging.render import get_renderer
-    from sqsim.imaging.trial import observations, simulate_trial
-    from sqsim.world.scene import load_scene, scene_overrides
 
-    overrides = scene_overrides(args.overrides)
-    if args.renderer:
-        overrides["masks.renderer"] = args.renderer
-    scene = load_scene(args.scene, overrides)
-    renderer = get_renderer(scene.masks.renderer, scene.intrinsics)
-    trials = []
-    for i in range(args.trials):
-        sim = simulate_trial(scene, i, renderer)
-        trials.append([list(observations(sim, obj.id, scene)) for obj in sim.objects])
-    objects = [obs for trial in trials for obs in trial]
+    objects = rendered_objects(args)
 
     print(f"# {len(objects)} objects of {args.scene} {' '.join(args.overrides)}, CPU ms per object, "
           f"best of {args.repeat}, OPENBLAS_NUM_THREADS={os.environ.get('OPENBLAS_NUM_THREADS')}")

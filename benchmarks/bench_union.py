@@ -22,7 +22,7 @@ os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
 import numpy as np  # noqa: E402
 
-from _common import ROOT, scene_parser  # noqa: E402
+from _common import household_parser, rendered_objects  # noqa: E402
 
 CALLS = 50
 
@@ -38,12 +38,10 @@ def _per_call(fn, repeat):
 
 
 def main(argv=None):
-    parser = scene_parser(__doc__, "runs of each measurement (the fastest is kept)", trials=6)
-    parser.set_defaults(scene=str(ROOT / "scenes" / "household.toml"))
-    parser.add_argument("--set", dest="overrides", action="append", default=[], metavar="SECTION.KEY=VALUE",
-                        help="scene override, as sqsim experiment's --set (default: objects.catalogue=[lamp])")
+    parser = household_parser(__doc__, "runs of each measurement (the fastest is kept)", trials=6)
     parser.add_argument("--kernels", default="numba,numpy", help="kernel choices to compare")
     args = parser.parse_args(argv)
+    args.overrides = args.overrides or ["objects.catalogue=[lamp]"]
 
     import sqfit
     from sqfit.fitting import two_parts
@@ -53,27 +51,15 @@ def main(argv=None):
                                            vertex_velocities)
     from sqfit.geometry.superquadric import rotation_and_derivatives
     from sqfit.kernels import backend
-    from sqsim.imaging.render import get_renderer
-    from sqsim.imaging.trial import observations, simulate_trial
-    from sqsim.world.scene import load_scene, scene_overrides
 
-    args.overrides = args.overrides or ["objects.catalogue=[lamp]"]
-    overrides = scene_overrides(args.overrides)
-    if args.renderer:
-        overrides["masks.renderer"] = args.renderer
-    scene = load_scene(args.scene, overrides)
-    renderer = get_renderer(scene.masks.renderer, scene.intrinsics)
     cases = []
-    for i in range(args.trials):
-        sim = simulate_trial(scene, i, renderer)
-        for obj in sim.objects:
-            obs = list(observations(sim, obj.id, scene))
-            result = sqfit.fit(obs, "whole")
-            if result.superquadric is None:
-                continue
-            bulk = bulk_observations(ObservationSet(obs)) or ObservationSet(obs)
-            start = two_parts.l_starts(np.asarray(result.superquadric.to_vector(), dtype=np.float64))[0]
-            cases.append((bulk, start))
+    for obs in rendered_objects(args):
+        result = sqfit.fit(obs, "whole")
+        if result.superquadric is None:
+            continue
+        bulk = bulk_observations(ObservationSet(obs)) or ObservationSet(obs)
+        start = two_parts.l_starts(np.asarray(result.superquadric.to_vector(), dtype=np.float64))[0]
+        cases.append((bulk, start))
 
     threads = os.environ.get("OPENBLAS_NUM_THREADS")
     print(f"# {len(cases)} objects of {args.scene} {' '.join(args.overrides)}, CPU ms per call (median over the "
