@@ -7,8 +7,8 @@ about 2400 times per object where it fits two parts; the numpy version's stacked
 matrix products take 0.20 ms per call on a lamp's union, nearly all per-call overhead, this loop 0.03 ms
 (``benchmarks/bench_union.py``, 6 lamps).
 
-Sums run in index order (numpy's matmul may round differently: the velocities agree to 1e-12,
-tested). No ``fastmath``. Importing this module imports numba; :mod:`sqfit.kernels.backend` does
+Sums run in index order (numpy's matmul may round differently: the velocities agree to 1e-10
+relative, tested). No ``fastmath``. Importing this module imports numba; :mod:`sqfit.kernels.backend` does
 that lazily, and the kernels are cached next to this file (``cache=True``).
 """
 
