@@ -1,11 +1,14 @@
 """Small helpers shared by several test modules: command lines and a camera with box masks."""
 
+import importlib.util
 import os
 import signal
 import subprocess
 import sys
 
 import numpy as np
+
+from pathlib import Path
 
 from sqfit import Camera, Intrinsics, look_at
 
@@ -106,3 +109,23 @@ def graph_values(poses, objects):
 def sq_vector(size, shape):
     """11 superquadric parameters with these half-axes and shape exponents, at a fixed pose."""
     return np.r_[size, shape, 0.5, -1.0, 2.0, 0.1, -0.2, 0.3]
+
+
+#: The repository's benchmark and script folders.
+BENCHMARKS = Path(__file__).resolve().parents[1] / "benchmarks"
+SCRIPTS = Path(__file__).resolve().parents[1] / "scripts"
+
+
+def script_module(path):
+    """The module of the Python file ``path`` (a benchmark or a script), loaded under its file name."""
+    spec = importlib.util.spec_from_file_location(Path(path).stem, path)
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+def benchmark_script(name, monkeypatch):
+    """The module of ``benchmarks/NAME.py``, loaded with ``benchmarks/`` on the path (the scripts import
+    ``_common``)."""
+    monkeypatch.syspath_prepend(str(BENCHMARKS))
+    return script_module(BENCHMARKS / f"{name}.py")

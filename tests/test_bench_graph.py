@@ -1,24 +1,20 @@
 """benchmarks/bench_graph.py: the growth test's --prefix and --scene-lap-pattern options, --exact-odometry."""
 
-import importlib.util
 import json
 import re
-from pathlib import Path
 
 import pytest
 
 from sqfit import graph
 from sqfit.graph.testing import position_rmse, synthetic_sequence
+from _helpers import BENCHMARKS, script_module
 
-_PATH = Path(__file__).resolve().parents[1] / "benchmarks" / "bench_graph.py"
+_PATH = BENCHMARKS / "bench_graph.py"
 
 
 @pytest.fixture(scope="module")
 def bench():
-    spec = importlib.util.spec_from_file_location("bench_graph", _PATH)
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
+    return script_module(_PATH)
 
 
 def test_prefix_compares_the_first_frames_alone_with_the_whole_run(bench, tmp_path, capsys):

@@ -1,21 +1,16 @@
 """benchmarks/bench_union.py: one lamp, both kernel choices, the parts of an evaluation and their comparison."""
 
-import importlib.util
 import re
-from pathlib import Path
 
 import pytest
 
-pytest.importorskip("numba")
+from _helpers import benchmark_script
 
-_PATH = Path(__file__).resolve().parents[1] / "benchmarks" / "bench_union.py"
+pytest.importorskip("numba")
 
 
 def test_bench_union_times_both_kernel_choices_and_compares_their_gradients(capsys, monkeypatch):
-    monkeypatch.syspath_prepend(str(_PATH.parent))  # the script imports benchmarks/_common.py
-    spec = importlib.util.spec_from_file_location("bench_union", _PATH)
-    bench = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(bench)
+    bench = benchmark_script("bench_union", monkeypatch)
     monkeypatch.setattr(bench, "CALLS", 2)
     bench.main(["--trials", "1", "--repeat", "1"])
     out = capsys.readouterr().out

@@ -2,9 +2,7 @@
 kernels, the stage on a true superquadric and on a chair (the `whole` chain's fit where it keeps no part);
 scripts/two_part_probe.py's arguments."""
 
-import importlib.util
 from dataclasses import replace
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -19,15 +17,13 @@ from sqfit.geometry.superquadric import contains, euler_to_matrix, volume
 from sqfit.kernels.backend import compiled, set_kernels
 from sqfit.testing import paper_trial
 from sqfit.views.visibility import BORDER
+from _helpers import SCRIPTS, script_module
 
-SCRIPT = Path(__file__).resolve().parents[1] / "scripts" / "two_part_probe.py"
+SCRIPT = SCRIPTS / "two_part_probe.py"
 
 
 def _script():
-    spec = importlib.util.spec_from_file_location("two_part_probe", SCRIPT)
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
+    return script_module(SCRIPT)
 
 
 def test_the_starts_are_slabs_on_two_adjacent_faces_of_the_fits_box():
