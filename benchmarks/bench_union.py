@@ -48,8 +48,7 @@ def main(argv=None):
     from sqfit.fitting.costs import ObservationSet
     from sqfit.fitting.least_volume import bulk_observations
     from sqfit.geometry.silhouette import (E_RANGE, MAX_NEWTON, NEWTON_TOL, ZNEAR, batch_silhouettes,
-                                           vertex_velocities)
-    from sqfit.geometry.superquadric import rotation_and_derivatives
+                                           rotation_stack, vertex_velocities)
     from sqfit.kernels import backend
 
     cases = []
@@ -74,7 +73,7 @@ def main(argv=None):
             for bulk, X in cases:
                 two_parts.union_gradient(X, bulk)  # warm-up: compiled kernels
                 cams = (bulk.rotations, bulk.centers, bulk.intrinsics)
-                R, dR = (np.stack(m) for m in zip(*(rotation_and_derivatives(r) for r in X[:, 8:11])))
+                R, dR = rotation_stack(X)
                 sil, moving = backend.compiled("silhouettes"), backend.compiled("velocities")
                 if sil is None:
                     def silhouettes():

@@ -294,8 +294,7 @@ def test_touching_silhouettes_and_their_vertices_velocities_agree(seed):
     # stage 3U's gradient: the silhouettes with their touching points, and the vertices' velocities from
     # them, compiled and numpy; with a negative half-axis and exponents at and outside their range
     from sqfit.geometry.silhouette import (E_RANGE, MAX_NEWTON, NEWTON_TOL, ZNEAR, batch_silhouettes,
-                                           vertex_velocities)
-    from sqfit.geometry.superquadric import rotation_and_derivatives
+                                           rotation_stack, vertex_velocities)
 
     k, moving = _silhouette_kernels(), backend.compiled("velocities")
     trial, X = _perturbed_starts(seed, 5)
@@ -304,7 +303,7 @@ def test_touching_silhouettes_and_their_vertices_velocities_agree(seed):
     X[3, 3:5] = [0.004, E_RANGE[1]]
     obs = costs.ObservationSet(trial.observations)
     cams = (obs.rotations, obs.centers, obs.intrinsics)
-    R, dR = (np.stack(m) for m in zip(*(rotation_and_derivatives(r) for r in X[:, 8:11])))
+    R, dR = rotation_stack(X)
     P_k, V_k, unit_k, points_k = k.touching_silhouettes(X, R, *cams, 48, NEWTON_TOL, MAX_NEWTON, ZNEAR, *E_RANGE)
     P_n, V_n, _, unit_n, points_n = batch_silhouettes(X, *cams, 48, touching=True)
     assert np.array_equal(V_k, V_n) and V_n.all()

@@ -75,9 +75,10 @@ from .outline import triggers
 from .stages import NUMERICAL_ERRORS, FitState, StageError, register, to_superquadric
 from .weighted_overlap import weighted_overlap_stage
 from ..constants import SHAPE_DOMAIN
-from ..geometry.silhouette import E_RANGE, MAX_NEWTON, NEWTON_TOL, ZNEAR, batch_silhouettes, vertex_velocities
+from ..geometry.silhouette import (E_RANGE, MAX_NEWTON, NEWTON_TOL, ZNEAR, batch_silhouettes, rotation_stack,
+                                   vertex_velocities)
 from ..geometry.slab import aspect
-from ..geometry.superquadric import euler_to_matrix, rotation_and_derivatives, unit_volumes, volume
+from ..geometry.superquadric import euler_to_matrix, unit_volumes, volume
 from ..kernels.backend import compiled
 
 __all__ = ["THIN", "VERTICES", "EVALUATIONS", "EDGE_POINTS", "GATE", "UNION_MIN", "VIEW_GATE", "MU", "SLAB",
@@ -237,8 +238,9 @@ def union_gradient(X, obs):
     instead of 0.84 (``benchmarks/bench_union.py``; all numpy: 2.3 ms)."""
     X = np.ascontiguousarray(X, dtype=np.float64)
     silhouettes, moving = compiled("silhouettes"), compiled("velocities")
-    if silhouettes is not None and moving is not None:
-        R, dR = (np.stack(m) for m in zip(*(rotation_and_derivatives(r) for r in X[:, 8:11])))
+    fast = silhouettes is not None and moving is not None
+    if fast:
+        R, dR = rotation_stack(X)
         polys, valid, unit_points, points = silhouettes.touching_silhouettes(
             X, R, obs.rotations, obs.centers, obs.intrinsics, VERTICES, NEWTON_TOL, MAX_NEWTON, ZNEAR, *E_RANGE)
     else:
@@ -250,7 +252,7 @@ def union_gradient(X, obs):
     grad = np.zeros((len(obs), 22))
     if not valid.all():
         return iou, grad
-    if moving is not None and silhouettes is not None:
+    if fast:
         velocities = moving.vertex_velocities(X, R, dR, unit_points, points, obs.rotations, obs.intrinsics, *E_RANGE)
     else:
         velocities = vertex_velocities(X, unit_points, points, obs.rotations, obs.intrinsics)  # (2, v, K, 2, 11)

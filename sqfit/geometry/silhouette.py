@@ -36,7 +36,7 @@ import numpy as np
 from .superquadric import euler_to_matrix, rotation_and_derivatives
 
 __all__ = ["silhouette", "batch_silhouettes", "SilhouetteStart", "vertex_velocities", "silhouette_gradient",
-           "camera_arrays", "ZNEAR", "DEFAULT_DIRECTIONS", "E_RANGE", "NEWTON_TOL", "MAX_NEWTON"]
+           "camera_arrays", "rotation_stack", "ZNEAR", "DEFAULT_DIRECTIONS", "E_RANGE", "NEWTON_TOL", "MAX_NEWTON"]
 
 #: Minimum camera depth (metres) of every superquadric point for a silhouette to exist.
 ZNEAR = 1e-3
@@ -371,7 +371,7 @@ def batch_silhouettes(xi, rotations, centers, intrinsics, n_directions=DEFAULT_D
     return polys, valid, start
 
 
-def _rotations(xi):
+def rotation_stack(xi):
     """Rotations ``(b, 3, 3)`` of parameter vectors ``(b, 11)`` and their derivatives ``(b, 3, 3, 3)``
     (one per angle)."""
     if len(xi) == 1:  # the optimiser's case: no stacking
@@ -449,7 +449,7 @@ def vertex_velocities(xi, unit_points, points, rotations, intrinsics):
         the silhouette clamps it. Not finite where the touching point is at depth 0.
     """
     xi = np.atleast_2d(xi)
-    R_sq, dR = _rotations(xi)
+    R_sq, dR = rotation_stack(xi)
     a = np.abs(xi[:, 0:3])
     fx, fy = intrinsics[:, 0][None, :, None], intrinsics[:, 1][None, :, None]
     iz = 1.0 / points[..., 2]
@@ -534,7 +534,7 @@ def silhouette_gradient(xi, weights, unit_points, points, rotations, intrinsics)
     """
     xi = np.atleast_2d(xi)
     b, v = points.shape[:2]
-    R_sq, dR = _rotations(xi)
+    R_sq, dR = rotation_stack(xi)
     a = np.abs(xi[:, 0:3])
     out = np.empty((b, v, 11))
     with np.errstate(all="ignore"):
