@@ -79,7 +79,7 @@ def add_arguments(parser):
                              "the masks with thin parts opened away, each kept only where what it leaves out is a part "
                              "seen in several views, legs, stands; of the fits that match the contours alike, the one "
                              "of least volume), then where the masks show two slabs at an angle (chairs, laptops, "
-                             "monitors) one of two superquadrics fitted together to them (about 2 s per object where "
+                             "monitors) one of two superquadrics fitted together to them (about 1.5 s per object where "
                              "it fits the two); elsewhere 3W: where the silhouettes still do not match the masks and "
                              "the masks agree under the cameras, the fit of the highest overlap with a silhouette "
                              "pixel outside the mask weighted twice (arms, leaves, poles let go), from the fit and "

@@ -52,7 +52,7 @@ WHOLE_CHAIN = "1-2M-3H-3R-3V-3W"
 #: The default: :data:`WHOLE_CHAIN` with stage 3U (:mod:`sqfit.fitting.two_parts`) in place of 3V and 3W: 3V, then
 #: where 3T's trigger holds and the masks show two slabs at an angle (chairs, laptops, monitors), one of two
 #: superquadrics fitted together to the opened masks, where their union matches them much better; elsewhere 3W as
-#: in :data:`WHOLE_CHAIN`, whose fits it keeps bit for bit where it keeps no part. Costs about 2 s of CPU per
+#: in :data:`WHOLE_CHAIN`, whose fits it keeps bit for bit where it keeps no part. Costs about 1.3-1.5 s of CPU per
 #: object where it fits the union (furniture, lamps, toys); docs/real-objects.md, "Stage 3U" and after it.
 DEFAULT_CHAIN = WHOLE_CHAIN.removesuffix("-3V-3W") + "-3U"
 #: Chain of :func:`fit` when a starting superquadric is given (``initial=``) and no chain is: a
