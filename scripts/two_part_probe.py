@@ -17,7 +17,7 @@ differences), and reports what each rule would keep: the part of higher 3D IoU w
 larger (3U's :func:`~sqfit.fitting.two_parts.pick_part`), the part whose own silhouettes match the masks
 better, the better of the two parts (known only from the mesh), and the gated pick: the first rule's
 part only where the union passes 3U's gate (:func:`~sqfit.fitting.two_parts.passes_gate`), else
-``whole``'s fit (unlike 3U, the probe fits the union whether or not 3T's trigger holds).
+``whole``'s fit (unlike 3U, the probe fits the union whether or not 3U's trigger holds).
 
 Per trial it prints ``whole``'s 3D IoU against the mesh and its silhouettes' mean IoU with the
 (opened) masks, the union's, the rules' picks, the better of the two parts, the gated pick and the

@@ -221,7 +221,40 @@ def test_the_default_keeps_the_whole_chains_fit_on_a_true_superquadric():
     three_u = sqfit.fit(trial.observations)
     assert three_u.chain == "1-2M-3H-3R-3U" and whole.chain == "1-2M-3H-3R-3V-3W"
     assert np.array_equal(three_u.superquadric.to_vector(), whole.superquadric.to_vector())
-    assert three_u.stages[-1].message.startswith("3U: 3T's trigger does not hold; 3W: ")
+    assert three_u.stages[-1].message.startswith("3U: its trigger does not hold (3G cost above 0.01, contour R-IOU-M "
+                                                 "below 0.9); 3W: ")
+
+
+def test_the_trigger_asks_for_a_cost_above_its_floor_and_contours_matched_below_3ts_score(monkeypatch):
+    from sqfit.fitting.stages import FitState
+
+    scores = []
+
+    def contour_score(state, obs):
+        scores.append(state.cost)
+        return 0.5 if state.cost < 1.0 else 0.95
+
+    monkeypatch.setattr(two_parts, "contour_score", contour_score)
+    xi = np.r_[1.0, 1.0, 1.0, 1.0, 1.0, np.zeros(6)]
+    state = lambda cost: FitState(xi, cost=cost)  # noqa: E731
+    assert not two_parts.triggers(state(None), None) and not two_parts.triggers(state(two_parts.TRIGGER_COST), None)
+    assert not scores  # not scored below the cost floor
+    assert two_parts.triggers(state(0.015), None)  # below 3T's cost trigger (0.02): a laptop 3T missed
+    assert not two_parts.triggers(state(2.0), None)  # the contours matched at 0.95
+    assert scores == [0.015, 2.0]
+
+
+def test_on_a_laptop_that_3t_leaves_alone_the_stage_keeps_a_part_closer_to_the_laptop(household):
+    """Laptop 15 of seed 0: one superquadric fills the wedge between base and lid at a 3G cost (0.017) below
+    3T's trigger, its silhouettes matching the contours at 0.79 only; 3U fits two parts (the laptop at 0.11 ->
+    0.66 when measured)."""
+    from sqfit.metrics import iou_3d_mesh
+
+    laptop, obs = household("laptop", 0, 15)
+    whole, default = sqfit.fit(obs, chain="whole"), sqfit.fit(obs)
+    assert ": kept the input" in whole.stages[-2].message  # 3V (3T) left the input alone
+    assert ": kept part" in default.stages[-1].message, default.stages[-1].message
+    assert iou_3d_mesh(default.superquadric, laptop.mesh) > iou_3d_mesh(whole.superquadric, laptop.mesh) + 0.3
 
 
 @pytest.fixture

@@ -50,10 +50,11 @@ PAPER_CHAINS = ("3A", "3B", "1-3A", "1-2-3A", "1-2-3B", "3E", "1-3E", "1-2-3C", 
 #: superquadric for the whole object, the default until 2026-12-02.
 WHOLE_CHAIN = "1-2M-3H-3R-3V-3W"
 #: The default: :data:`WHOLE_CHAIN` with stage 3U (:mod:`sqfit.fitting.two_parts`) in place of 3V and 3W: 3V, then
-#: where 3T's trigger holds and the masks show two slabs at an angle (chairs, laptops, monitors), one of two
-#: superquadrics fitted together to the opened masks, where their union matches them much better; elsewhere 3W as
-#: in :data:`WHOLE_CHAIN`, whose fits it keeps bit for bit where it keeps no part. Costs about 1.3-1.5 s of CPU per
-#: object where it fits the union (furniture, lamps, toys); docs/real-objects.md, "Stage 3U" and after it.
+#: where its trigger holds (3T's, at half its cost floor) and the masks show two slabs at an angle (chairs,
+#: laptops, monitors), one of two superquadrics fitted together to the opened masks, where their union matches
+#: them much better; elsewhere 3W as in :data:`WHOLE_CHAIN`, whose fits it keeps bit for bit where it keeps no
+#: part. Costs about 1.3-1.5 s of CPU per object where it fits the union (furniture, lamps, toys);
+#: docs/real-objects.md, "Stage 3U" and after it.
 DEFAULT_CHAIN = WHOLE_CHAIN.removesuffix("-3V-3W") + "-3U"
 #: Chain of :func:`fit` when a starting superquadric is given (``initial=``) and no chain is: a
 #: local refinement from it.
