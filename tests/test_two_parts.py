@@ -226,6 +226,7 @@ def test_the_default_keeps_the_whole_chains_fit_on_a_true_superquadric():
 
 
 def test_the_trigger_asks_for_a_cost_above_its_floor_and_contours_matched_below_3ts_score(monkeypatch):
+    from sqfit.fitting import outline
     from sqfit.fitting.stages import FitState
 
     scores = []
@@ -234,7 +235,7 @@ def test_the_trigger_asks_for_a_cost_above_its_floor_and_contours_matched_below_
         scores.append(state.cost)
         return 0.5 if state.cost < 1.0 else 0.95
 
-    monkeypatch.setattr(two_parts, "contour_score", contour_score)
+    monkeypatch.setattr(outline, "contour_score", contour_score)
     xi = np.r_[1.0, 1.0, 1.0, 1.0, 1.0, np.zeros(6)]
     state = lambda cost: FitState(xi, cost=cost)  # noqa: E731
     assert not two_parts.triggers(state(None), None) and not two_parts.triggers(state(two_parts.TRIGGER_COST), None)
@@ -242,6 +243,7 @@ def test_the_trigger_asks_for_a_cost_above_its_floor_and_contours_matched_below_
     assert two_parts.triggers(state(0.015), None)  # below 3T's cost trigger (0.02): a laptop 3T missed
     assert not two_parts.triggers(state(2.0), None)  # the contours matched at 0.95
     assert scores == [0.015, 2.0]
+    assert not outline.triggers(state(0.015), None)  # 3T's own floor stays 0.02
 
 
 def test_on_a_laptop_that_3t_leaves_alone_the_stage_keeps_a_part_closer_to_the_laptop(household):

@@ -63,9 +63,10 @@ def outline_stage(state, obs, options):
                    message=f"3T: outline R-IOU-M {before:.3f}, G2 on the contours reached {after:.3f}: kept the input")
 
 
-def over_cost_trigger(state):
-    """Whether the input's 3G cost (``FitState.cost``) is above :data:`TRIGGER_COST` (False without one)."""
-    return state.cost is not None and state.cost > TRIGGER_COST
+def over_cost_trigger(state, floor=TRIGGER_COST):
+    """Whether the input's 3G cost (``FitState.cost``) is above ``floor``, by default :data:`TRIGGER_COST` (False
+    without one)."""
+    return state.cost is not None and state.cost > floor
 
 
 def contour_score(state, obs):
@@ -73,7 +74,8 @@ def contour_score(state, obs):
     return float(r_iou_m([to_superquadric(state.xi)], obs, OUTLINE_POLYGON)[0])
 
 
-def triggers(state, obs):
-    """Whether 3T acts on ``state``: its 3G cost above :data:`TRIGGER_COST` and its contour R-IOU-M
-    below :data:`TRIGGER_R_IOU_M` (the score is not evaluated below the cost trigger)."""
-    return over_cost_trigger(state) and contour_score(state, obs) < TRIGGER_R_IOU_M
+def triggers(state, obs, floor=TRIGGER_COST):
+    """Whether 3T acts on ``state``: its 3G cost above ``floor`` (3T's :data:`TRIGGER_COST`; stage 3U asks for
+    less, :data:`sqfit.fitting.two_parts.TRIGGER_COST`) and its contour R-IOU-M below :data:`TRIGGER_R_IOU_M`
+    (the score is not evaluated below the cost floor)."""
+    return over_cost_trigger(state, floor) and contour_score(state, obs) < TRIGGER_R_IOU_M

@@ -76,7 +76,7 @@ from scipy.optimize import minimize
 
 from .contour_overlap import CONVEX_TOL
 from .least_volume import bulk_observations, least_volume_stage
-from .outline import TRIGGER_R_IOU_M, contour_score
+from .outline import TRIGGER_R_IOU_M, triggers as outline_triggers
 from .stages import NUMERICAL_ERRORS, FitState, StageError, register, to_superquadric
 from .weighted_overlap import weighted_overlap_stage
 from ..constants import SHAPE_DOMAIN
@@ -388,10 +388,10 @@ def passes_gate(singles, unions):
 
 
 def triggers(state, obs):
-    """Whether 3U fits two parts to ``state``'s masks (where its other tests let it): its 3G cost above
-    :data:`TRIGGER_COST` and its contour R-IOU-M (:func:`sqfit.fitting.outline.contour_score`) below 3T's
-    :data:`~sqfit.fitting.outline.TRIGGER_R_IOU_M` (the score is not evaluated below the cost)."""
-    return state.cost is not None and state.cost > TRIGGER_COST and contour_score(state, obs) < TRIGGER_R_IOU_M
+    """Whether 3U fits two parts to ``state``'s masks (where its other tests let it): 3T's trigger
+    (:func:`sqfit.fitting.outline.triggers`) with :data:`TRIGGER_COST` as its cost floor: the 3G cost above it and
+    the contour R-IOU-M below :data:`~sqfit.fitting.outline.TRIGGER_R_IOU_M` (not evaluated below the floor)."""
+    return outline_triggers(state, obs, TRIGGER_COST)
 
 
 @register("3U")
