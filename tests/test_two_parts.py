@@ -259,6 +259,19 @@ def test_on_a_laptop_that_3t_leaves_alone_the_stage_keeps_a_part_closer_to_the_l
     assert iou_3d_mesh(default.superquadric, laptop.mesh) > iou_3d_mesh(whole.superquadric, laptop.mesh) + 0.3
 
 
+def test_on_a_monitor_the_stage_keeps_a_part_for_a_gain_below_the_old_gate(household):
+    """Monitor 15 of seed 0: the union gains 0.108 in mean silhouette IoU over 3V's fit, refused while
+    :data:`GATE` was 0.12; the part kept, the screen, is the monitor's better fit (0.388 -> 0.758 when
+    measured)."""
+    from sqfit.metrics import iou_3d_mesh
+
+    monitor, obs = household("monitor", 0, 15)
+    whole, default = sqfit.fit(obs, chain="whole"), sqfit.fit(obs)
+    message = default.stages[-1].message
+    assert ": kept part" in message, message
+    assert iou_3d_mesh(default.superquadric, monitor.mesh) > iou_3d_mesh(whole.superquadric, monitor.mesh) + 0.25
+
+
 @pytest.fixture
 def chair_trial(household):
     """Chair 1 of ``scenes/household.toml`` (seed 0): the object and its observations."""
@@ -292,7 +305,8 @@ def test_the_gate_asks_the_union_to_match_the_masks_better_on_average_in_most_vi
     singles = np.array([0.70, 0.70, 0.70, 0.70])
     assert two_parts.passes_gate(singles, [0.90, 0.85, 0.86, 0.88])
     assert not two_parts.passes_gate(singles, [0.80, 0.80, 0.85, 0.85])  # better by 0.125, but the union at 0.825
-    assert not two_parts.passes_gate([0.8, 0.8, 0.8, 0.8], [0.90, 0.90, 0.90, 0.90])  # well, but better by 0.1
+    # well and better in the median view by 0.11, but on average by 0.0725 only
+    assert not two_parts.passes_gate([0.8, 0.8, 0.8, 0.8], [0.92, 0.91, 0.91, 0.75])
     # one view carries it: 3V's fit at 0.06 in it (a table of seed 4), the union worse in the others
     assert not two_parts.passes_gate([0.83, 0.06, 0.97, 0.98], [0.73, 0.81, 0.93, 0.94])
     assert two_parts.passes_gate([0.83, 0.50, 0.70, 0.70], [0.93, 0.90, 0.82, 0.82])  # the median view: +0.12

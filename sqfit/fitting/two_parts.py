@@ -118,9 +118,13 @@ _MIN_HALF_AXIS = 1e-3
 STEP = 1e-3
 #: Midpoints per silhouette edge of the union's gradient (:func:`union_gradient`).
 EDGE_POINTS = 8
-#: The union's gain in mean silhouette IoU over 3V's fit that lets a part replace it (set on seed 0 of
-#: chairs and laptops; docs/real-objects.md, "Two parts for two slabs").
-GATE = 0.12
+#: The union's gain in mean silhouette IoU over 3V's fit that lets a part replace it. Set at 0.12 on seed 0
+#: of chairs and laptops (docs/real-objects.md, "Two parts for two slabs"); lowered to 0.08 once
+#: :data:`UNION_MIN`, :data:`VIEW_GATE` and the slab test guarded it: on the 720 household objects of seeds 0,
+#: 4 and 2 it keeps a part on 10 more (chairs, laptops, monitors, a table), each better than 3V's fit (e.g. a
+#: monitor 0.388 -> 0.758), no fit of another kind changes, and every fit of ``paper-noisy`` (seeds 0, 1) and
+#: of the fourteen noise sweeps stays ``whole``'s (docs/real-objects.md, "3U's gate lowered").
+GATE = 0.08
 #: The union's mean silhouette IoU with the opened masks below which no part replaces 3V's fit: the
 #: two parts must explain the masks, not only better than one. On noisy masks of a true superquadric
 #: (``scenes/paper-noisy.toml``, seeds 0 and 1: 5 fits of 200 passed :data:`GATE`, each part then worse
