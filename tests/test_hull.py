@@ -13,7 +13,7 @@ from sqfit.geometry.camera import Camera, look_at, project
 from sqfit.geometry.superquadric import contains, sample_surface_uniform, volume
 from sqfit.metrics import iou_3d
 from sqfit.testing import PAPER_INTRINSICS, polygon_mask, random_superquadric
-from sqfit.views.carving import FINE_CELLS, carve, fill_polygon, object_pixels, visual_hull
+from sqfit.views.carving import FINE_CELLS, VoxelHull, carve, fill_polygon, object_pixels, visual_hull
 
 SQ = sqfit.Superquadric([1.0, 0.6, 0.4], [0.5, 1.2], [0.3, -0.2, 0.1], [0.3, 0.2, 0.5])
 
@@ -53,11 +53,20 @@ def test_hull_contains_the_superquadric_and_is_not_much_larger(hull):
     lo, hi = np.array(SQ.position) - 1.2, np.array(SQ.position) + 1.2
     points = rng.uniform(lo, hi, (20000, 3))
     points = points[contains(shrunk, points)]
-    cell = np.round((points - hull.origin) / hull.voxel).astype(int)
     assert len(points) > 1000
-    assert np.all((cell >= 0) & (cell < hull.occupied.shape))
-    assert hull.occupied[tuple(cell.T)].all()
+    assert hull.contains(points).all()
     assert volume(SQ) < hull.volume < 2.0 * volume(SQ)
+
+
+def test_a_hull_contains_the_points_of_its_occupied_voxels_only():
+    occupied = np.zeros((4, 4, 4), dtype=bool)
+    occupied[1, 2, 3] = True
+    hull = VoxelHull(occupied, np.array([1.0, 2.0, 3.0]), 0.5)
+    points = [[1.5, 3.0, 4.5], [1.5, 3.0, 4.74], [1.5, 3.0, 4.76], [0.0, 0.0, 0.0], [3.5, 3.0, 4.5], [1.5, 2.5, 4.5]]
+    assert hull.contains(points).tolist() == [True, True, False, False, False, False]
+    assert hull.contains(np.zeros((0, 3))).shape == (0,)
+    with pytest.raises(ValueError, match="points"):
+        hull.contains([1.0, 2.0, 3.0])
 
 
 def test_surface_points_lie_on_the_hull_boundary(hull):

@@ -331,7 +331,7 @@ def _stub_union(monkeypatch, union, gate=True, part=0):
             return union, np.full(len(obs), 0.95), 0.1, 1
     monkeypatch.setattr(two_parts, "fit_union", fit_union)
     monkeypatch.setattr(two_parts, "passes_gate", lambda singles, unions: gate)
-    monkeypatch.setattr(two_parts, "pick_part", lambda X: part)
+    monkeypatch.setattr(two_parts, "pick_part", lambda X, hull=None: part)
 
 
 @pytest.mark.parametrize("union, kept", [(True, "part"), (False, "whole")])
@@ -343,6 +343,24 @@ def test_the_stage_keeps_the_part_where_the_gate_passes(monkeypatch, union, kept
     _stub_union(monkeypatch, np.stack([part, three_v]), gate=union)
     fit = sqfit.fit(obs, chain="two-parts")
     assert np.array_equal(fit.superquadric.to_vector(), part if kept == "part" else whole)
+
+
+def test_the_stage_keeps_the_smaller_slab_where_the_visual_hull_says_so(monkeypatch, chair_fits):
+    obs, three_v, _ = chair_fits
+    larger, smaller = three_v.copy(), three_v.copy()
+    larger[0:3], smaller[0:3] = [0.05, 0.5, 0.6], [0.04, 0.4, 0.5]
+    _stub_union(monkeypatch, np.stack([larger, smaller]))
+    hulls = []
+
+    def pick(X, hull=None):
+        hulls.append(hull)
+        return 0 if hull is None else 1
+
+    monkeypatch.setattr(two_parts, "pick_part", pick)
+    fit = sqfit.fit(obs, chain="two-parts")
+    assert np.array_equal(fit.superquadric.to_vector(), smaller)
+    assert "kept part 1 of two (the smaller, more of it inside the visual hull)" in fit.stages[-1].message
+    assert hulls[0] is None and hulls[1].occupied.any()  # the masks' visual hull
 
 
 def test_the_stage_polishes_the_union_it_keeps_without_the_volume_term(monkeypatch, chair_fits):
@@ -364,6 +382,45 @@ def test_the_stage_polishes_the_union_it_keeps_without_the_volume_term(monkeypat
     assert np.array_equal(calls[-1][0], fitted)
     assert np.array_equal(fit.superquadric.to_vector(), polished[1])
     assert "polished without the volume term" in fit.stages[-1].message
+
+
+def _box_hull(lower, upper, voxel=0.05):
+    """A VoxelHull occupied over the box [lower, upper] (world), in a grid around it."""
+    from sqfit.views.carving import VoxelHull
+
+    origin = np.array([-1.5, -1.5, -1.5])
+    centres = origin + voxel * np.stack(np.meshgrid(*[np.arange(n) for n in (60, 60, 100)], indexing="ij"), axis=-1)
+    occupied = np.all((centres >= lower) & (centres <= upper), axis=-1)
+    return VoxelHull(occupied, origin, voxel)
+
+
+def test_the_part_kept_is_the_larger_unless_the_other_slab_lies_more_inside_the_visual_hull():
+    larger = np.r_[0.05, 1.0, 1.0, 0.2, 0.2, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0]
+    smaller = np.r_[0.04, 0.5, 0.5, 0.2, 0.2, 0.0, 0.0, 2.0, 0.0, 0.0, 0.0]
+    X = np.stack([smaller, larger])
+    everything = _box_hull([-9, -9, -9], [9, 9, 9])
+    upper_half = _box_hull([-9, -9, 0.0], [9, 9, 9])  # half of the larger part, all of the smaller
+    assert two_parts.hull_share(larger, everything) == 1.0 and two_parts.hull_share(smaller, upper_half) == 1.0
+    assert abs(two_parts.hull_share(larger, upper_half) - 0.5) < 0.05
+    assert two_parts.pick_part(X) == 1 and two_parts.pick_part(X, everything) == 1
+    assert two_parts.pick_part(X, upper_half) == 0
+    assert two_parts.pick_part(X[::-1], upper_half) == 1
+    # within the margin: the larger
+    corner = _box_hull([-9, -9, -9], [9, -0.78, -0.78])  # a corner of the larger part carved away
+    nearly = replace(everything, occupied=everything.occupied & ~corner.occupied)
+    assert 0 < 1.0 - two_parts.hull_share(larger, nearly) < two_parts.HULL_MARGIN
+    assert two_parts.pick_part(X, nearly) == 1
+    # the other part only if both are slabs
+    bar = smaller.copy()
+    bar[0:3] = [0.3, 0.3, 0.5]
+    assert two_parts.pick_part(np.stack([bar, larger]), upper_half) == 1
+    assert two_parts.hull_share(np.r_[0.05, 1.0, 1.0, 0.2, 0.2, 5.0, 5.0, 5.0, 0.0, 0.0, 0.0], everything) == 0.0
+
+
+def test_the_choice_script_refuses_no_trials():
+    choice = script_module(SCRIPTS / "two_part_choice.py")
+    with pytest.raises(SystemExit):
+        choice.main(["--trials", "0"])
 
 
 def test_a_part_is_a_slab_between_a_sheet_and_a_bar():
@@ -389,3 +446,4 @@ def test_the_stage_keeps_no_part_that_is_not_a_slab(monkeypatch, chair_fits, thi
     fit = sqfit.fit(obs)
     assert np.array_equal(fit.superquadric.to_vector(), whole)
     assert "would not be a slab" in fit.stages[-1].message
+

@@ -91,6 +91,16 @@ class VoxelHull:
         """``(k, 3) float``: world centres of the occupied voxels."""
         return self.origin + self.voxel * np.argwhere(self.occupied)
 
+    def contains(self, points):
+        """``(n,) bool``: whether each world point ``(n, 3)`` lies in an occupied voxel (the voxel of the
+        nearest centre; outside the grid is empty)."""
+        points = check_shape(points, (None, 3), "points")
+        index = np.round((points - self.origin) / self.voxel)
+        inside = np.all((index >= 0) & (index < np.array(self.occupied.shape)), axis=1)
+        out = np.zeros(len(points), dtype=bool)
+        out[inside] = self.occupied[tuple(index[inside].astype(np.int64).T)]
+        return out
+
     def surface_points(self):
         """Centres of the faces between occupied and empty voxels (outside the grid is empty).
 
