@@ -42,7 +42,8 @@ from sqfit.fitting.costs import ObservationSet  # noqa: E402
 from sqfit.fitting.hull import object_hull  # noqa: E402
 from sqfit.fitting.least_volume import bulk_observations  # noqa: E402
 from sqfit.fitting.stages import to_superquadric  # noqa: E402
-from sqfit.fitting.two_parts import MU, fit_union, hull_share, l_starts, passes_gate, pick_part, union_ious  # noqa: E402
+from sqfit.fitting.two_parts import (MU, fit_union, hull_share, l_starts, passes_gate, pick_part,  # noqa: E402
+                                     union_ious)
 from sqfit.geometry.superquadric import contains, volume  # noqa: E402
 from sqfit.limit import interior_points  # noqa: E402
 from sqfit.metrics import iou_3d_mesh  # noqa: E402

@@ -155,7 +155,7 @@ MU = 0.2
 #: fits of chairs, monitors and a table, -0.049 to -0.323). docs/real-objects.md, "Stage 3U in the default".
 SLAB = (0.015, 0.4)
 #: How much more of its volume the smaller part must have inside the masks' visual hull than the larger
-#: for :func:`pick_part` to keep it instead (:func:`hull_share`). Of the 136 unions 3U keeps a part of on chairs,
+#: for :func:`pick_part` to keep it instead (:func:`hull_share`). Of the 136 unions that pass 3U's gate on chairs,
 #: laptops and monitors of seeds 0, 4 and 2 (``scripts/two_part_choice.py``) the larger part is worse than the
 #: other by more than 0.01 (3D IoU with the mesh) on 17, 12 chairs and 5 laptops, and there it is a slab
 #: across empty space (a chair's back across the gap under its panel, a laptop's part across the wedge): 0.11-0.64
@@ -400,7 +400,7 @@ def pick_part(X, hull=None):
     120). Of two parts, given the masks' visual ``hull``, the other part instead if both are slabs
     (:func:`is_slab`) and it has at least :data:`HULL_MARGIN` more of itself inside the hull
     (:func:`hull_share`): a part partly outside the visual hull is partly outside the object. Of the 136
-    unions 3U keeps a part of on chairs, laptops and monitors of seeds 0, 4 and 2 the larger part is worse
+    unions that pass 3U's gate on chairs, laptops and monitors of seeds 0, 4 and 2 the larger part is worse
     than the other by more than 0.01 (3D IoU with the mesh) on 17; with the hull on 14 (:data:`HULL_MARGIN`;
     docs/real-objects.md, "Which part 3U keeps")."""
     X = np.asarray(X, dtype=np.float64)
