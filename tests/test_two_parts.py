@@ -363,25 +363,54 @@ def test_the_stage_keeps_the_smaller_slab_where_the_visual_hull_says_so(monkeypa
     assert hulls[0] is None and hulls[1].occupied.any()  # the masks' visual hull
 
 
-def test_the_stage_polishes_the_union_it_keeps_without_the_volume_term(monkeypatch, chair_fits):
-    """The twelve starts are fitted with the volume term, the union kept is fitted again without it (from
-    where it ended), and the part kept comes from that polished union."""
+def test_the_stage_polishes_the_near_best_unions_without_the_volume_term_and_keeps_the_best_matching(monkeypatch,
+                                                                                                      chair_fits):
+    """The twelve starts are fitted with the volume term; those ending within POLISH_WITHIN of the lowest objective
+    are fitted again without it (from where they ended), and the part kept comes from the polished union whose
+    silhouettes match the masks best."""
     obs, three_v, _ = chair_fits
-    fitted, polished = np.stack([three_v, three_v]), np.stack([three_v, three_v])
-    fitted[0, 0:3] *= 0.5
-    polished[1, 0:3] = [0.5, 0.05, 0.4]  # a slab
+    ends = [np.stack([three_v, three_v]) for _ in range(12)]
+    for i, X in enumerate(ends):
+        X[0, 0:3] *= 0.5 + 0.01 * i  # each start ends somewhere else
+    objectives = [0.5] * 12
+    objectives[3], objectives[7] = 0.1, 0.1 + 0.9 * two_parts.POLISH_WITHIN  # two near-best ends, start 3 lowest
+    polished = {3: np.stack([three_v, three_v]), 7: np.stack([three_v, three_v])}
+    polished[3][1, 0:3], polished[7][1, 0:3] = [0.5, 0.05, 0.4], [0.6, 0.06, 0.5]  # slabs
+    matches = {3: 0.90, 7: 0.95}  # start 7's polished union matches the masks better
     calls = []
 
     def fit_union(start, obs, mu, reference, **kw):
         calls.append((np.array(start), mu))
-        return (polished if mu == 0 else fitted), np.full(len(obs), 0.95), 0.1, 1
+        if mu == 0:
+            i = next(i for i, X in enumerate(ends) if np.array_equal(start, X))
+            return polished[i], np.full(len(obs), matches[i]), float(len(obs) * (1 - matches[i])), 1
+        i = sum(m > 0 for _, m in calls) - 1
+        return ends[i], np.full(len(obs), 0.95), objectives[i], 1
 
     _stub_union(monkeypatch, fit_union, part=1)
     fit = sqfit.fit(obs, chain="two-parts")
-    assert [mu for _, mu in calls] == [two_parts.MU] * 12 + [0.0]
-    assert np.array_equal(calls[-1][0], fitted)
-    assert np.array_equal(fit.superquadric.to_vector(), polished[1])
+    assert [mu for _, mu in calls] == [two_parts.MU] * 12 + [0.0, 0.0]
+    assert np.array_equal(calls[-2][0], ends[3]) and np.array_equal(calls[-1][0], ends[7])
+    assert np.array_equal(fit.superquadric.to_vector(), polished[7][1])
     assert "polished without the volume term" in fit.stages[-1].message
+
+
+def test_polish_keeps_the_start_of_the_lowest_objective_alone_within_zero_and_an_end_whose_polish_fails(monkeypatch):
+    ends = [np.full((2, 11), float(i)) for i in range(3)]
+    fits = [(ends[0], np.array([0.9, 0.9]), 0.3, 5), (ends[1], np.array([0.8, 0.8]), 0.2, 5),
+            (ends[2], np.array([0.99, 0.99]), 0.21, 5)]
+
+    def fit_union(start, obs, mu, reference, **kw):
+        if start[0, 0] == 2.0:
+            raise np.linalg.LinAlgError("singular")
+        return start + 10.0, np.array([0.85, 0.85]), 0.3, 7
+
+    monkeypatch.setattr(two_parts, "fit_union", fit_union)
+    X, evaluations = two_parts.polish(fits, None, 1.0, within=0.0)
+    assert np.array_equal(X, ends[1] + 10.0) and evaluations == 7
+    # start 2's polish fails: it stays as it ended, scored by its own IoUs (0.99), and is kept
+    X, evaluations = two_parts.polish(fits, None, 1.0, within=0.05)
+    assert np.array_equal(X, ends[2]) and evaluations == 7
 
 
 def _box_hull(lower, upper, voxel=0.05):
