@@ -6,9 +6,10 @@ Usage::
         [--kinds chair laptop monitor] [--trials 20] [--seed 0] [--records FILE]
 
 Stage 3U (:mod:`sqfit.fitting.two_parts`) fits the union of two superquadrics to an object's opened masks
-from twelve starts, keeps the start of the lowest objective, polishes it without the volume term and keeps
-its larger part, or the smaller where more of it lies inside the masks' visual hull
-(:func:`~sqfit.fitting.two_parts.pick_part`). This script repeats those steps from stage 3V's
+from twelve starts, polishes without the volume term those that ended near the lowest objective, keeps the
+union that then matches the masks best (:func:`~sqfit.fitting.two_parts.polish`) and of it the larger part, or
+the smaller where more of it lies inside the masks' visual hull (:func:`~sqfit.fitting.two_parts.pick_part`).
+This script repeats those steps from stage 3V's
 fit (chain ``1-2M-3H-3R-3V``, 3U's input; like ``scripts/two_part_probe.py`` it ignores 3U's trigger), and
 where the union passes 3U's gate (:func:`~sqfit.fitting.two_parts.passes_gate`) polishes *every* start and
 scores each part against the mesh:
@@ -19,9 +20,12 @@ scores each part against the mesh:
 - ``in_hull``: the share of its volume inside the visual hull of the masks
   (:func:`~sqfit.fitting.two_parts.hull_share` of :func:`sqfit.fitting.hull.object_hull`), which the fitter knows.
 
-Per trial it prints the larger part (``larger``, 3U's pick before the hull), the other part of the same union
-(``other``), the part 3U keeps (``kept``), the better of the two (``best_of_two``, known from the mesh only),
-the best part of any start (``best_of_all``), the larger and the other part's precision and in-hull share,
+Per trial it prints, of the union of the lowest objective (the one 3U polished alone until 2026-12-03), the
+larger part (``larger``), the other part (``other``), the part the visual hull picks (``by_hull``:
+:func:`~sqfit.fitting.two_parts.pick_part` with the hull) and the better of the two (``best_of_two``, known from
+the mesh only); the part 3U keeps (``kept``: of the union :func:`~sqfit.fitting.two_parts.polish` keeps, the
+hull's pick); the best part of any start (``best_of_all``); the larger and the other part's precision and
+in-hull share,
 then per kind the medians and how the precise parts (precision >= 0.8) and the others sit in the hull.
 ``--records FILE`` appends one JSON line per trial. Measured: docs/real-objects.md, "Which part 3U keeps".
 """
@@ -42,8 +46,8 @@ from sqfit.fitting.costs import ObservationSet  # noqa: E402
 from sqfit.fitting.hull import object_hull  # noqa: E402
 from sqfit.fitting.least_volume import bulk_observations  # noqa: E402
 from sqfit.fitting.stages import to_superquadric  # noqa: E402
-from sqfit.fitting.two_parts import (MU, fit_union, hull_share, l_starts, passes_gate, pick_part,  # noqa: E402
-                                     union_ious)
+from sqfit.fitting.two_parts import (MU, POLISH_WITHIN, fit_union, hull_share, l_starts, passes_gate,  # noqa: E402
+                                     pick_part, union_ious)
 from sqfit.geometry.superquadric import contains, volume  # noqa: E402
 from sqfit.limit import interior_points  # noqa: E402
 from sqfit.metrics import iou_3d_mesh  # noqa: E402
@@ -81,11 +85,15 @@ def trial_row(scene, index, renderer, seed):
     hull, mesh_sample = object_hull(obs), interior_points(obj.mesh, 2**14, np.random.default_rng(seed))
     starts = []
     for X, _, objective, _ in fits:
-        polished = fit_union(X, bulk, 0.0, volume(base))[0]
+        polished, ious, _, _ = fit_union(X, bulk, 0.0, volume(base))
         starts.append({"objective": objective, "parts": [part_scores(x, obj.mesh, mesh_sample, hull) for x in polished],
-                       "larger": pick_part(polished), "kept": pick_part(polished, hull)})
-    parts, larger, kept = starts[best]["parts"], starts[best]["larger"], starts[best]["kept"]
-    row.update(larger=parts[larger]["iou"], other=parts[1 - larger]["iou"], kept=parts[kept]["iou"],
+                       "larger": pick_part(polished), "by_hull": pick_part(polished, hull),
+                       "mismatch": float((1.0 - ious).sum())})
+    near = [i for i, start in enumerate(starts) if start["objective"] <= starts[best]["objective"] + POLISH_WITHIN]
+    chosen = starts[min(near, key=lambda i: starts[i]["mismatch"])]  # as polish() chooses
+    parts, larger, by_hull = starts[best]["parts"], starts[best]["larger"], starts[best]["by_hull"]
+    row.update(larger=parts[larger]["iou"], other=parts[1 - larger]["iou"], by_hull=parts[by_hull]["iou"],
+               kept=chosen["parts"][chosen["by_hull"]]["iou"],
                best_of_two=max(p["iou"] for p in parts),
                best_of_all=max(p["iou"] for s in starts for p in s["parts"]),
                larger_precision=parts[larger]["precision"], larger_in_hull=parts[larger]["in_hull"],
@@ -106,8 +114,8 @@ def main(argv=None):
         parser.error(f"--trials must be >= 1, got {args.trials}")
     with open(args.scene, "rb") as f:
         scene_dict = tomllib.load(f)
-    columns = ("base", "larger", "other", "kept", "best_of_two", "best_of_all", "larger_precision", "larger_in_hull",
-               "other_precision", "other_in_hull")
+    columns = ("base", "larger", "other", "by_hull", "best_of_two", "kept", "best_of_all", "larger_precision",
+               "larger_in_hull", "other_precision", "other_in_hull")
     for kind in args.kinds:
         scene = parse_scene({**scene_dict, "objects": {**scene_dict["objects"], "catalogue": [kind]},
                              "experiment": {**scene_dict["experiment"], "seed": args.seed, "limit": False}},
