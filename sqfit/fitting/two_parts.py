@@ -474,10 +474,10 @@ def triggers(state, obs):
 @register("3U")
 def two_part_stage(state, obs, options):
     """Stage 3U: stage 3V, then, where its trigger holds (:func:`triggers`), one of two superquadrics fitted together
-    to the opened masks where their union matches them better (:func:`passes_gate`), of the near-best unions
-    polished without the volume term the best-matching (:func:`polish`), if its larger part is a slab (:func:`is_slab`; the smaller slab where more of it
-    lies inside the masks' visual hull, :func:`pick_part`); elsewhere stage 3W on 3V's fit, as chain ``whole``
-    ends (module docstring)."""
+    to the opened masks where their union matches them better (:func:`passes_gate`): of the near-best unions
+    polished without the volume term the best-matching (:func:`polish`), its larger part if that is a slab
+    (:func:`is_slab`; the smaller slab where more of it lies inside the masks' visual hull, :func:`pick_part`);
+    elsewhere stage 3W on 3V's fit, as chain ``whole`` ends (module docstring)."""
     base = least_volume_stage(state, obs, options)
 
     def default(why):
