@@ -107,15 +107,6 @@ def many_view_observations(sim, obj, scene, renderer, n):
                                     np.random.default_rng(SEED), cleanup=scene.masks.cleanup)
 
 
-def in_hull(hull, points):
-    """``(n,) bool``: whether each point lies in an occupied voxel of ``hull``."""
-    cell = np.floor((points - hull.origin) / hull.voxel + 0.5).astype(np.int64)
-    valid = np.all((cell >= 0) & (cell < np.array(hull.occupied.shape)), axis=1)
-    out = np.zeros(len(points), dtype=bool)
-    out[valid] = hull.occupied[tuple(cell[valid].T)]
-    return out
-
-
 def hull_sample(hull, n, rng):
     """``(min(n, voxels), 3) float``: one uniform point in each of up to ``n`` occupied voxels (without replacement)."""
     centres = hull.centers()
@@ -164,7 +155,7 @@ def kind_rows(scene_dict, kind, trials, seed, search, cache, views=None, fine=FI
         obs = observations(sim, obj.id, scene)
         hull = object_hull(ObservationSet(obs if views is None else many_view_observations(sim, obj, scene, renderer,
                                                                                            views)), fine=fine)
-        share = in_hull(hull, interior_points(obj.mesh, MESH_POINTS, 0)).mean()
+        share = hull.contains(interior_points(obj.mesh, MESH_POINTS, 0)).mean()
         inter = share * obj.mesh.volume
         row = [hull.volume / obj.mesh.volume, share, inter / (hull.volume + obj.mesh.volume - inter)]
         if search:

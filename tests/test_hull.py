@@ -62,8 +62,9 @@ def test_a_hull_contains_the_points_of_its_occupied_voxels_only():
     occupied = np.zeros((4, 4, 4), dtype=bool)
     occupied[1, 2, 3] = True
     hull = VoxelHull(occupied, np.array([1.0, 2.0, 3.0]), 0.5)
-    points = [[1.5, 3.0, 4.5], [1.5, 3.0, 4.74], [1.5, 3.0, 4.76], [0.0, 0.0, 0.0], [3.5, 3.0, 4.5], [1.5, 2.5, 4.5]]
-    assert hull.contains(points).tolist() == [True, True, False, False, False, False]
+    points = [[1.5, 3.0, 4.5], [1.5, 3.0, 4.74], [1.5, 3.0, 4.76], [0.0, 0.0, 0.0], [3.5, 3.0, 4.5], [1.5, 2.5, 4.5],
+              [1.5, 3.0, 4.25], [1.5, 3.0, 4.75]]  # halfway between two centres: the upper voxel
+    assert hull.contains(points).tolist() == [True, True, False, False, False, False, True, False]
     assert hull.contains(np.zeros((0, 3))).shape == (0,)
     with pytest.raises(ValueError, match="points"):
         hull.contains([1.0, 2.0, 3.0])

@@ -93,9 +93,9 @@ class VoxelHull:
 
     def contains(self, points):
         """``(n,) bool``: whether each world point ``(n, 3)`` lies in an occupied voxel (the voxel of the
-        nearest centre; outside the grid is empty)."""
+        nearest centre, a point halfway between two centres in the upper one; outside the grid is empty)."""
         points = check_shape(points, (None, 3), "points")
-        index = np.round((points - self.origin) / self.voxel)
+        index = np.floor((points - self.origin) / self.voxel + 0.5)
         inside = np.all((index >= 0) & (index < np.array(self.occupied.shape)), axis=1)
         out = np.zeros(len(points), dtype=bool)
         out[inside] = self.occupied[tuple(index[inside].astype(np.int64).T)]
