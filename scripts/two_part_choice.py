@@ -46,7 +46,7 @@ from sqfit.fitting.costs import ObservationSet  # noqa: E402
 from sqfit.fitting.hull import object_hull  # noqa: E402
 from sqfit.fitting.least_volume import bulk_observations  # noqa: E402
 from sqfit.fitting.stages import to_superquadric  # noqa: E402
-from sqfit.fitting.two_parts import (MU, POLISH_WITHIN, fit_union, hull_share, l_starts, passes_gate,  # noqa: E402
+from sqfit.fitting.two_parts import (MU, fit_union, hull_share, l_starts, near_best, passes_gate,  # noqa: E402
                                      pick_part, union_ious)
 from sqfit.geometry.superquadric import contains, volume  # noqa: E402
 from sqfit.limit import interior_points  # noqa: E402
@@ -74,10 +74,10 @@ def trial_row(scene, index, renderer, seed):
     obj = sim.objects[0]
     obs = ObservationSet(list(observations(sim, obj.id, scene)))
     base = sqfit.fit(obs.observations, chain=BASE_CHAIN).superquadric
-    xi = base.to_vector()
+    xi, reference = base.to_vector(), volume(base)
     bulk = bulk_observations(obs) or obs
     singles = union_ious(xi[None, None], bulk)[0]
-    fits = [fit_union(start, bulk, MU, volume(base)) for start in l_starts(xi)]
+    fits = [fit_union(start, bulk, MU, reference) for start in l_starts(xi)]
     best = int(np.argmin([fit[2] for fit in fits]))
     row = {"trial": index, "base": iou_3d_mesh(base, obj.mesh), "passes": passes_gate(singles, fits[best][1])}
     if not row["passes"]:
@@ -85,12 +85,11 @@ def trial_row(scene, index, renderer, seed):
     hull, mesh_sample = object_hull(obs), interior_points(obj.mesh, 2**14, np.random.default_rng(seed))
     starts = []
     for X, _, objective, _ in fits:
-        polished, ious, _, _ = fit_union(X, bulk, 0.0, volume(base))
+        polished, ious, _, _ = fit_union(X, bulk, 0.0, reference)
         starts.append({"objective": objective, "parts": [part_scores(x, obj.mesh, mesh_sample, hull) for x in polished],
                        "larger": pick_part(polished), "by_hull": pick_part(polished, hull),
                        "mismatch": float((1.0 - ious).sum())})
-    near = [i for i, start in enumerate(starts) if start["objective"] <= starts[best]["objective"] + POLISH_WITHIN]
-    chosen = starts[min(near, key=lambda i: starts[i]["mismatch"])]  # as polish() chooses
+    chosen = starts[min(near_best(fits), key=lambda i: starts[i]["mismatch"])]  # as polish() chooses
     parts, larger, by_hull = starts[best]["parts"], starts[best]["larger"], starts[best]["by_hull"]
     row.update(larger=parts[larger]["iou"], other=parts[1 - larger]["iou"], by_hull=parts[by_hull]["iou"],
                kept=chosen["parts"][chosen["by_hull"]]["iou"],

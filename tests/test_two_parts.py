@@ -476,3 +476,10 @@ def test_the_stage_keeps_no_part_that_is_not_a_slab(monkeypatch, chair_fits, thi
     assert np.array_equal(fit.superquadric.to_vector(), whole)
     assert "would not be a slab" in fit.stages[-1].message
 
+
+
+def test_the_near_best_fits_are_those_within_the_margin_of_the_lowest_objective():
+    fits = [(None, None, objective, 1) for objective in (0.30, 0.20, 0.26, 0.21, 0.25)]
+    assert two_parts.near_best(fits, within=0.05) == [1, 3, 4]
+    assert two_parts.near_best(fits, within=0.0) == [1]
+    assert two_parts.near_best(fits) == two_parts.near_best(fits, within=two_parts.POLISH_WITHIN)

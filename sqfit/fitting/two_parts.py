@@ -93,7 +93,7 @@ from ..kernels.backend import compiled
 
 __all__ = ["TRIGGER_COST", "THIN", "VERTICES", "EVALUATIONS", "EDGE_POINTS", "GATE", "UNION_MIN", "VIEW_GATE", "MU",
            "SLAB", "l_starts", "union_overlap", "union_ious", "union_gradient", "volumes", "union_scale", "fit_union",
-           "POLISH_WITHIN", "polish", "HULL_MARGIN", "HULL_LATTICE", "hull_share", "pick_part", "is_slab", "passes_gate",
+           "POLISH_WITHIN", "near_best", "polish", "HULL_MARGIN", "HULL_LATTICE", "hull_share", "pick_part", "is_slab", "passes_gate",
            "triggers", "two_part_stage"]
 
 #: 3U's trigger (:func:`triggers`): the input's 3G cost above this, half of 3T's
@@ -391,18 +391,22 @@ def fit_union(start, obs, mu, reference, differences=False):
     return X, ious, float((1.0 - ious).sum() + best["volume"]), int(res.nfev)
 
 
+def near_best(fits, within=None):
+    """Indices of the start's fits ``fits`` (as :func:`fit_union` returns them) whose objective is within
+    ``within`` (default :data:`POLISH_WITHIN`) of the lowest: those :func:`polish` fits again."""
+    within = POLISH_WITHIN if within is None else within
+    lowest = min(fit[2] for fit in fits)
+    return [i for i, fit in enumerate(fits) if fit[2] <= lowest + within]
+
+
 def polish(fits, obs, reference, within=None):
     """The union 3U keeps, ``(2, 11)``, and the evaluations it took: each of the start's fits ``fits`` (as
     :func:`fit_union` returns them) whose objective is within ``within`` (default :data:`POLISH_WITHIN`) of the
     lowest, fitted again without the volume term (:func:`fit_union` with ``mu`` 0) from where it ended, and of
     those the one whose silhouettes match the masks ``obs`` best (the lowest sum of ``1 - IoU``; the first of
     equals, in the order of ``fits``). A fit whose polish fails stays as it ended, scored by its own IoUs."""
-    within = POLISH_WITHIN if within is None else within
-    lowest = min(fit[2] for fit in fits)
     best, evaluations = None, 0
-    for X, ious, objective, _ in fits:
-        if objective > lowest + within:
-            continue
+    for X, ious, _, _ in (fits[i] for i in near_best(fits, within)):
         try:
             X, ious, _, more = fit_union(X, obs, 0.0, reference)
             evaluations += more
