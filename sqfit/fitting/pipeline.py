@@ -46,7 +46,8 @@ PAPER_CHAINS = ("3A", "3B", "1-3A", "1-2-3A", "1-2-3B", "3E", "1-3E", "1-2-3C", 
 #: with their thin parts opened away that match the contours alike, the one of least volume (docs/real-objects.md);
 #: 3W: :mod:`sqfit.fitting.weighted_overlap`, where the silhouettes do not match the mask contours (and the
 #: masks agree under the cameras, their outlines not offset), the fit of the highest overlap with silhouette pixels
-#: outside the mask weighted twice, from the input and cylinder-like starts. :data:`WHOLE_CHAIN` (``whole``): one
+#: outside the mask weighted twice, from the input and cylinder-like starts, then a slab's thickness by the same
+#: overlap with the masks' thin parts opened away (a table's legs). :data:`WHOLE_CHAIN` (``whole``): one
 #: superquadric for the whole object, the default until 2026-12-02.
 WHOLE_CHAIN = "1-2M-3H-3R-3V-3W"
 #: The default: :data:`WHOLE_CHAIN` with stage 3U (:mod:`sqfit.fitting.two_parts`) in place of 3V and 3W: 3V, then
