@@ -7,7 +7,8 @@ Usage::
 
 Per trial it fits the default chain and, where the fit is a slab (:func:`sqfit.geometry.slab.thin_section`), takes
 the fit *before* stage 3W's thickness step (:func:`sqfit.fitting.weighted_overlap.slab_thickness`: the factor its
-message names undone), scales its thin half-axis by each factor of ``--factors`` and scores the candidates three
+message names undone; where the step kept the thickness, the message's reason is printed: e.g. ``its input a
+squared slab``), scales its thin half-axis by each factor of ``--factors`` and scores the candidates three
 ways: the silhouettes' mean IoU with the full mask contours (``full``), the same with the masks' thin parts opened
 away (``open``, :func:`sqfit.fitting.least_volume.bulk_observations`) and 3W's excess-weighted overlap with the
 opened masks (``weighted``, :func:`sqfit.fitting.weighted_overlap.weighted_ious`, the step's score). It prints the
@@ -44,6 +45,8 @@ from sqsim.world.scene import parse_scene  # noqa: E402
 FACTORS = np.round(np.arange(0.3, 1.2001, 0.05), 2)
 #: The step's factor in the default's last stage message.
 STEP_FACTOR = re.compile(r"thickness x ([0-9.]+)")
+#: Why the step kept the thickness, in that message (the step's own words, up to ": thickness kept").
+STEP_KEPT = re.compile(r"; ([^;]*): thickness kept")
 
 
 def trial_row(scene, index, factors, cache):
@@ -59,6 +62,7 @@ def trial_row(scene, index, factors, cache):
     axis = section[0]
     found = STEP_FACTOR.search(result.stages[-1].message)
     step = float(found.group(1)) if found else 1.0
+    kept = STEP_KEPT.search(result.stages[-1].message)
     before = x.copy()
     before[axis] /= step
     X = np.repeat(before[None], len(factors), axis=0)
@@ -71,6 +75,7 @@ def trial_row(scene, index, factors, cache):
         scores["open"] = r_iou_m(candidates, bulk, "contour")
         scores["weighted"] = weighted_ious(X, bulk).mean(axis=1)
     row = {"trial": index, "default": iou_3d_mesh(result.superquadric, obj.mesh), "step": step,
+           "kept": kept.group(1) if kept else None,
            "best_3d": (float(factors[np.argmax(iou)]), float(iou.max()))}
     for name, score in scores.items():
         pick = int(np.argmax(score))
@@ -112,7 +117,8 @@ def main(argv=None):
             rows.append(row)
             text = ", ".join(f"{name} x{row[name][0]:.2f} -> {row[name][1]:.3f}" for name in picks if name in row)
             limit = f", before the step {row['to_limit']:.2f} x the limit's thickness" if "to_limit" in row else ""
-            print(f"{kind} {index:3d}: default {row['default']:.3f} (step x{row['step']:.2f}){limit}; {text}", flush=True)
+            step = f"step x{row['step']:.2f}" if row["kept"] is None else f"step: {row['kept']}"
+            print(f"{kind} {index:3d}: default {row['default']:.3f} ({step}){limit}; {text}", flush=True)
         if not rows:
             continue
         medians = ", ".join(f"{name} {np.median([r[name][1] for r in rows if name in r]):.3f}"
