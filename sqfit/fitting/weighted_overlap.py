@@ -69,7 +69,7 @@ median 3D IoU per seed 0 / 4 / 2 / 6 / 8: tables 0.550 / 0.558 / 0.518 / 0.587 /
 0.658 / 0.645 (mean +0.025 to +0.058), monitors 0.704 / 0.715 / 0.741 / 0.676 / 0.701 -> 0.710 / 0.715 / 0.750 /
 0.687 / 0.706 (mean +0.006 to +0.023); the other ten kinds (seeds 0 and 4) keep their medians and all their fits
 but two bowls' (-0.002 each). Of those 600 objects 113 changed by more than 0.01: 108 better (up to +0.21), 5
-worse (tables, -0.019 to -0.079). 15-30 ms of CPU per object where it runs (docs/real-objects.md, "Tables: the
+worse (tables, -0.019 to -0.079). 10-30 ms of CPU per object where it runs (docs/real-objects.md, "Tables: the
 top's thickness").
 """
 
