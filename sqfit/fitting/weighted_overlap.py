@@ -59,11 +59,15 @@ opened (3V's :func:`~sqfit.fitting.least_volume.bulk_observations`, the legs gon
 scores higher than the fit as it is. Only where the slab leaves a part out of the outline (stage 3TP's test,
 :func:`sqfit.fitting.parts.leaves_a_part`: outlier rays in stretches of two views or more, the legs that pulled
 it; without it, true superquadric slabs under mask noise, fitted right, were thinned too: 8 fits of the fourteen
-noise sweeps moved, 7 lower, by up to 0.10), not where the opening leaves every view alone, and not where
-the input is a slab that 3V made square at equal volume (:func:`~sqfit.fitting.least_volume.squared_slab`): that
-thickness is already the volume's, and thinned further it lost (in the probe that set the rule, factors 0.3-1.2 on
-the default's fits of tables of seeds 0 and 4 and monitors of seed 0: of 8 such fits 5 lost, by up to 0.17, 2
-gained). Measured with the default (``sqsim experiment scenes/household.toml --set "objects.catalogue=[KIND]"
+noise sweeps moved, 7 lower, by up to 0.10) and not where the opening leaves every view alone. Where the input
+is a slab that 3V made square at equal volume (:func:`~sqfit.fitting.least_volume.squared_slab`) its thickness
+is the volume's, and too thin rather than too thick (the board of a diamond's volume is about half as thick as
+the diamond the masks showed; thinned further, 5 of 8 such fits lost in the probe that set the rule, by up to
+0.17): there :func:`squared_thickness` makes it thicker, by the smaller of the factors of :data:`SQUARED_FACTORS`
+whose silhouettes match the full and the opened mask contours best, where both ask for more than 1 (of the 26
+such tables and monitors of seeds 0, 4, 2, 6 and 8, 9 monitors better by 0.02-0.08, one table 0.015 worse, the
+others the same; the full contours' pick alone lost 4 of 8 tables, docs/real-objects.md, "Squared slabs'
+thickness"). Measured with the default (``sqsim experiment scenes/household.toml --set "objects.catalogue=[KIND]"
 --set experiment.limit=false --trials 20 --seed S --chains default``; seeds 2, 6 and 8 never used to set it),
 median 3D IoU per seed 0 / 4 / 2 / 6 / 8: tables 0.550 / 0.558 / 0.518 / 0.587 / 0.580 -> 0.617 / 0.605 / 0.512 /
 0.658 / 0.645 (mean +0.025 to +0.058), monitors 0.704 / 0.715 / 0.741 / 0.676 / 0.701 -> 0.710 / 0.715 / 0.750 /
@@ -83,9 +87,9 @@ from scipy.optimize import least_squares
 from .contour_overlap import contour_overlaps
 from .grazing import outline_rays
 from .least_volume import SQUARE_SHAPE, bulk_observations
-from .outline import contour_score
+from .outline import OUTLINE_POLYGON, contour_score
 from .parts import leaves_a_part
-from .stages import NUMERICAL_ERRORS, FitState, StageError, register, to_superquadric
+from .stages import NUMERICAL_ERRORS, FitState, StageError, r_iou_m, register, to_superquadric
 from .trimmed import cylinder_starts, stretches
 from ..constants import SHAPE_DOMAIN
 from ..geometry.silhouette import batch_silhouettes
@@ -94,7 +98,8 @@ from ..views.consistency import tangent_disagreement
 
 __all__ = ["EXCESS_WEIGHT", "GRAZED_COST", "MISFIT", "OFFSET_MAX", "CONSISTENT_PX", "VERTICES", "EVALUATIONS",
            "SCREEN_EVALUATIONS", "STEP", "THICKNESS_FACTORS",
-           "weighted_ious", "gate", "fit_weighted", "slab_thickness", "weighted_overlap_stage"]
+           "SQUARED_FACTORS", "weighted_ious", "gate", "fit_weighted", "slab_thickness", "squared_thickness",
+           "weighted_overlap_stage"]
 
 #: ``w``: what a silhouette pixel outside the mask costs, in mask pixels the silhouette misses.
 EXCESS_WEIGHT = 2.0
@@ -118,6 +123,8 @@ SCREEN_EVALUATIONS = 20
 STEP = 1e-3
 #: The factors :func:`slab_thickness` tries on a slab's thin half-axis (1 is the fit as it is).
 THICKNESS_FACTORS = np.round(np.arange(0.5, 1.0001, 0.05), 2)
+#: The factors :func:`squared_thickness` scores on a squared slab's thin half-axis.
+SQUARED_FACTORS = np.round(np.arange(0.7, 1.6001, 0.05), 2)
 
 
 def weighted_ious(X, obs, weight=None):
@@ -205,11 +212,11 @@ def slab_thickness(x, obs, before, options):
     done, for the stage's message). Acts only where ``x`` is a slab
     (:func:`sqfit.geometry.slab.thin_section`) that leaves a part out of the outline (stage 3TP's test,
     :func:`sqfit.fitting.parts.leaves_a_part` on the outline rays of ``options.n_contour`` per view: a
-    table's legs, which pulled it thick), the opening changed a view, and ``before`` (the stage's input)
-    is no slab that stage 3V squared (:func:`sqfit.fitting.least_volume.squared_slab`
-    sets its section's exponent to exactly :data:`~sqfit.fitting.least_volume.SQUARE_SHAPE`, which no
-    optimiser ends at): that one's thickness is already the volume's, not the outline's (module
-    docstring, "Slabs")."""
+    table's legs, which pulled it thick) and the opening changed a view. Where ``before`` (the stage's
+    input) is a slab that stage 3V squared (:func:`sqfit.fitting.least_volume.squared_slab` sets its
+    section's exponent to exactly :data:`~sqfit.fitting.least_volume.SQUARE_SHAPE`, which no optimiser
+    ends at), its thickness is the volume's, not the outline's, and too thin rather than too thick:
+    :func:`squared_thickness` instead (module docstring, "Slabs")."""
     section = thin_section(x)
     if section is None:
         return x, None
@@ -217,12 +224,12 @@ def slab_thickness(x, obs, before, options):
     if not leaves_a_part(ev):
         return x, f"no part left out of the outline ({ev.stretch} outlier rays in stretches of {ev.views} views): " \
                   "thickness kept"
-    input_section = thin_section(before)
-    if input_section is not None and before[input_section[1]] == SQUARE_SHAPE:
-        return x, "its input a squared slab: thickness kept"
     bulk = bulk_observations(obs)
     if bulk is None:
         return x, "no thin part opened away: thickness kept"
+    input_section = thin_section(before)
+    if input_section is not None and before[input_section[1]] == SQUARE_SHAPE:
+        return squared_thickness(x, section[0], obs, bulk)
     X = np.repeat(np.asarray(x, dtype=np.float64)[None], len(THICKNESS_FACTORS), axis=0)
     X[:, section[0]] *= THICKNESS_FACTORS
     scores = weighted_ious(X, bulk).mean(axis=1)
@@ -231,6 +238,26 @@ def slab_thickness(x, obs, before, options):
         return x, f"thickness kept (opened masks {scores[kept]:.3f} at its best)"
     return X[best], (f"thickness x {THICKNESS_FACTORS[best]:.2f} (opened masks {scores[kept]:.3f} -> "
                      f"{scores[best]:.3f})")
+
+
+def squared_thickness(x, axis, obs, bulk):
+    """``(x, message)``: a slab whose input 3V squared at equal volume (:func:`slab_thickness`), with its thin
+    half-axis ``axis`` times the smaller of the two factors of :data:`SQUARED_FACTORS` whose silhouettes match
+    the mask contours best, the full ones and those of the opened masks ``bulk`` (mean IoU, 3T's measure,
+    :func:`sqfit.fitting.outline.contour_score`), where that is above 1: both masks ask for it thicker (module
+    docstring, "Slabs"); else ``x`` and why."""
+    X = np.repeat(np.asarray(x, dtype=np.float64)[None], len(SQUARED_FACTORS), axis=0)
+    X[:, axis] *= SQUARED_FACTORS
+    candidates = [to_superquadric(v) for v in X]
+    full = SQUARED_FACTORS[int(np.argmax(r_iou_m(candidates, obs, OUTLINE_POLYGON)))]
+    opened = SQUARED_FACTORS[int(np.argmax(r_iou_m(candidates, bulk, OUTLINE_POLYGON)))]
+    factor = min(full, opened)
+    if not factor > 1.0:
+        return x, (f"its input a squared slab, the masks ask for x {full:.2f} (full) and x {opened:.2f} (opened): "
+                   "thickness kept")
+    return X[int(np.flatnonzero(SQUARED_FACTORS == factor)[0])], (
+        f"its input a squared slab: thickness x {factor:.2f} (the masks ask for x {full:.2f} full, x {opened:.2f} "
+        "opened)")
 
 
 @register("3W")
