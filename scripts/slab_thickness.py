@@ -24,7 +24,6 @@ from __future__ import annotations
 import argparse
 import os
 import re
-import tomllib
 
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
@@ -34,12 +33,12 @@ import sqfit  # noqa: E402
 from sqfit.fitting.costs import ObservationSet  # noqa: E402
 from sqfit.fitting.least_volume import bulk_observations  # noqa: E402
 from sqfit.fitting.stages import r_iou_m, to_superquadric  # noqa: E402
-from sqfit.fitting.weighted_overlap import weighted_ious  # noqa: E402
+from sqfit.fitting.weighted_overlap import thickness_candidates, weighted_ious  # noqa: E402
 from sqfit.geometry.slab import thin_section  # noqa: E402
 from sqfit.metrics import iou_3d_mesh  # noqa: E402
 from sqsim.imaging.trial import observations, simulate_trial  # noqa: E402
 from sqsim.world.limit import LimitCache, object_limit  # noqa: E402
-from sqsim.world.scene import parse_scene  # noqa: E402
+from sqsim.world.scene import load_scene  # noqa: E402
 
 #: The factors tried on the thin half-axis of the fit before the step.
 FACTORS = np.round(np.arange(0.3, 1.2001, 0.05), 2)
@@ -65,8 +64,7 @@ def trial_row(scene, index, factors, cache):
     kept = STEP_KEPT.search(result.stages[-1].message)
     before = x.copy()
     before[axis] /= step
-    X = np.repeat(before[None], len(factors), axis=0)
-    X[:, axis] *= factors
+    X = thickness_candidates(before, axis, factors)
     candidates = [to_superquadric(v) for v in X]
     iou = np.array([iou_3d_mesh(c, obj.mesh) for c in candidates])
     bulk = bulk_observations(obs)
@@ -100,14 +98,12 @@ def main(argv=None):
     factors = FACTORS if args.factors is None else np.array(sorted(set(args.factors)), dtype=np.float64)
     if np.any(factors <= 0):
         parser.error("--factors must be > 0")
-    with open(args.scene, "rb") as f:
-        scene_dict = tomllib.load(f)
+    base = load_scene(args.scene)
     cache = None if args.limits is None else LimitCache(args.limits)
     picks = ("full", "open", "weighted", "best_3d")
     for kind in args.kinds:
-        scene = parse_scene({**scene_dict, "objects": {**scene_dict["objects"], "catalogue": [kind]},
-                             "experiment": {**scene_dict["experiment"], "seed": args.seed, "limit": False}},
-                            source=kind)
+        scene = base.with_overrides({"objects.catalogue": [kind], "experiment.seed": args.seed,
+                                     "experiment.limit": False})
         rows = []
         for index in range(args.trials):
             row = trial_row(scene, index, factors, cache)

@@ -111,6 +111,11 @@ def test_a_pinched_slab_is_made_square_at_equal_volume():
     assert volume(Superquadric.from_vector(board)) == pytest.approx(volume(Superquadric.from_vector(diamond)), rel=1e-9)
     lid = least_volume.squared_slab(sq_vector([1.0, 0.9, 0.1], [1.5, 0.5]))  # thin along z: e1
     assert lid[3] == least_volume.SQUARE_SHAPE and lid[4] == 0.5 and lid[2] < 0.1
+    # what 3W reads back: the squared slab is marked, its input and a slab of the same face exponent are not
+    assert least_volume.is_squared_slab(board) and least_volume.is_squared_slab(lid)
+    assert not least_volume.is_squared_slab(diamond)
+    assert not least_volume.is_squared_slab(sq_vector([0.08, 1.6, 0.8], [0.1, 0.1 + 1e-9]))  # an optimiser's end
+    assert not least_volume.is_squared_slab(sq_vector([0.5, 0.5, 0.5], [0.1, 0.1]))  # a cube: no slab
 
 
 @pytest.mark.parametrize("size, shape", [

@@ -63,7 +63,7 @@ from ..geometry.superquadric import volume
 from ..views.opening import opened
 
 __all__ = ["TIE", "BULK_CHAIN", "CANDIDATES", "SQUARE_SHAPE", "least_volume_stage", "bulk_observations",
-           "squared_slab"]
+           "squared_slab", "is_squared_slab"]
 
 #: Candidates whose mean silhouette IoU with the mask contours is within this of the best tie.
 TIE = 0.02
@@ -111,6 +111,13 @@ def squared_slab(xi):
     x[exponent] = SQUARE_SHAPE
     x[thin] *= before / volume(to_superquadric(x))
     return x
+
+
+def is_squared_slab(xi):
+    """Whether ``xi`` is a slab as :func:`squared_slab` leaves it: the exponent of its thin section exactly
+    :data:`SQUARE_SHAPE`, where no optimiser ends."""
+    section = thin_section(xi)
+    return section is not None and float(np.asarray(xi, dtype=np.float64)[section[1]]) == SQUARE_SHAPE
 
 
 def _square(kept, obs):

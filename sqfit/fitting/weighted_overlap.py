@@ -86,7 +86,7 @@ from scipy.optimize import least_squares
 
 from .contour_overlap import contour_overlaps
 from .grazing import outline_rays
-from .least_volume import SQUARE_SHAPE, bulk_observations
+from .least_volume import bulk_observations, is_squared_slab
 from .outline import OUTLINE_POLYGON, contour_score
 from .parts import leaves_a_part
 from .stages import NUMERICAL_ERRORS, FitState, StageError, r_iou_m, register, to_superquadric
@@ -98,7 +98,8 @@ from ..views.consistency import tangent_disagreement
 
 __all__ = ["EXCESS_WEIGHT", "GRAZED_COST", "MISFIT", "OFFSET_MAX", "CONSISTENT_PX", "VERTICES", "EVALUATIONS",
            "SCREEN_EVALUATIONS", "STEP", "THICKNESS_FACTORS",
-           "SQUARED_FACTORS", "weighted_ious", "gate", "fit_weighted", "slab_thickness", "squared_thickness",
+           "SQUARED_FACTORS", "weighted_ious", "gate", "fit_weighted", "thickness_candidates", "slab_thickness",
+           "squared_thickness",
            "weighted_overlap_stage"]
 
 #: ``w``: what a silhouette pixel outside the mask costs, in mask pixels the silhouette misses.
@@ -204,6 +205,13 @@ def fit_weighted(x, obs, size_min, weight=None, evaluations=EVALUATIONS):
     return res.x, before, after, int(res.nfev) + columns[0]
 
 
+def thickness_candidates(x, axis, factors):
+    """``(len(factors), 11)``: ``x`` with its half-axis ``axis`` times each factor, the rest as it is."""
+    X = np.repeat(np.asarray(x, dtype=np.float64)[None], len(factors), axis=0)
+    X[:, axis] *= factors
+    return X
+
+
 def slab_thickness(x, obs, before, options):
     """``(x, message)``: the slab ``x`` ``(11,)`` with its thin half-axis scaled by the factor of
     :data:`THICKNESS_FACTORS` whose silhouettes have the highest mean :func:`weighted_ious` with the
@@ -213,9 +221,7 @@ def slab_thickness(x, obs, before, options):
     (:func:`sqfit.geometry.slab.thin_section`) that leaves a part out of the outline (stage 3TP's test,
     :func:`sqfit.fitting.parts.leaves_a_part` on the outline rays of ``options.n_contour`` per view: a
     table's legs, which pulled it thick) and the opening changed a view. Where ``before`` (the stage's
-    input) is a slab that stage 3V squared (:func:`sqfit.fitting.least_volume.squared_slab` sets its
-    section's exponent to exactly :data:`~sqfit.fitting.least_volume.SQUARE_SHAPE`, which no optimiser
-    ends at), its thickness is the volume's, not the outline's, and too thin rather than too thick:
+    input) is a slab that stage 3V squared (:func:`sqfit.fitting.least_volume.is_squared_slab`), its thickness is the volume's, not the outline's, and too thin rather than too thick:
     :func:`squared_thickness` instead (module docstring, "Slabs")."""
     section = thin_section(x)
     if section is None:
@@ -227,11 +233,9 @@ def slab_thickness(x, obs, before, options):
     bulk = bulk_observations(obs)
     if bulk is None:
         return x, "no thin part opened away: thickness kept"
-    input_section = thin_section(before)
-    if input_section is not None and before[input_section[1]] == SQUARE_SHAPE:
+    if is_squared_slab(before):
         return squared_thickness(x, section[0], obs, bulk)
-    X = np.repeat(np.asarray(x, dtype=np.float64)[None], len(THICKNESS_FACTORS), axis=0)
-    X[:, section[0]] *= THICKNESS_FACTORS
+    X = thickness_candidates(x, section[0], THICKNESS_FACTORS)
     scores = weighted_ious(X, bulk).mean(axis=1)
     best, kept = int(np.argmax(scores)), int(np.flatnonzero(THICKNESS_FACTORS == 1.0)[0])
     if not scores[best] > scores[kept]:
@@ -246,8 +250,7 @@ def squared_thickness(x, axis, obs, bulk):
     the mask contours best, the full ones and those of the opened masks ``bulk`` (mean IoU, 3T's measure,
     :func:`sqfit.fitting.outline.contour_score`), where that is above 1: both masks ask for it thicker (module
     docstring, "Slabs"); else ``x`` and why."""
-    X = np.repeat(np.asarray(x, dtype=np.float64)[None], len(SQUARED_FACTORS), axis=0)
-    X[:, axis] *= SQUARED_FACTORS
+    X = thickness_candidates(x, axis, SQUARED_FACTORS)
     candidates = [to_superquadric(v) for v in X]
     full = SQUARED_FACTORS[int(np.argmax(r_iou_m(candidates, obs, OUTLINE_POLYGON)))]
     opened = SQUARED_FACTORS[int(np.argmax(r_iou_m(candidates, bulk, OUTLINE_POLYGON)))]
