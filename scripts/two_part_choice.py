@@ -35,7 +35,6 @@ from __future__ import annotations
 import argparse
 import json
 import os
-import tomllib
 
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
@@ -53,7 +52,7 @@ from sqfit.limit import interior_points  # noqa: E402
 from sqfit.metrics import iou_3d_mesh  # noqa: E402
 from sqsim.imaging.render import get_renderer  # noqa: E402
 from sqsim.imaging.trial import observations, simulate_trial  # noqa: E402
-from sqsim.world.scene import parse_scene  # noqa: E402
+from sqsim.world.scene import load_scene  # noqa: E402
 
 #: 3U's input: the default chain up to its stage 3V.
 BASE_CHAIN = "1-2M-3H-3R-3V"
@@ -111,14 +110,12 @@ def main(argv=None):
     args = parser.parse_args(argv)
     if args.trials < 1:
         parser.error(f"--trials must be >= 1, got {args.trials}")
-    with open(args.scene, "rb") as f:
-        scene_dict = tomllib.load(f)
+    base = load_scene(args.scene)
     columns = ("base", "larger", "other", "by_hull", "best_of_two", "kept", "best_of_all", "larger_precision",
                "larger_in_hull", "other_precision", "other_in_hull")
     for kind in args.kinds:
-        scene = parse_scene({**scene_dict, "objects": {**scene_dict["objects"], "catalogue": [kind]},
-                             "experiment": {**scene_dict["experiment"], "seed": args.seed, "limit": False}},
-                            source=kind)
+        scene = base.with_overrides({"objects.catalogue": [kind], "experiment.seed": args.seed,
+                                     "experiment.limit": False})
         renderer = get_renderer(scene.masks.renderer, scene.intrinsics)
         rows = []
         for index in range(args.trials):
