@@ -10,7 +10,7 @@ from sqfit.geometry.slab import SLAB_ASPECT
 from sqfit.geometry.superquadric import volume
 from sqfit.metrics import iou_3d_mesh
 from sqfit.testing import paper_trial
-from sqfit.views.opening import MIN_REMOVED, OPEN_FRACTION, opened
+from sqfit.views.opening import MIN_REMOVED, OPEN_FRACTION, opened, split_share
 
 from _helpers import sq_vector
 
@@ -18,13 +18,17 @@ CAMERA = paper_trial(0).observations[0].camera  # 640 x 480
 THREE_V = "1-2M-3H-3R-3V"  # the default up to 3V (3W after it: tests/test_weighted_overlap.py)
 
 
+def _boxes(*boxes):
+    """A 480 x 640 mask of the boxes ``(row0, row1, col0, col1)``."""
+    mask = np.zeros((480, 640), dtype=bool)
+    for r0, r1, c0, c1 in boxes:
+        mask[r0:r1, c0:c1] = True
+    return mask
+
+
 def _table_mask():
     """A table seen from the side: a top of 200 x 40 px on two legs 6 px wide and 100 px long."""
-    mask = np.zeros((480, 640), dtype=bool)
-    mask[150:190, 200:400] = True
-    mask[190:290, 210:216] = True
-    mask[190:290, 384:390] = True
-    return mask
+    return _boxes((150, 190, 200, 400), (190, 290, 210, 216), (190, 290, 384, 390))
 
 
 def test_opening_removes_the_legs_and_keeps_the_top():
@@ -53,6 +57,30 @@ def test_opening_leaves_a_view_without_thin_parts_and_a_partial_view_alone():
     with pytest.raises(ValueError, match="fraction must be > 0"):
         opened(sqfit.Observation.from_mask(CAMERA, _table_mask()), fraction=0.0)
     assert OPEN_FRACTION == 0.15
+
+
+def _lamp_mask():
+    """A lamp seen from the side: a shade of 160 x 100 px, a pole 6 px wide and 120 px long, a base of 100 x 40."""
+    return _boxes((60, 160, 240, 400), (160, 280, 317, 323), (280, 320, 270, 370))
+
+
+def test_split_share_is_the_second_part_the_opening_leaves():
+    lamp = sqfit.Observation.from_mask(CAMERA, _lamp_mask())
+    total = 160 * 100 + 6 * 120 + 100 * 40
+    # the base apart from the shade, its corners rounded by the disk (radius 0.15 * sqrt(area / pi) ~ 11 px)
+    assert 0.95 * 4000 / total < split_share(lamp) < 4000 / total
+    shade = opened(lamp)
+    assert shade is not None and shade.contour[:, 1].max() == pytest.approx(160.0, abs=1.0)  # the largest part
+    assert split_share(sqfit.Observation.from_mask(CAMERA, _table_mask())) == 0.0  # the legs leave no part
+    yy, xx = np.mgrid[:480, :640]
+    disc = (xx - 320.5) ** 2 + (yy - 240.5) ** 2 < 60 ** 2
+    assert split_share(sqfit.Observation.from_mask(CAMERA, disc)) == 0.0
+    cut = _lamp_mask()
+    cut[:, :250] = False
+    cut[60:160, :250] = True  # the shade runs out of the image: the view is partial
+    assert split_share(sqfit.Observation.from_mask(CAMERA, cut)) == 0.0
+    with pytest.raises(ValueError, match="fraction must be > 0"):
+        split_share(lamp, fraction=-1.0)
 
 
 def test_a_lamp_becomes_its_shade(household):
