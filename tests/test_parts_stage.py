@@ -1,5 +1,7 @@
 """Stage 3TP (sqfit.fitting.parts): stage 3T's fit, kept only where what it lets go is a part seen in several views."""
 
+import re
+
 import numpy as np
 
 import sqfit
@@ -27,14 +29,17 @@ def test_a_household_table_becomes_its_top(household):
 
 def test_noisy_masks_keep_the_input_where_3t_alone_would_not(monkeypatch, paper_noisy):
     """scenes/paper-noisy.toml, seed 0, trial 69: 3T triggers (3G cost 0.024, contour R-IOU-M 0.724) and
-    its G2 fit scores 0.764 on the contours but 0.349 3D IoU against 0.590; it leaves no stretch of
-    outline rays out, so 3TP keeps the input."""
+    its G2 fit scores 0.764 on the contours but 0.349 3D IoU against 0.590; it leaves no part of the outline
+    out (no stretch of outlier rays, or 4 in one view with numpy 2.4.6 / scipy 1.17.1: below PART_RAYS in
+    PART_VIEWS views either way), so 3TP keeps the input."""
     obj, obs = paper_noisy(69)
     truth = obj.superquadric
     gated = "1-2M-3H-3R-3TP"
     before, default, ungated = sqfit.fit(obs, "1-2M-3H-3R"), sqfit.fit(obs, gated), sqfit.fit(obs, "1-2M-3H-3R-3T")
     assert before.cost > outline.TRIGGER_COST and "G2 on the contours" in ungated.stages[-1].message
-    assert "0 outlier rays in stretches" in default.stages[-1].message, default.stages[-1].message
+    found = re.search(r"3TP: (\d+) outlier rays in stretches of (\d+) views, no part left out", default.stages[-1].message)
+    assert found, default.stages[-1].message
+    assert int(found.group(1)) < parts.PART_RAYS or int(found.group(2)) < parts.PART_VIEWS
     assert "kept the input" in default.stages[-1].message
     np.testing.assert_array_equal(default.superquadric.to_vector(), before.superquadric.to_vector())
     assert iou_3d(ungated.superquadric, truth) < iou_3d(default.superquadric, truth) - 0.1
