@@ -37,8 +37,9 @@ def test_noisy_masks_keep_the_input_where_3t_alone_would_not(monkeypatch, paper_
     gated = "1-2M-3H-3R-3TP"
     before, default, ungated = sqfit.fit(obs, "1-2M-3H-3R"), sqfit.fit(obs, gated), sqfit.fit(obs, "1-2M-3H-3R-3T")
     assert before.cost > outline.TRIGGER_COST and "G2 on the contours" in ungated.stages[-1].message
-    found = re.search(r"3TP: (\d+) outlier rays in stretches of (\d+) views, no part left out", default.stages[-1].message)
-    assert found, default.stages[-1].message
+    message = default.stages[-1].message
+    found = re.search(r"3TP: (\d+) outlier rays in stretches of (\d+) views, no part left out", message)
+    assert found, message
     assert int(found.group(1)) < parts.PART_RAYS or int(found.group(2)) < parts.PART_VIEWS
     assert "kept the input" in default.stages[-1].message
     np.testing.assert_array_equal(default.superquadric.to_vector(), before.superquadric.to_vector())
