@@ -77,7 +77,7 @@ def split_share(observation, fraction=OPEN_FRACTION):
     """The area of the second largest part the opening of :func:`opened` leaves, as a share of the mask's area:
     0 where it leaves one part or none, or where the view is partial (an occluded or cut outline, as there).
 
-    A lamp's pole opened away leaves its shade and its base apart (the base 0.08-0.48 of the mask's area on the
+    A lamp's pole opened away leaves its shade and its base apart (the base up to 0.48 of the mask's area on the
     lamps of ``scenes/household.toml``, seed 0); a toy's limbs or a table's legs opened away leave one part. A mask
     of a convex shape never falls apart (stage 3W, :mod:`sqfit.fitting.weighted_overlap`, "Parts apart").
     """
