@@ -104,16 +104,21 @@ def main_part(observation, fraction=OPEN_FRACTION, rng=0):
 def _opening(observation, fraction):
     """``(region, rest, radius)``: the mask's outline as a shapely region, what a disk of ``radius`` (``fraction``
     times the mask's equivalent radius) leaves of it (erode, then dilate), and that radius; None where the view is
-    partial (an occluded or cut outline)."""
+    partial (an occluded or cut outline). Remembered on the observation (:meth:`Observation.derived`)."""
     import shapely
 
     if not fraction > 0:
         raise ValueError(f"fraction must be > 0, got {fraction}")
     if np.any(observation.contour_labels != BACKGROUND):
         return None
-    region = shapely.Polygon(observation.contour).buffer(0)
-    radius = fraction * np.sqrt(observation.area_px / np.pi)
-    return region, region.buffer(-radius, quad_segs=QUAD_SEGMENTS).buffer(radius, quad_segs=QUAD_SEGMENTS), radius
+
+    def compute():
+        region = shapely.Polygon(observation.contour).buffer(0)
+        radius = fraction * np.sqrt(observation.area_px / np.pi)
+        return region, region.buffer(-radius, quad_segs=QUAD_SEGMENTS).buffer(radius, quad_segs=QUAD_SEGMENTS), radius
+
+    # the pixels' own: 3V, 3U and 3W (its parts' test and main parts, its slab step) open the same masks
+    return observation.derived(("opening", float(fraction)), compute)
 
 
 def _largest(observation, fraction):
