@@ -10,7 +10,7 @@ from sqfit.geometry.slab import SLAB_ASPECT
 from sqfit.geometry.superquadric import volume
 from sqfit.metrics import iou_3d_mesh
 from sqfit.testing import paper_trial
-from sqfit.views.opening import MIN_REMOVED, OPEN_FRACTION, opened, split_share
+from sqfit.views.opening import MIN_REMOVED, OPEN_FRACTION, main_part, opened, split_share
 
 from _helpers import sq_vector
 
@@ -81,6 +81,19 @@ def test_split_share_is_the_second_part_the_opening_leaves():
     assert split_share(sqfit.Observation.from_mask(CAMERA, cut)) == 0.0
     with pytest.raises(ValueError, match="fraction must be > 0"):
         split_share(lamp, fraction=-1.0)
+
+
+def test_the_main_part_is_the_shade_with_its_corners():
+    lamp = sqfit.Observation.from_mask(CAMERA, _lamp_mask(), n_samples=60, rng=0)
+    shade, opened_shade = main_part(lamp), opened(lamp)
+    # the shade's 160 x 100 px, its corners back (the opening rounds them), and the pole's stub within the disk's
+    # radius (~11 px of 6 px): no base
+    assert 160 * 100 <= polygon_area(shade.contour) < 160 * 100 + 6 * 15
+    assert polygon_area(opened_shade.contour) < 160 * 100 - 50
+    assert shade.contour[:, 1].max() < 175 and len(shade.samples) == 60
+    yy, xx = np.mgrid[:480, :640]
+    disc = (xx - 320.5) ** 2 + (yy - 240.5) ** 2 < 60 ** 2
+    assert main_part(sqfit.Observation.from_mask(CAMERA, disc)) is None  # nothing opened away
 
 
 def test_a_lamp_becomes_its_shade(household):
