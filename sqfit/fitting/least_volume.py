@@ -79,12 +79,13 @@ SEED = 0
 SQUARE_SHAPE = 0.1
 
 
-def bulk_observations(obs):
+def bulk_observations(obs, part=opened):
     """The observations with their thin parts opened away (:func:`sqfit.views.opening.opened`), as
     an :class:`ObservationSet`; a view the opening leaves alone keeps its observation. None when
-    no view changes."""
+    no view changes. ``part``: what of each view to keep, ``part(observation, rng=...)`` or None
+    (:func:`sqfit.views.opening.main_part` for stage 3W's parts apart)."""
     rng = np.random.default_rng(SEED)
-    new = [opened(o, rng=rng) for o in obs.observations]
+    new = [part(o, rng=rng) for o in obs.observations]
     if all(o is None for o in new):
         return None
     return ObservationSet([o if n is None else n for o, n in zip(obs.observations, new)])

@@ -102,7 +102,6 @@ import numpy as np
 from scipy.optimize import least_squares
 
 from .contour_overlap import contour_overlaps
-from .costs import ObservationSet
 from .grazing import outline_rays
 from .least_volume import bulk_observations, is_squared_slab
 from .outline import OUTLINE_POLYGON, contour_score
@@ -236,9 +235,7 @@ def parts_apart(obs):
     shares = np.array([split_share(o) for o in obs.observations])
     if int(np.sum(shares >= SPLIT_SHARE)) < SPLIT_VIEWS:
         return None
-    rng = np.random.default_rng(0)
-    parts = [main_part(o, rng=rng) for o in obs.observations]
-    return ObservationSet([o if p is None else p for o, p in zip(obs.observations, parts)])
+    return bulk_observations(obs, part=main_part)  # not None: the views that split are cut
 
 
 def thickness_candidates(x, axis, factors):
@@ -288,13 +285,14 @@ def squared_thickness(x, axis, obs, bulk):
     docstring, "Slabs"); else ``x`` and why."""
     X = thickness_candidates(x, axis, SQUARED_FACTORS)
     candidates = [to_superquadric(v) for v in X]
-    full = SQUARED_FACTORS[int(np.argmax(r_iou_m(candidates, obs, OUTLINE_POLYGON)))]
-    opened = SQUARED_FACTORS[int(np.argmax(r_iou_m(candidates, bulk, OUTLINE_POLYGON)))]
-    factor = min(full, opened)
+    picks = [int(np.argmax(r_iou_m(candidates, masks, OUTLINE_POLYGON))) for masks in (obs, bulk)]
+    full, opened = SQUARED_FACTORS[picks]
+    pick = min(picks)  # the factors ascend: the smaller pick
+    factor = SQUARED_FACTORS[pick]
     if not factor > 1.0:
         return x, (f"its input a squared slab, the masks ask for x {full:.2f} (full) and x {opened:.2f} (opened): "
                    "thickness kept")
-    return X[int(np.flatnonzero(SQUARED_FACTORS == factor)[0])], (
+    return X[pick], (
         f"its input a squared slab: thickness x {factor:.2f} (the masks ask for x {full:.2f} full, x {opened:.2f} "
         "opened)")
 
