@@ -7,11 +7,14 @@
 #   ./run.sh test [ARGS...]   the test suite (pytest; ARGS go to pytest, e.g. -m slow)
 #
 # Both create or refresh the virtual environment .venv (override with SQKIT_VENV) from
-# pyproject.toml, and install the system library libosmesa6 through apt-get when it is missing.
+# pyproject.toml at the versions pinned in constraints.txt (those the README's numbers were measured
+# with; SQKIT_CONSTRAINTS= for the newest within pyproject's ranges), and install the system
+# library libosmesa6 through apt-get when it is missing.
 set -euo pipefail
 cd "$(dirname "$0")"
 
 VENV="${SQKIT_VENV:-.venv}"
+CONSTRAINTS="${SQKIT_CONSTRAINTS-constraints.txt}"
 
 log() { printf '[run.sh] %s\n' "$*" >&2; }
 
@@ -41,8 +44,12 @@ pick_python() {
 }
 
 ensure_venv() {
-    local stamp="$VENV/.sqkit-installed" want
-    want="$(cat pyproject.toml | sha256sum | cut -d' ' -f1)"
+    local stamp="$VENV/.sqkit-installed" want pins=()
+    if [ -n "$CONSTRAINTS" ]; then
+        if [ ! -f "$CONSTRAINTS" ]; then log "error: constraints file $CONSTRAINTS not found"; exit 1; fi
+        pins=(-c "$CONSTRAINTS")
+    fi
+    want="$(cat pyproject.toml ${CONSTRAINTS:+"$CONSTRAINTS"} | sha256sum | cut -d' ' -f1)"
     if [ ! -x "$VENV/bin/python" ]; then
         log "creating virtual environment $VENV"
         "$(pick_python)" -m venv "$VENV"
@@ -50,7 +57,7 @@ ensure_venv() {
     if [ ! -f "$stamp" ] || [ "$(cat "$stamp")" != "$want" ]; then
         log "installing Python dependencies into $VENV (first run takes a few minutes)"
         "$VENV/bin/python" -m pip install -q --upgrade pip
-        "$VENV/bin/python" -m pip install -q -e ".[test,cluster,bench,slam,formats,viz]"
+        "$VENV/bin/python" -m pip install -q "${pins[@]}" -e ".[test,cluster,bench,slam,formats,viz]"
         echo "$want" > "$stamp"
     fi
 }
@@ -68,7 +75,7 @@ case "$cmd" in
         exec "$VENV/bin/python" -m pytest "$@"
         ;;
     *)
-        sed -n '2,11p' "$0" | sed 's/^# \{0,1\}//'
+        awk 'NR > 1 && !/^#/ { exit } NR > 1 { sub(/^# ?/, ""); print }' "$0"
         [ -z "$cmd" ] || [ "$cmd" = "-h" ] || [ "$cmd" = "--help" ] || exit 2
         ;;
 esac

@@ -7,6 +7,7 @@ import time
 import pytest
 
 import sqfit
+from sqsim.data.provenance import library_versions
 from sqsim.runs.experiment import parse_chains, run_experiment
 from sqsim.world.scene import parse_scene
 
@@ -35,7 +36,8 @@ def reference(tmp_path_factory):
 
 def test_summary_has_every_chain_with_design_keys(reference):
     out, summary = reference
-    assert set(summary) >= {"scene", "trials", "resampled", "seed", "chains"}
+    assert set(summary) >= {"scene", "trials", "resampled", "seed", "chains", "installs"}
+    assert summary["installs"] == [library_versions()] == json.loads((out / "experiment.json").read_text())["installs"]
     assert summary["trials"] == 4 and summary["seed"] == 3 and summary["scene"] == "small"
     assert list(summary["chains"]) == CHAINS
     for entry in summary["chains"].values():

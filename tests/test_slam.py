@@ -53,6 +53,9 @@ def run_dir(tmp_path_factory):
 def test_slam_writes_every_file(run_dir):
     for name in ("slam.json", "summary.json", "table.md"):
         assert (run_dir / name).is_file()
+    installs = json.loads((run_dir / "slam.json").read_text())["installs"]
+    assert json.loads((run_dir / "summary.json").read_text())["installs"] == installs and len(installs) == 1
+    assert installs[0]["numpy"] is not None and installs[0]["gtsam"] is not None
     for k in range(2):
         d = run_dir / "sequences" / f"{k:06d}"
         for name in ("true.tum", "odometry.tum", "quadric.tum", "objects.json", "record.json", "topdown.png"):

@@ -5,6 +5,9 @@ from __future__ import annotations
 
 import json
 import os
+import sys
+
+from .provenance import library_versions
 
 __all__ = ["atomic_write_text", "atomic_figure", "read_records", "check_or_write_run_config"]
 
@@ -23,6 +26,11 @@ def check_or_write_run_config(path, config, scene, what, differs):
     (read back through ``sqsim.world.scene.parse_scene``, so keys added to the scene format since take their
     defaults), the same seed, and the same value of every other key of ``config`` except ``version``.
 
+    The file also lists under ``installs`` each install that ran the run
+    (:func:`sqsim.data.provenance.library_versions`), in order: one, unless the run was resumed under other
+    library versions, which is allowed with a warning on stderr naming what changed (the records added then come
+    from another install, whose fits can differ at rounding level).
+
     Parameters
     ----------
     path : pathlib.Path
@@ -37,7 +45,14 @@ def check_or_write_run_config(path, config, scene, what, differs):
     ------
     ValueError
         The file is not JSON, or holds a different run.
+
+    Returns
+    -------
+    installs : list of dict or None
+        The ``installs`` written: the library versions of each install that ran the run (None for one of
+        a run directory written before they were recorded).
     """
+    installs = [library_versions()]
     if path.exists():
         try:
             old = json.loads(path.read_text())
@@ -60,7 +75,19 @@ def check_or_write_run_config(path, config, scene, what, differs):
         if not same:
             raise ValueError(f"{path.parent} holds a different {what} ({differs} differ); "
                              "use another --output directory or delete it")
-    atomic_write_text(path, json.dumps(config, indent=1, sort_keys=True))
+        earlier = old.get("installs")
+        if not isinstance(earlier, list) or not earlier:
+            earlier = [None]  # an install of before the versions were recorded
+        if installs[0] not in earlier:
+            last = earlier[-1] or {}
+            changed = ", ".join(f"{k} {last.get(k, '?')} -> {v}" for k, v in installs[0].items() if last.get(k, "?") != v)
+            print(f"warning: {path.parent} was run with other library versions ({changed}); the records added "
+                  f"now come from another install (each listed under 'installs' in {path.name})", file=sys.stderr)
+            installs = earlier + installs
+        else:
+            installs = earlier
+    atomic_write_text(path, json.dumps({**config, "installs": installs}, indent=1, sort_keys=True))
+    return installs
 
 
 def read_records(jsonl):

@@ -23,7 +23,11 @@ Output directory:
     {"scene": "paper", "trials": 100, "resampled": 7, "seed": 0,
      "chains": {"1-2-3D-3A": {"iou": {"median": .., "mean": .., "std": ..}, "r_iou": {..},
                               "r_iou_m": {..}, "r_iou_m_contour": {..}, "time_s": {..},
-                              "success_rate": 1.0, "errors": 0, "fits": 100}}}
+                              "success_rate": 1.0, "errors": 0, "fits": 100}},
+     "installs": [{"python": "3.11.7", "sqkit": "0.1.0", "numpy": "2.4.6", "scipy": "1.17.1", ..}]}
+
+  ``installs``: the library versions of each install that ran the run, as in ``experiment.json``
+  (:mod:`sqsim.data.provenance`; more than one where a run was resumed under other versions).
 
 Metrics (``sqfit.metrics``): IOU = 3D IoU with the ground truth; R-IOU = mean 2D IoU of the
 fitted and true silhouettes in the true cameras; R-IOU-M = mean 2D IoU of the fitted silhouette
@@ -186,8 +190,9 @@ def run_experiment(scene, output, *, trials=None, chains=None, seed=None, worker
         check_recording_path(rerun, rerun_trials)
     out = Path(output)
     out.mkdir(parents=True, exist_ok=True)
-    check_or_write_run_config(out / "experiment.json", {"format": FORMAT, "version": FORMAT_VERSION,
-                                                        "scene": scene.to_dict()}, scene, "experiment", "scene or seed")
+    installs = check_or_write_run_config(out / "experiment.json", {"format": FORMAT, "version": FORMAT_VERSION,
+                                                                   "scene": scene.to_dict()},
+                                         scene, "experiment", "scene or seed")
 
     jsonl = out / "trials.jsonl"
     records = read_records(jsonl)
@@ -199,7 +204,7 @@ def run_experiment(scene, output, *, trials=None, chains=None, seed=None, worker
     limits = str(out / "limits") if scene.experiment.limit else None
     new = _map_trials(scene_dict, pending, jsonl, workers, scheduler, progress, limits)
     records += new
-    summary = write_reports(out, scene, chains, records, figures)
+    summary = write_reports(out, scene, chains, records, figures, installs)
     if rerun is not None:
         kept = [r for r in records if r["trial"] < scene.experiment.trials and r["chain"] in chains]
         record_rerun(rerun, scene, kept, rerun_trials)
@@ -394,8 +399,9 @@ def _ground_truth_polygons(obj, sim):
 
 # --------------------------------------------------------------------------- outputs
 
-def write_reports(out, scene, chains, records, figures=True):
-    """Write summary.json, table.md, table.tex, violin.png and example.png from all records."""
+def write_reports(out, scene, chains, records, figures=True, installs=None):
+    """Write summary.json, table.md, table.tex, violin.png and example.png from all records; ``installs``
+    (the run's, :func:`sqsim.data.files.check_or_write_run_config`) goes into summary.json as it is."""
     from ..reports import experiment as report
 
     trials = scene.experiment.trials
@@ -403,6 +409,8 @@ def write_reports(out, scene, chains, records, figures=True):
                      key=lambda r: (r["trial"], r["object"], chains.index(r["chain"])))
     resampled = sum({r["trial"]: r["resampled"] for r in records}.values())
     summary = report.summarize(records, chains, scene.experiment.name, scene.experiment.seed, trials, resampled)
+    if installs is not None:
+        summary["installs"] = installs
     atomic_write_text(out / "summary.json", json.dumps(summary, indent=1))
     atomic_write_text(out / "table.md", report.table_markdown(summary))
     atomic_write_text(out / "table.tex", report.table_latex(summary))

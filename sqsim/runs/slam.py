@@ -23,13 +23,15 @@ Metrics (``evo``'s Python API, :func:`trajectory_errors`):
 
 Output directory::
 
-    slam.json                   scene, seed, methods, graph options (a re-run must match; it resumes)
+    slam.json                   scene, seed, methods, graph options (a re-run must match; it resumes),
+                                installs (library versions: sqsim.data.provenance)
     sequences/NNNNNN/true.tum   true trajectory (TUM, sqfit.formats.tum), odometry.tum, METHOD.tum
     sequences/NNNNNN/objects.json   {"true": {id: {...}}, "methods": {METHOD: {id: [11 params]}}}
     sequences/NNNNNN/record.json    metrics, times, warnings, skipped objects (written last: marks
                                     the sequence finished; a re-run skips it)
     sequences/NNNNNN/topdown.png    top-down figure: trajectories, true and fitted objects
-    summary.json, table.md      every finished sequence, rebuilt at the end of every run
+    summary.json, table.md      every finished sequence, rebuilt at the end of every run (summary.json
+                                with slam.json's installs)
 
 Sequences are mapped over processes or a Dask cluster as in ``sqsim experiment``
 (``sqsim.runs.parallel.map_unordered``): the workers return plain data and only this process writes.
@@ -236,16 +238,17 @@ def run_slam(scene, output, *, sequences=None, seed=None, methods=None, options=
     scene = scene.with_overrides({"experiment.seed": seed, "experiment.trials": n})
     out = Path(output)
     out.mkdir(parents=True, exist_ok=True)
-    check_or_write_run_config(out / "slam.json", {"format": FORMAT, "version": FORMAT_VERSION, "scene": scene.to_dict(),
-                                                  "methods": methods, "options": options},
-                              scene, "slam run", "scene, seed, methods or options")
+    installs = check_or_write_run_config(out / "slam.json", {"format": FORMAT, "version": FORMAT_VERSION,
+                                                             "scene": scene.to_dict(), "methods": methods,
+                                                             "options": options},
+                                         scene, "slam run", "scene, seed, methods or options")
     pending = [i for i in range(n) if not (_sequence_dir(out, i) / "record.json").exists()]
     args = [(scene.to_dict(), seed, i, methods, options) for i in pending]
     _map(args, out, workers, scheduler, progress, figures)
     records = [json.loads((_sequence_dir(out, i) / "record.json").read_text()) for i in range(n)]
     from ..reports.slam import summarize, table_markdown
 
-    summary = summarize(records, methods, scene.experiment.name, seed, options)
+    summary = {**summarize(records, methods, scene.experiment.name, seed, options), "installs": installs}
     atomic_write_text(out / "summary.json", json.dumps(summary, indent=1))
     atomic_write_text(out / "table.md", table_markdown(summary))
     return summary
