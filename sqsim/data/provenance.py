@@ -2,9 +2,9 @@
 
 Fits move with the numeric libraries' rounding where a stage chooses between near-equal fits (stage 3U's
 part choice on household furniture: a fresh install moved tables, monitors, chairs and laptops by up to
-0.04 median 3D IoU of 20; README, "Reproducing the numbers"). So every run directory records the
-install that ran it (:func:`sqsim.data.files.check_or_write_run_config`), and ``./run.sh`` installs the
-versions pinned in ``constraints.txt``.
+0.04 median 3D IoU of 20; README, "Reproducing the numbers"). So every experiment (sweep points included)
+and SLAM run directory records the installs that ran it (:func:`sqsim.data.files.check_or_write_run_config`),
+and ``./run.sh`` installs the versions pinned in ``constraints.txt``.
 """
 
 from __future__ import annotations
