@@ -8,8 +8,8 @@
 #
 # Both create or refresh the virtual environment .venv (override with SQKIT_VENV) from
 # pyproject.toml at the versions pinned in constraints.txt (those the README's numbers were measured
-# with; SQKIT_CONSTRAINTS= for the newest within pyproject's ranges), and install the system
-# library libosmesa6 through apt-get when it is missing.
+# with, for Python 3.11; SQKIT_CONSTRAINTS= or another Python: the newest within pyproject's ranges),
+# and install the system library libosmesa6 through apt-get when it is missing.
 set -euo pipefail
 cd "$(dirname "$0")"
 
@@ -44,20 +44,27 @@ pick_python() {
 }
 
 ensure_venv() {
-    local stamp="$VENV/.sqkit-installed" want pins=()
-    if [ -n "$CONSTRAINTS" ]; then
-        if [ ! -f "$CONSTRAINTS" ]; then log "error: constraints file $CONSTRAINTS not found"; exit 1; fi
-        pins=(-c "$CONSTRAINTS")
-    fi
-    want="$(cat pyproject.toml ${CONSTRAINTS:+"$CONSTRAINTS"} | sha256sum | cut -d' ' -f1)"
+    local stamp="$VENV/.sqkit-installed" want pins="" have pinned_for
     if [ ! -x "$VENV/bin/python" ]; then
         log "creating virtual environment $VENV"
         "$(pick_python)" -m venv "$VENV"
     fi
+    if [ -n "$CONSTRAINTS" ]; then
+        if [ ! -f "$CONSTRAINTS" ]; then log "error: constraints file $CONSTRAINTS not found"; exit 1; fi
+        have="$("$VENV/bin/python" -c 'import sys; print("%d.%d" % sys.version_info[:2])')"
+        pinned_for="$(sed -n 's/^# for-python: *//p' "$CONSTRAINTS")"
+        if [ -n "$pinned_for" ] && [ "$have" != "$pinned_for" ]; then
+            log "note: $CONSTRAINTS pins the versions for Python $pinned_for; $VENV has Python $have:" \
+                "installing the newest within pyproject.toml's ranges instead"
+        else
+            pins="$CONSTRAINTS"
+        fi
+    fi
+    want="$(cat pyproject.toml ${pins:+"$pins"} | sha256sum | cut -d' ' -f1)"
     if [ ! -f "$stamp" ] || [ "$(cat "$stamp")" != "$want" ]; then
         log "installing Python dependencies into $VENV (first run takes a few minutes)"
         "$VENV/bin/python" -m pip install -q --upgrade pip
-        "$VENV/bin/python" -m pip install -q "${pins[@]}" -e ".[test,cluster,bench,slam,formats,viz]"
+        "$VENV/bin/python" -m pip install -q ${pins:+-c "$pins"} -e ".[test,cluster,bench,slam,formats,viz]"
         echo "$want" > "$stamp"
     fi
 }

@@ -83,4 +83,5 @@ def test_constraints_pin_every_dependency_within_pyproject_ranges():
         name = re.sub(r"[-_.]+", "-", req.name).lower()
         assert name in pins, f"{req.name} is not pinned in constraints.txt"
         assert req.specifier.contains(pins[name], prereleases=True), f"{req.name}=={pins[name]} is outside {req}"
-    assert '-c "$CONSTRAINTS"' in run_sh and 'CONSTRAINTS="${SQKIT_CONSTRAINTS-constraints.txt}"' in run_sh
+    assert '-c "$pins"' in run_sh and 'CONSTRAINTS="${SQKIT_CONSTRAINTS-constraints.txt}"' in run_sh
+    assert "# for-python: 3.11\n" in (ROOT / "constraints.txt").read_text()  # run.sh pins only on that Python
