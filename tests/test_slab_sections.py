@@ -117,3 +117,27 @@ def test_a_rounded_fit_at_the_floor_keeps_it(scene_trial, monkeypatch):
     assert all(out is None for _, out in calls)
     assert min(result.superquadric.size) > 0.099
     assert iou_3d(result.superquadric, truth.superquadric) > 0.6
+
+
+def test_below_floor_fit_keeps_the_lower_cost_and_counts_both_runs(monkeypatch):
+    from sqfit.fitting.axis_screen import below_floor_fit
+    from sqfit.fitting.lm import LMResult
+    from sqfit.fitting.pipeline import FitOptions
+
+    floors = []
+
+    def fake(rays, start, options, sigma, shape_min=None):
+        floors.append(options.size_min_m)
+        sharp = start[3] < 0.05  # the sharp start: its exponents at PLAIN_SHAPE_MIN
+        x = sq_vector([0.07, 1.0, 0.8], [0.05, 0.05] if sharp else [0.1, 0.1])
+        return LMResult(x, 2.0 if sharp else 1.0, "ftol", "", 7 if sharp else 5, 1, 1)
+
+    monkeypatch.setattr(axis_screen, "minimise", fake)
+    options = FitOptions()
+    res = below_floor_fit(None, sq_vector([0.1, 1.0, 0.8], [0.2, 0.1]), options)
+    assert floors == [0.1 * options.size_min_m] * 2
+    assert res.cost == 1.0 and res.nfev == 12  # the first start's box, the sharp start's evaluations counted too
+    # where the lower cost is no box, nothing
+    monkeypatch.setattr(axis_screen, "minimise", lambda rays, start, options, sigma, shape_min=None: LMResult(
+        sq_vector([0.07, 1.0, 0.8], [0.3, 0.1]), 1.0, "ftol", "", 5, 1, 1))
+    assert below_floor_fit(None, sq_vector([0.1, 1.0, 0.8], [0.2, 0.1]), options) is None

@@ -525,16 +525,15 @@ def below_floor_fit(rays, xi, options):
     if xi[:3].min() > options.size_min_m * (1.0 + AT_FLOOR):
         return None
     lowered = replace(options, size_min_m=FLOOR_RELEASE * options.size_min_m)
-    best = None
-    for start in (xi, sharp_start(xi)):
-        if start is None:
-            continue
-        res = minimise(rays, start, lowered, 0.0, shape_min=PLAIN_SHAPE_MIN)
-        if np.all(np.isfinite(res.x)) and (best is None or res.cost < best.cost):
-            best = replace(res, nfev=res.nfev + (best.nfev if best is not None else 0))
-    if best is None or best.x[3:5].max() >= BOX_SHAPE:
+    runs = [minimise(rays, start, lowered, 0.0, shape_min=PLAIN_SHAPE_MIN)
+            for start in (xi, sharp_start(xi)) if start is not None]
+    finite = [res for res in runs if np.all(np.isfinite(res.x))]
+    if not finite:
         return None
-    return best
+    best = min(finite, key=lambda res: res.cost)  # the first of equal costs, as before
+    if best.x[3:5].max() >= BOX_SHAPE:
+        return None
+    return replace(best, nfev=sum(res.nfev for res in runs))  # both runs' evaluations
 
 
 def sharp_start(xi):
