@@ -27,6 +27,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import re
 from collections import defaultdict
 from pathlib import Path
 
@@ -116,10 +117,18 @@ def silhouette_markdown(rows, name):
 
 
 def _cell(values, fmt, target=None):
+    """``values`` joined by " / ", each in ``fmt``, in bold at or above ``target``; a value below ``target``
+    that ``fmt`` would round up to it gets more decimals until it does not (0.9496 of a 0.95 target:
+    "0.9496", not bold),
+    so that no cell reads as the target where it is missed."""
     def one(v):
         if v is None:
             return "–"
-        text = fmt.format(v).replace("-", "−")
+        text, places = fmt.format(v), fmt
+        while target is not None and v < target and float(text) >= target:
+            places = re.sub(r"\.(\d+)f", lambda m: f".{int(m.group(1)) + 1}f", places)
+            text = places.format(v)
+        text = text.replace("-", "−")
         return f"**{text}**" if target is not None and v >= target else text
     return " / ".join(one(v) for v in values)
 

@@ -45,6 +45,16 @@ def test_rows_per_kind_and_seed_with_the_targets_in_bold(tmp_path):
     assert "seeds 0 / 4; objects per kind and seed: 1" in out
 
 
+def test_a_ratio_just_below_the_target_is_not_rounded_up_to_it(tmp_path):
+    d = sqfit.DEFAULT_CHAIN
+    a = _run_dir(tmp_path / "a", 0, [("book", d, 0.92414, 0.97315, 0.03), ("book", "HULL", 0.537, 0.97315, 0.3)])
+    b = _run_dir(tmp_path / "b", 4, [("book", d, 0.9299, 0.97318, 0.03), ("book", "HULL", 0.547, 0.97318, 0.3)])
+    out = subprocess.run([sys.executable, str(SCRIPT), a, b], capture_output=True, text=True, check=True).stdout
+    row = next(line for line in out.splitlines() if line.startswith("| book"))
+    # 0.92414 / 0.97315 = 0.94964: "0.95" would read as the target met; 0.9555 rounds to a met 0.96
+    assert "| 0.9496 / **0.96** |" in row, row
+
+
 def test_not_an_experiment_output_is_one_line(tmp_path):
     res = subprocess.run([sys.executable, str(SCRIPT), str(tmp_path)], capture_output=True, text=True)
     assert res.returncode == 1 and "not an sqsim experiment output" in res.stderr
