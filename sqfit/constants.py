@@ -22,7 +22,7 @@ SIZE_MIN = 0.1  #: metres
 #: / 0.983 median IoU (30 trials, seeds 0 / 1 / 2, default chain, whose axis screen keeps 0.03:
 #: ``sqfit.fitting.axis_screen.SCREEN_SHAPE_MIN``; README "Real masks"). The penalty holds fits at
 #: the bound (none below 0.01499 there), above ``SHAPE_DOMAIN[0]``. 3H's plain run on clean masks
-#: has its own, lower one: ``sqfit.fitting.axis_screen.PLAIN_SHAPE_MIN``.
+#: has its own, lower one: ``sqfit.fitting.plain_run.PLAIN_SHAPE_MIN``.
 SILHOUETTE_SHAPE_BOUNDS = (0.015, 1.9)
 
 #: Penalty weights c_p of eq. 7 (paper, Table I).

@@ -284,7 +284,7 @@ def test_offset_is_not_estimated_for_a_shape_at_its_bound(monkeypatch):
     assert grazing.at_shape_bound(result.superquadric.to_vector())
     assert result.outline_offset_px is None and "outline offset not estimated" in stage(result, "3H").message
     monkeypatch.setattr(grazing, "SHAPE_AT_BOUND", -1.0)  # estimated all the same: the box grows
-    # (and kept: 3H's plain 3G where the offset is idle would drop this small one, sqfit.fitting.axis_screen)
+    # (and kept: 3H's plain 3G where the offset is idle would drop this small one, sqfit.fitting.plain_run)
     free = sqfit.fit(obs, options={"idle_nuisances_plain": False})
     # -0.066 px, IoU 0.9849 against 0.9882 (-0.14 px with 3G's bound at 0.03, README "Real masks")
     assert free.outline_offset_px[0] < -0.05
@@ -292,7 +292,7 @@ def test_offset_is_not_estimated_for_a_shape_at_its_bound(monkeypatch):
 
 
 def test_sharp_start_sets_only_flat_exponents_to_the_bound():
-    from sqfit.fitting.axis_screen import PLAIN_SHAPE_MIN, SHARP_BELOW, sharp_start
+    from sqfit.fitting.plain_run import PLAIN_SHAPE_MIN, SHARP_BELOW, sharp_start
 
     xi = paper_trial(1).gt.to_vector()
     xi[3:5] = 0.9, 1.4
@@ -307,13 +307,13 @@ def test_sharp_start_sets_only_flat_exponents_to_the_bound():
 def test_idle_plain_run_also_starts_from_sharp_edges(monkeypatch):
     """A box's fit from the refinement's result stops with rounded edges and a thicker body at
     nearly the same cost; the second start with sharp edges finds a lower cost and the box."""
-    from sqfit.fitting import axis_screen
+    from sqfit.fitting import plain_run
     from sqfit.metrics import iou_3d_mesh
 
     obs, mesh = _box_trial(15)
     result = sqfit.fit(obs)
     assert "plain 3G from sharp edges" in stage(result, "3H").message
-    monkeypatch.setattr(axis_screen, "SHARP_BELOW", 0.0)  # no second start
+    monkeypatch.setattr(plain_run, "SHARP_BELOW", 0.0)  # no second start
     rounded = sqfit.fit(obs)
     assert "sharp edges" not in stage(rounded, "3H").message
     assert stage(result, "3H").cost < stage(rounded, "3H").cost  # both plain 3G costs

@@ -46,11 +46,11 @@ def test_size_floor_must_be_positive(value):
 
 
 def test_a_thin_box_goes_below_the_default_floor_and_a_lower_floor_fits_it_closer(slab_observations, monkeypatch):
-    from sqfit.fitting import axis_screen
+    from sqfit.fitting import plain_run
 
     default = sqfit.fit(slab_observations, "default")
     free = sqfit.fit(slab_observations, "default", options={"size_min_m": 0.01})
-    monkeypatch.setattr(axis_screen, "below_floor_fit", lambda rays, xi, options: None)
+    monkeypatch.setattr(plain_run, "below_floor_fit", lambda rays, xi, options: None)
     held = sqfit.fit(slab_observations, "default")
     assert min(held.superquadric.size) > 0.095  # without 3H's box below the floor: held, rounded (IoU 0.74)
     assert min(default.superquadric.size) < 0.085  # 3H's plain run: a box below the floor (IoU 0.89)
@@ -62,7 +62,7 @@ def test_a_thin_box_goes_below_the_default_floor_and_a_lower_floor_fits_it_close
 def test_scene_key_defaults_to_the_option_and_reaches_the_fit(monkeypatch):
     from pathlib import Path
 
-    from sqfit.fitting import axis_screen
+    from sqfit.fitting import plain_run
 
     from sqsim.runs.experiment import fit_trial
     from sqsim.world.scene import load_scene
@@ -78,7 +78,7 @@ def test_scene_key_defaults_to_the_option_and_reaches_the_fit(monkeypatch):
         return min(fit_trial(books.with_overrides({"fit.size_min_m": floor}).to_dict(), 18, ["default"])[0]["params"][:3])
 
     assert thinnest(C.SIZE_MIN) < 0.075  # a box: 3H's plain run goes below the floor
-    monkeypatch.setattr(axis_screen, "below_floor_fit", lambda rays, xi, options: None)
+    monkeypatch.setattr(plain_run, "below_floor_fit", lambda rays, xi, options: None)
     assert thinnest(C.SIZE_MIN) > 0.095 and thinnest(0.01) < 0.075  # the key sets the floor of every stage
 
 

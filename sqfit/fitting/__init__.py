@@ -16,6 +16,8 @@ and a chain is a dash-joined list of them (``"1-2M-3H"``).
 - :mod:`.grazing` — stage 3G: the superquadric that grazes every outline ray;
 - :mod:`.restarts` — stage 3S: symmetric restarts of 3G;
 - :mod:`.axis_screen` — stage 3H: choose the axes, then 3G;
+- :mod:`.plain_run` — 3H's plain run where its nuisances are idle: sharp edges, square slab sections, boxes below
+  the size floor;
 - :mod:`.outline` — stage 3T: G2 on the mask contours where 3G's cost is not met;
 - :mod:`.parts` — stage 3TP: 3T, kept only where what it lets go is a part (legs, a stand);
 - :mod:`.least_volume` — stage 3V: 3TP, then of the fits that match the contours alike

@@ -38,96 +38,10 @@ therefore decides before 3G, from the 3G cost itself:
    at most :data:`sqfit.fitting.grazing.POSE_NOISE_TRIGGER_DEG`) and the outline offset is within
    :data:`IDLE_OFFSET_PX` -- and the superquadric grazes the outline (the refinement's cost at most
    :data:`sqfit.fitting.outline.TRIGGER_COST`, below 3T's domain), the fit is plain 3G (no pose
-   corrections, no offset) started at the refinement's result. Those unknowns trade against the
-   size: an offset of a tenth or two of a pixel and small rotation corrections buy a thicker slab at
-   nearly the same cost, so on clean masks the refinement stopped with thin axes too thick (a box of
-   0.03 x 0.16 x 0.23, 20 trials of 4 elevated views: thinnest half-axis 1.02-1.11 times the truth
-   on 17 of 20, 1.04 at the median, 3D IoU 0.950; without both nuisances throughout the chain 0.967;
-   the plain cost lower at the truth than at the fit on 4 of 8 trials checked). Plain 3G from there:
-   0.966.
-   Measured with the default chain beside the code before (``sqsim experiment``, median / 10th
-   percentile 3D IoU): paper, 100 trials, seed 0 0.9948 / 0.9036 -> 0.9971 / 0.8989 (9 fits better
-   by > 0.01, 2 worse, by at most 0.013), seed 1 0.9955 / 0.9325 -> 0.9970 / 0.9464 (12 better, 1
-   worse); boxes, 30 trials, seeds 0 / 1 0.9809 / 0.9560 -> 0.9861 / 0.9655 and 0.9822 / 0.9527 ->
-   0.9855 / 0.9595 (none worse); cylinders, seed 0 0.9886 / 0.9810 -> 0.9903 / 0.9856; where the
-   nuisances are not idle it cannot act: 2 px jitter and 1 deg of rotation (``scenes/paper-noisy.toml``,
-   seed 0) 1 fit of 100 changed (better, 10th percentile 0.368 -> 0.401), 1 px over-segmentation
-   (``scenes/paper-bias1.toml``) 6 changed, 2 worse by up to 0.020, median 0.9889 either way.
-   Not seen while it was built (paper seed 2, boxes seed 2, cylinders seed 1, the occlusion and
-   truncation scenes): better in median and 10th percentile on each (docs/real-objects.md, "3H without
-   idle nuisances").
-   The cost condition keeps it off furniture: without it, household tables, monitors and lamps (20
-   each, seed 0), whose fits 3T/3TP then take over, changed 19 fits both ways by up to 0.2 (3T
-   from a slightly other start), and 240 mixed household objects lost 0.045 of median IoU on
-   tables; with it none of those changes.
-   It costs one more 3G run where it acts (3-15 evaluations, 1-5 ms): `benchmarks/bench_fit.py`
-   (20 paper trials, two rounds beside the code before) 16.7 / 14.8 ms against 15.4 / 13.1.
-   ``FitOptions.idle_nuisances_plain = False`` leaves it out (:mod:`sqfit.graph`'s landmark fits).
-   Where a shape exponent of the refinement's fit is below :data:`SHARP_BELOW`, the plain run starts
-   a second time with those exponents at the lower bound (:func:`sharp_start`), and the lower cost
-   is kept. On boxes the cost is nearly flat along a valley from rounded edges and a thicker body to
-   sharp edges and the true size; the refinement's tolerance (:data:`REFINE_FTOL`) stops in it, and
-   a run from its result stays on the rounded side (a box of 0.03 x 0.16 x 0.23, 4 elevated views,
-   20 trials: thinnest half-axis 1.01-1.11 times the truth on 18, and a plain run from the default's
-   fit with sharp edges lowered the cost on 17). Measured with the default chain beside the code
-   before (``sqsim experiment``, median 3D IoU, fits better by more than 0.01 / worse): boxes, 30
-   trials, seeds 0 / 1 / 2 0.9861 -> 0.9876 (2 / 0; +0.011, +0.035), 0.9855 -> 0.9871 (0 / 0),
-   0.9859 -> 0.9872 (1 / 0); cylinders seeds 0 / 1 0.9903 -> 0.9904, 0.9907 -> 0.9907 (0 / 0);
-   paper, 100 trials, seeds 0 / 1 / 2 unchanged in median (2-5 fits changed; seed 2 one better,
-   +0.080); ``paper-noisy`` and ``paper-bias1`` (seed 0) no fit changed. It costs one more plain 3G
-   run on such fits: boxes 15.3 -> 17.5-17.9 ms median per object, the paper benchmark 8.0-8.3 ->
-   8.3 ms.
-   The plain runs have their own lower bound for the shape exponents, :data:`PLAIN_SHAPE_MIN`
-   (0.011; the other silhouette stages 0.015): a box's edges are still rounded at 0.015. Beside the
-   sharp start alone (same command): boxes seeds 0 / 1 / 2 0.9876 -> 0.9904, 0.9871 -> 0.9897,
-   0.9872 -> 0.9897 (10th percentile 0.9657 -> 0.9734 on seed 0); cylinders 0.9904 -> 0.9922, 0.9907
-   -> 0.9928; paper unchanged; no fit worse by more than 0.003 anywhere. The same bound for every
-   silhouette stage (``constants.SILHOUETTE_SHAPE_BOUNDS``) gave boxes as much but made 3 of 100
-   ``paper-noisy`` fits worse (one by 0.22; 10th percentile 0.378 -> 0.359); those never reach the
-   plain run.
-   A slab (:func:`sqfit.geometry.slab.thin_section`: a book, a box thin along one axis) whose
-   section across the thin axis is nearly square (its exponent between :data:`SQUARE_SECTION_ABOVE`
-   and :data:`SQUARE_SECTION_BELOW`) is run once more with that exponent held at
-   :data:`PLAIN_SHAPE_MIN` (:func:`square_section_fit`), and that fit is kept where its cost is at
-   most :data:`SQUARE_SECTION_KEEP` times the plain run's. The masks show that section only along
-   the slab's edges, a few px across: the plain cost is nearly flat from rounded edges and a thicker
-   slab to square ones and the true thickness, and the sharp start above does not reach the square
-   end (the 19 books below that it changed: thinnest half-axis 1.034 times the truth, median, ->
-   1.020). Measured with the default chain beside the code before (``sqsim experiment``, median /
-   10th percentile 3D IoU; per kind ``scenes/household.toml`` with
-   ``objects.catalogue`` one kind, 20 trials; seed 2 not looked at until it was built): books, seeds
-   0 / 1 / 2, median 0.902 / 0.914 / 0.905 -> 0.909 / 0.916 / 0.915 (19 fits changed, 13 better by
-   more than 0.01, up to 0.046, none worse); boxes, 30 trials, seeds 0 / 1 0.9904 / 0.973 -> 0.9909
-   / 0.986 and 0.9897 / 0.963 -> 0.9902 / 0.968 (5 better, none worse); no fit changed on paper
-   (seeds 0 and 1, 100 trials), ``paper-noisy`` (seeds 0 and 2, 100), 8 px jitter and 20 % dropout
-   (50 each), cylinders (seed 0, 30), bowls, mugs, bottles, plant pots, cans, lamps, chairs, laptops
-   and toys (seeds 0-2), monitors and tables (seeds 0 and 1). Bowls are why the section must be
-   nearly square: without the upper limit one bowl of seed 0 and one of seed 1, sections 0.22 and
-   0.35, lost 0.026 and 0.053.
-   Below the size floor: where the plain run's fit has a half-axis at the floor (``FitOptions.size_min_m``, 0.1
-   m, the paper's prior; within :data:`AT_FLOOR`), plain 3G runs once more with the floor at
-   :data:`FLOOR_RELEASE` times it, from the fit and from :func:`sharp_start` (:func:`below_floor_fit`), and that
-   fit is kept where it is a box (both exponents below :data:`BOX_SHAPE`, the sharp edges of
-   :func:`sharp_start`) and costs less. A box's silhouettes show its corners, and from them its thickness; a
-   rounded slab's do not, which is why the floor exists (README, "Thin objects": from the paper's level views a
-   rounded fit below the floor thins too far, ``paper`` trial 43 of seed 0: 0.772 -> 0.562 without the box
-   test). Books of half-thickness 0.06-0.09 m held at the floor (4 of seed 0) made up for it with rounded edges
-   (the larger exponent 0.09-0.61) and 1.16-1.57 times the book's volume; below it, boxes of their thickness.
-   Measured with the default chain beside the code before (``sqsim experiment scenes/household.toml --set
-   "objects.catalogue=[KIND]" --set experiment.limit=false --trials 20 --seed S --chains default``; set on the
-   books of seed 0 and the paper fits at the floor, the other seeds run after): books, seeds 0 / 4 / 2 / 6 / 8,
-   the 9 fits that changed all better (+0.010 to +0.224), 10th percentile 0.724 / 0.834 / 0.765 / 0.887 / 0.818
-   -> 0.872 / 0.868 / 0.815 / 0.889 / 0.858, median 0.909 -> 0.913 on seed 0, the others the same; tables
-   through 3V's bulk fit (its top, the legs opened away, is a slab below the floor): 9 fits of 100 changed, 4
-   better and 4 worse by more than 0.01 (+0.012 to +0.129, -0.022 to -0.059), medians the same or up; the other
-   ten kinds (seeds 0 and 4) not a fit. The box test was first "both exponents at most 0.4": two fits of the
-   noise sweeps, a superquadric of half-axes 3.2, 2.8 and 1.2 m fitted as a slab at the floor (``paper`` trial
-   16 under 1 px of dilation and 5 % dropout, 3D IoU 0.176 and 0.187), went below it with exponents 0.37 and
-   0.32 and lost 0.021 and 0.076; below 0.25 neither does, and the books' boxes (0.16 at most) are kept. It
-   never keeps a fit on ``paper`` (seeds 0 and 1, 100 trials; reached once, rounded), ``paper-noisy`` (seeds 0
-   and 1), ``paper-erode1``, ``paper-bias1``, boxes or cylinders; of the fourteen noise sweeps' fits (seed 0)
-   3H's plain run ended at the floor on 13 and kept a box below it on one (1 px erosion), whose final fit did
-   not change.
+   corrections, no offset) started at the refinement's result, from sharp edges too, with a slab's
+   section held square and a box below the size floor: :mod:`sqfit.fitting.plain_run`, where what
+   was measured for each is written. ``FitOptions.idle_nuisances_plain = False`` leaves it out
+   (:mod:`sqfit.graph`'s landmark fits).
 4. Rescue: when the result's silhouettes miss the masks (R-IOU-M below :data:`RESCUE_R_IOU_M`;
    ~2 % of paper trials, mostly needles and slabs with an aspect ratio above 10, where stage 2's
    ellipsoid is far off and 3G slides into its "far, huge" minimum: a large superquadric behind the
@@ -202,19 +116,17 @@ from .restarts import N_SCREEN_CONTOUR, screen_rays, symmetric_candidates
 from ..kernels.backend import compiled
 from .line_gauge import solver_args
 from .raycost import CROSSING_ARGS, RAY_BOUNDS, batch_ray_residuals, ray_bounds, ray_kind
-from .grazing import (POSE_NOISE_TRIGGER_DEG, SilhouetteFit, describe_values, minimise, offset_groups,
+from .grazing import (POSE_NOISE_TRIGGER_DEG, SilhouetteFit, describe_values, offset_groups,
                       outline_rays, shifted_rays, silhouette_fit)
 from .costs import ObservationSet
 from .outline import TRIGGER_COST
+from .plain_run import plain_fit
 from .stages import NUMERICAL_ERRORS, STAGES, FitState, StageError, ellipsoid_depths, r_iou_m, register, to_superquadric
-from ..geometry.slab import thin_section
 from ..views.grid import with_grid_samples, with_outline_samples
 
 __all__ = ["N_SCREEN_CONTOUR", "SCREEN_SHAPE_MIN", "SCREEN_BOUNDS", "SCREEN_ITERATIONS", "SCREEN_MAX_NEWTON", "CANDIDATES", "RESCUE_R_IOU_M",
-           "DECISION_MARGIN", "RESCUE_STAGES", "RESCREEN_PX", "IDLE_OFFSET_PX", "SHARP_BELOW", "PLAIN_SHAPE_MIN",
-           "SQUARE_SECTION_ABOVE", "SQUARE_SECTION_BELOW", "SQUARE_SECTION_KEEP", "square_section_fit",
-           "AT_FLOOR", "FLOOR_RELEASE", "BOX_SHAPE", "below_floor_fit",
-           "axis_candidates", "sharp_start", "batch_levenberg_marquardt", "axis_search_stage"]
+           "DECISION_MARGIN", "RESCUE_STAGES", "RESCREEN_PX", "IDLE_OFFSET_PX",
+           "axis_candidates", "batch_levenberg_marquardt", "axis_search_stage"]
 
 #: Names of the rows of :func:`axis_candidates`, in order.
 CANDIDATES = ("input", "R45", "P1", "P1R45", "P2", "P2R45")
@@ -275,27 +187,6 @@ RESCREEN_PX = 0.3
 #: agreeing, step 3 of the module docstring): the fit is then taken from plain 3G started at the
 #: refinement's. :data:`RESCREEN_PX`, the level below which the offset does not move the screen.
 IDLE_OFFSET_PX = RESCREEN_PX
-#: Step 3's plain run starts a second time where a shape exponent of the refinement's fit is below
-#: this, with those exponents at the lower bound, and the lower cost is kept (module docstring).
-SHARP_BELOW = 0.25
-#: Lower bound of the shape exponents in step 3's plain runs (the other silhouette stages:
-#: ``constants.SILHOUETTE_SHAPE_BOUNDS[0]``, 0.015): boxes' edges are sharper at it, and noisy masks,
-#: whose nuisances are not idle, never reach it (module docstring; ``SHAPE_DOMAIN[0]`` is 0.01).
-PLAIN_SHAPE_MIN = 0.011
-#: Step 3 runs plain 3G once more on a slab whose thin section is nearly square, its exponent above
-#: :data:`SQUARE_SECTION_ABOVE` and below :data:`SQUARE_SECTION_BELOW`, with that exponent held at
-#: :data:`PLAIN_SHAPE_MIN` (:func:`square_section_fit`), and keeps that fit where its cost is at most
-#: :data:`SQUARE_SECTION_KEEP` times the plain run's (module docstring, step 3).
-SQUARE_SECTION_ABOVE = 2 * PLAIN_SHAPE_MIN
-SQUARE_SECTION_BELOW = 0.2
-SQUARE_SECTION_KEEP = 1.05
-#: Step 3's plain run goes below the size floor where a half-axis sits at it (within this, relative:
-#: its bounds are soft) and the fit below it is a box (:func:`below_floor_fit`).
-AT_FLOOR = 1e-3
-#: The floor there, times ``FitOptions.size_min_m``.
-FLOOR_RELEASE = 0.1
-#: A box's shape exponents: below this, the sharp edges of :func:`sharp_start` (:func:`below_floor_fit`).
-BOX_SHAPE = SHARP_BELOW
 #: Initial damping of the screen, times the largest diagonal entry of ``J^T J`` (as :mod:`sqfit.fitting.lm`).
 _LAMBDA0 = 1e-3
 _LAMBDA_MAX = 1e16
@@ -450,11 +341,8 @@ def _without_idle_nuisances(fit, obs, options):
     nuisance unknowns are idle, plain 3G from it (module docstring, step 3): the cameras agree (pose
     noise at most :data:`sqfit.fitting.grazing.POSE_NOISE_TRIGGER_DEG`, the fixed prior), the
     outline offset is within :data:`IDLE_OFFSET_PX`, and the superquadric grazes the outline (the
-    refinement's cost at most :data:`sqfit.fitting.outline.TRIGGER_COST`, 3T's trigger); where the fit
-    has a shape exponent below :data:`SHARP_BELOW`, also from :func:`sharp_start`, keeping the lower
-    cost; then a slab's section held square (:func:`square_section_fit`, kept up to
-    :data:`SQUARE_SECTION_KEEP` times the cost) and a box below the size floor (:func:`below_floor_fit`,
-    kept where it costs less). The plain fit then has no offset (``outline_offsets`` None, so
+    refinement's cost at most :data:`sqfit.fitting.outline.TRIGGER_COST`, 3T's trigger):
+    :func:`sqfit.fitting.plain_run.plain_fit`. The plain fit then has no offset (``outline_offsets`` None, so
     ``FitResult.outline_offset_px`` is None; its message ends with the refinement's, which names the idle
     value)."""
     nuisances = options.pose_sigma_deg > 0 or options.outline_offset_sigma_px > 0
@@ -468,84 +356,14 @@ def _without_idle_nuisances(fit, obs, options):
         return fit
     if fit.state.cost is None or fit.state.cost > TRIGGER_COST:  # no superquadric grazes this outline
         return fit
-    rays = outline_rays(obs, options.n_contour)
-    xi = np.asarray(fit.state.xi, dtype=np.float64)
-    res = minimise(rays, xi, options, 0.0, shape_min=PLAIN_SHAPE_MIN)
-    if not np.all(np.isfinite(res.x)):
+    run = plain_fit(outline_rays(obs, options.n_contour), fit.state.xi, options)
+    if run is None:
         return fit
-    nfev, how = res.nfev, "plain 3G"
-    sharp = sharp_start(xi)
-    if sharp is not None:
-        other = minimise(rays, sharp, options, 0.0, shape_min=PLAIN_SHAPE_MIN)
-        nfev += other.nfev
-        if np.all(np.isfinite(other.x)) and other.cost < res.cost:
-            res, how = other, f"plain 3G from sharp edges (e < {SHARP_BELOW:g} set to {PLAIN_SHAPE_MIN:g})"
-    board = square_section_fit(rays, res.x, options)
-    if board is not None:
-        nfev += board.nfev
-        if board.cost <= SQUARE_SECTION_KEEP * res.cost:
-            res, how = board, f"{how}, then with the slab's thin section held square (e = {PLAIN_SHAPE_MIN:g})"
-    below = below_floor_fit(rays, res.x, options)
-    if below is not None:
-        nfev += below.nfev
-        if below.cost < res.cost:
-            res, how = below, (f"{how}, then a box below the size floor ({options.size_min_m:g} m lowered to "
-                               f"{FLOOR_RELEASE * options.size_min_m:g} m)")
+    res, nfev, how = run
     state = replace(fit.state, xi=res.x, cost=res.cost, status=res.status, nfev=fit.state.nfev + nfev,
                     message=f"{res.message} ({how}: the refinement's nuisances were idle; it ended "
                             f"{fit.state.message})", outline_offsets=None)
     return SilhouetteFit(state, fit.pose_noise_deg, None)
-
-
-def square_section_fit(rays, xi, options):
-    """Plain 3G on ``rays`` from the slab ``xi`` with the exponent of the section across its thin axis
-    (:func:`sqfit.geometry.slab.thin_section`) held at :data:`PLAIN_SHAPE_MIN`, square (module
-    docstring, step 3): an :class:`sqfit.fitting.lm.LMResult`, or None where ``xi`` is no slab, that
-    exponent is not between :data:`SQUARE_SECTION_ABOVE` and :data:`SQUARE_SECTION_BELOW`, or the
-    run failed."""
-    xi = np.asarray(xi, dtype=np.float64)
-    section = thin_section(xi)
-    if section is None or not SQUARE_SECTION_ABOVE < xi[section[1]] < SQUARE_SECTION_BELOW:
-        return None
-    e = section[1]
-    lower, upper = (np.array(b, dtype=np.float64) for b in ray_bounds(options.size_min_m, shape_min=PLAIN_SHAPE_MIN))
-    lower[e] = upper[e] = PLAIN_SHAPE_MIN
-    start = xi.copy()
-    start[e] = PLAIN_SHAPE_MIN
-    res = minimise(rays, start, options, 0.0, bounds=(lower, upper))
-    return res if np.all(np.isfinite(res.x)) else None
-
-
-def below_floor_fit(rays, xi, options):
-    """Plain 3G on ``rays`` from ``xi``, a fit with a half-axis at the size floor (``options.size_min_m``,
-    within :data:`AT_FLOOR`), with the floor lowered to :data:`FLOOR_RELEASE` times it, from ``xi`` and
-    from :func:`sharp_start`; the lower cost of the two where that fit is a box (both exponents below
-    :data:`BOX_SHAPE`), else None (module docstring, step 3)."""
-    xi = np.asarray(xi, dtype=np.float64)
-    if xi[:3].min() > options.size_min_m * (1.0 + AT_FLOOR):
-        return None
-    lowered = replace(options, size_min_m=FLOOR_RELEASE * options.size_min_m)
-    runs = [minimise(rays, start, lowered, 0.0, shape_min=PLAIN_SHAPE_MIN)
-            for start in (xi, sharp_start(xi)) if start is not None]
-    finite = [res for res in runs if np.all(np.isfinite(res.x))]
-    if not finite:
-        return None
-    best = min(finite, key=lambda res: res.cost)  # the first of equal costs, as before
-    if best.x[3:5].max() >= BOX_SHAPE:
-        return None
-    return replace(best, nfev=sum(res.nfev for res in runs))  # both runs' evaluations
-
-
-def sharp_start(xi):
-    """``xi`` ``(11,)`` with its shape exponents below :data:`SHARP_BELOW` set to the plain run's lower
-    bound :data:`PLAIN_SHAPE_MIN`, or None when it has none (module docstring, step 3: the second
-    start of the plain run)."""
-    xi = np.array(xi, dtype=np.float64)
-    flat = xi[3:5] < SHARP_BELOW
-    if not flat.any():
-        return None
-    xi[3:5] = np.where(flat, PLAIN_SHAPE_MIN, xi[3:5])
-    return xi
 
 
 def _screen_refine_once(state, obs, options, shift=None):

@@ -308,7 +308,7 @@ def minimise(rays, x0, options, sigma, offset_sigma=0.0, groups=None, pose_scale
     :data:`OFFSET_UNIT_PX`. ``pose_scale`` (with ``sigma > 0``; cost units per radian): the pose
     prior rows are ``pose_scale w`` instead of ``w / sigma`` (:func:`pose_prior_scale`). ``shape_min``:
     the shape exponents' lower bound instead of ``constants.SILHOUETTE_SHAPE_BOUNDS[0]`` (3H's plain
-    run, :data:`sqfit.fitting.axis_screen.PLAIN_SHAPE_MIN`). ``bounds``: the penalty rows' soft bounds
+    run, :data:`sqfit.fitting.plain_run.PLAIN_SHAPE_MIN`). ``bounds``: the penalty rows' soft bounds
     ``(lower, upper)``, ``(11,)`` each, instead of :func:`sqfit.fitting.raycost.ray_bounds`'s (3H's
     plain run with a slab's thin section held square). Returns the
     :class:`sqfit.fitting.lm.LMResult` (``x`` in pixels); used by 3G and by 3S

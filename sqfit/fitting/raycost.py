@@ -151,7 +151,7 @@ def crossing_correction(X, points, directions, d_xi, tol=CROSSING_TOL, parallel=
 def ray_bounds(size_min=C.SIZE_MIN, bounds=RAY_BOUNDS, shape_min=None):
     """``bounds`` (default :data:`RAY_BOUNDS`) with the half-axes' lower bound set to ``size_min``
     (metres, > 0; ``FitOptions.size_min_m``) and, unless None, the shape exponents' to ``shape_min``
-    (3H's plain run, :data:`sqfit.fitting.axis_screen.PLAIN_SHAPE_MIN`); ``bounds`` itself when those
+    (3H's plain run, :data:`sqfit.fitting.plain_run.PLAIN_SHAPE_MIN`); ``bounds`` itself when those
     are its bounds already."""
     size_same = float(size_min) == bounds[0][0] == bounds[0][1] == bounds[0][2]
     if size_same and (shape_min is None or float(shape_min) == bounds[0][3] == bounds[0][4]):
