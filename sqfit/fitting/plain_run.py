@@ -99,7 +99,10 @@ Measured with the default chain beside the code before (same command as below): 
 0.935 / 0.934, 41 fits better by more than 0.01 (up to +0.061), 1 worse (-0.025: a box below
 the floor, 0.97 times the book's thickness, thinned to 0.94 by its square section); tables
 (through 3V's bulk fit), seeds 0 / 4: 1 better, 3 worse (+0.021; -0.013 to -0.025), medians
-the same; on the other ten kinds (seeds 0 and 4) not a fit changed.
+the same; on the other ten kinds (seeds 0 and 4) not a fit changed. Books of seeds 10 and
+12, never run before: 0.915 / 0.922 -> 0.933 / 0.929, 19 better, none worse. No fit changed on
+``paper`` and ``paper-noisy`` (seeds 0 and 1), ``paper-erode1``, ``paper-bias1``, cylinders and the
+fourteen noise sweeps (seed 0); on boxes one (10th percentile 0.986 -> 0.987).
 Below the size floor: where the plain run's fit has a half-axis at the floor (``FitOptions.size_min_m``, 0.1
 m, the paper's prior; within :data:`AT_FLOOR`), plain 3G runs once more with the floor at
 :data:`FLOOR_RELEASE` times it, from the fit and from :func:`sharp_start` (:func:`below_floor_fit`), and that
