@@ -93,6 +93,10 @@ def test_thin_axis_as_z_relabels_a_slab_without_moving_it():
     assert list(thin_axis_as_z(xi)[3:5]) == [0.4, 0.05]  # e1 and e2 swapped: the face's e1 is now e2
     assert thin_axis_as_z(sq_vector([1.0, 0.8, 0.1], [0.3, 0.3])) is None  # thin along z already
     assert thin_axis_as_z(sq_vector([1.0, 0.8, 0.7], [0.3, 0.3])) is None  # no slab
+    with pytest.raises(ValueError, match="xi"):
+        thin_axis_as_z([0.1, 1.0, 0.8, 0.3, 0.3])  # sizes and shape only
+    with pytest.raises(ValueError, match="xi"):
+        thin_axis_as_z(np.r_[0.1, 1.0, 0.8, 0.3, 0.3, np.nan, 0, 0, 0, 0, 0])
 
 
 def test_a_book_thin_along_x_gets_square_edges_all_round(household):

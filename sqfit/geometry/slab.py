@@ -18,6 +18,7 @@ from __future__ import annotations
 import numpy as np
 
 from .. import constants as C
+from .._checks import check_shape
 from .superquadric import euler_to_matrix, matrix_to_euler
 
 __all__ = ["SLAB_ASPECT", "aspect", "thin_axis_as_z", "thin_section"]
@@ -58,10 +59,12 @@ def thin_axis_as_z(xi):
 
     The half-axes and the frame's columns are permuted cyclically (a proper rotation: the same box in
     space) and ``e1`` and ``e2`` swapped, so that the exponent of the face (``e1`` of ``xi``) stays the
-    face's (now ``e2``), and ``e1`` shapes the whole section across the thin axis (module docstring);
-    the surface is the same where ``e1 == e2``, and otherwise the nearest of that form. The exponents are
-    not clipped; the centre is unchanged."""
-    x = np.array(xi, dtype=np.float64)
+    face's (now ``e2``), and ``e1`` shapes the whole section across the thin axis (module docstring).
+    The surface is the same where ``e1 == e2``; otherwise it is another one, with the same box, half-axes
+    and exponents, used as a start (3H's plain run, :func:`sqfit.fitting.plain_run.square_section_fit`).
+    The exponents are not clipped; the centre is unchanged. A ``ValueError`` names ``xi`` where it is not
+    11 finite numbers."""
+    x = check_shape(xi, (C.N_PARAMS,), "xi").copy()
     section = thin_section(x)
     if section is None or section[0] == 2:
         return None
