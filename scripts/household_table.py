@@ -119,8 +119,7 @@ def silhouette_markdown(rows, name):
 def _cell(values, fmt, target=None):
     """``values`` joined by " / ", each in ``fmt``, in bold at or above ``target``; a value below ``target``
     that ``fmt`` would round up to it gets more decimals until it does not (0.9496 of a 0.95 target:
-    "0.9496", not bold),
-    so that no cell reads as the target where it is missed."""
+    "0.9496", not bold), so that no cell reads as the target where it is missed."""
     def one(v):
         if v is None:
             return "–"

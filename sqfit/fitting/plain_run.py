@@ -234,11 +234,16 @@ def square_section_fit(rays, xi, options):
     if thin < 2 and xi[4] < SQUARE_SECTION_BELOW and xi[3:5].max() > SQUARE_SECTION_ABOVE:
         runs.append(_held(rays, thin_axis_as_z(xi), 3, replace(options, ftol_analytic=min(options.ftol_analytic,
                                                                                          SQUARE_SECTION_FTOL))))
+    return _lowest(runs)
+
+
+def _lowest(runs):
+    """The finite run of ``runs`` (:class:`sqfit.fitting.lm.LMResult`) with the lowest cost, the first of equal
+    costs, its ``nfev`` the evaluations of every run; None where none is finite."""
     finite = [res for res in runs if np.all(np.isfinite(res.x))]
     if not finite:
         return None
-    best = min(finite, key=lambda res: res.cost)  # the first of equal costs
-    return replace(best, nfev=sum(res.nfev for res in runs))
+    return replace(min(finite, key=lambda res: res.cost), nfev=sum(res.nfev for res in runs))
 
 
 def _held(rays, xi, e, options):
@@ -261,13 +266,10 @@ def below_floor_fit(rays, xi, options):
     lowered = replace(options, size_min_m=FLOOR_RELEASE * options.size_min_m)
     runs = [minimise(rays, start, lowered, 0.0, shape_min=PLAIN_SHAPE_MIN)
             for start in (xi, sharp_start(xi)) if start is not None]
-    finite = [res for res in runs if np.all(np.isfinite(res.x))]
-    if not finite:
+    best = _lowest(runs)  # both runs' evaluations counted
+    if best is None or best.x[3:5].max() >= BOX_SHAPE:
         return None
-    best = min(finite, key=lambda res: res.cost)  # the first of equal costs, as before
-    if best.x[3:5].max() >= BOX_SHAPE:
-        return None
-    return replace(best, nfev=sum(res.nfev for res in runs))  # both runs' evaluations
+    return best
 
 
 def sharp_start(xi):
