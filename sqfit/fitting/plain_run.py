@@ -135,13 +135,13 @@ from dataclasses import replace
 
 import numpy as np
 
-from .grazing import minimise
+from .grazing import minimise, offset_groups
 from .raycost import ray_bounds
 from ..geometry.slab import thin_axis_as_z, thin_section
 
 __all__ = ["SHARP_BELOW", "PLAIN_SHAPE_MIN", "SQUARE_SECTION_ABOVE", "SQUARE_SECTION_BELOW", "SQUARE_SECTION_KEEP",
            "SQUARE_SECTION_FTOL", "AT_FLOOR", "FLOOR_RELEASE", "BOX_SHAPE", "plain_fit", "square_section_fit",
-           "below_floor_fit", "sharp_start"]
+           "below_floor_fit", "sharp_start", "offset_from_plain"]
 
 #: The plain run starts a second time where a shape exponent of the refinement's fit is below
 #: this, with those exponents at the lower bound, and the lower cost is kept (module docstring).
@@ -282,3 +282,16 @@ def sharp_start(xi):
         return None
     xi[3:5] = np.where(flat, PLAIN_SHAPE_MIN, xi[3:5])
     return xi
+
+
+def offset_from_plain(rays, x, options):
+    """The outline offsets (px, one per group of :func:`sqfit.fitting.grazing.offset_groups`) that 3G
+    estimates when started at the plain fit ``x`` (11 parameters) with its offsets at 0, and the run's
+    evaluations: ``(offsets, nfev)``. No pose corrections; the plain runs' shape bound
+    :data:`PLAIN_SHAPE_MIN`, so square edges stay within reach. Used by 3H's idle test
+    (:mod:`sqfit.fitting.axis_screen`): whether an offset belongs to the masks or to the refinement's
+    basin."""
+    groups = offset_groups(rays, options)
+    x0 = np.concatenate([np.asarray(x, dtype=np.float64), np.zeros(int(groups.max()) + 1)])
+    res = minimise(rays, x0, options, 0.0, options.outline_offset_sigma_px, groups, shape_min=PLAIN_SHAPE_MIN)
+    return res.x[len(x):], res.nfev
