@@ -121,7 +121,7 @@ from .grazing import (POSE_NOISE_TRIGGER_DEG, SilhouetteFit, describe_values, of
                       outline_rays, shifted_rays, silhouette_fit)
 from .costs import ObservationSet
 from .outline import TRIGGER_COST
-from .plain_run import offset_from_plain, plain_fit
+from .plain_run import at_size_floor, offset_from_plain, plain_fit
 from .stages import NUMERICAL_ERRORS, STAGES, FitState, StageError, ellipsoid_depths, r_iou_m, register, to_superquadric
 from ..views.grid import with_grid_samples, with_outline_samples
 
@@ -202,7 +202,10 @@ PLAIN_BASIN_COST_RATIO = 1.2
 #: of the 339 fits beyond it one kept an idle offset from the plain fit, at 19 times the refinement's cost,
 #: and no fit changed with the bound. Without it the test cost 4-7 ms more per object there (median,
 #: ``benchmarks/bench_hull.py --chain default``, 40 objects of ``paper-bias1`` and ``paper-erode1``); with it
-#: the medians stay within the runs' spread (docs/real-objects.md).
+#: the medians stay within the runs' spread (docs/real-objects.md). An inward offset on a fit at the size floor
+#: is tested whatever its size: it thins the outline of a superquadric the floor holds too thick
+#: (:func:`sqfit.fitting.plain_run.at_size_floor`; books of seed 14, docs/real-objects.md, "An inward offset at
+#: the size floor").
 PLAIN_BASIN_OFFSET_MAX_PX = 2 * IDLE_OFFSET_PX
 #: Initial damping of the screen, times the largest diagonal entry of ``J^T J`` (as :mod:`sqfit.fitting.lm`).
 _LAMBDA0 = 1e-3
@@ -359,12 +362,12 @@ def _without_idle_nuisances(fit, obs, options):
     noise at most :data:`sqfit.fitting.grazing.POSE_NOISE_TRIGGER_DEG`, the fixed prior), the
     outline offset is idle, and the superquadric grazes the outline (the refinement's cost at most
     :data:`sqfit.fitting.outline.TRIGGER_COST`, 3T's trigger): :func:`sqfit.fitting.plain_run.plain_fit`.
-    The offset is idle within :data:`IDLE_OFFSET_PX`, or beyond it (up to :data:`PLAIN_BASIN_OFFSET_MAX_PX`)
-    where it belongs to the refinement's basin, not to the masks: the plain fit costs at most
-    :data:`PLAIN_BASIN_COST_RATIO` times the refinement, and 3G started there with the offset free keeps
-    it within :data:`IDLE_OFFSET_PX` (:func:`sqfit.fitting.plain_run.offset_from_plain`). The plain fit then has no offset
-    (``outline_offsets`` None, so ``FitResult.outline_offset_px`` is None; its message ends with the
-    refinement's, which names the offset it had)."""
+    The offset is idle within :data:`IDLE_OFFSET_PX`, or beyond it (up to :data:`PLAIN_BASIN_OFFSET_MAX_PX`, or
+    inward on a fit at the size floor) where it belongs to the refinement's basin, not to the masks: the plain
+    fit costs at most :data:`PLAIN_BASIN_COST_RATIO` times the refinement, and 3G started there with the
+    offset free keeps it within :data:`IDLE_OFFSET_PX` (:func:`sqfit.fitting.plain_run.offset_from_plain`).
+    The plain fit then has no offset (``outline_offsets`` None, so ``FitResult.outline_offset_px`` is None;
+    its message ends with the refinement's, which names the offset it had)."""
     nuisances = options.pose_sigma_deg > 0 or options.outline_offset_sigma_px > 0
     if not (options.idle_nuisances_plain and nuisances):
         return fit
@@ -375,7 +378,8 @@ def _without_idle_nuisances(fit, obs, options):
         return fit
     offsets = fit.state.outline_offsets
     idle = offsets is None or not np.abs(offsets).max() > IDLE_OFFSET_PX
-    if not (idle or np.abs(offsets).max() <= PLAIN_BASIN_OFFSET_MAX_PX):
+    floored = not idle and offsets.max() < 0 and at_size_floor(fit.state.xi, options)
+    if not (idle or floored or np.abs(offsets).max() <= PLAIN_BASIN_OFFSET_MAX_PX):
         return fit
     rays = outline_rays(obs, options.n_contour)
     run = plain_fit(rays, fit.state.xi, options)

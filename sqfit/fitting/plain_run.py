@@ -141,7 +141,7 @@ from ..geometry.slab import thin_axis_as_z, thin_section
 
 __all__ = ["SHARP_BELOW", "PLAIN_SHAPE_MIN", "SQUARE_SECTION_ABOVE", "SQUARE_SECTION_BELOW", "SQUARE_SECTION_KEEP",
            "SQUARE_SECTION_FTOL", "AT_FLOOR", "FLOOR_RELEASE", "BOX_SHAPE", "plain_fit", "square_section_fit",
-           "below_floor_fit", "sharp_start", "offset_from_plain"]
+           "below_floor_fit", "sharp_start", "offset_from_plain", "at_size_floor"]
 
 #: The plain run starts a second time where a shape exponent of the refinement's fit is below
 #: this, with those exponents at the lower bound, and the lower cost is kept (module docstring).
@@ -261,7 +261,7 @@ def below_floor_fit(rays, xi, options):
     from :func:`sharp_start`; the lower cost of the two where that fit is a box (both exponents below
     :data:`BOX_SHAPE`), else None (module docstring)."""
     xi = np.asarray(xi, dtype=np.float64)
-    if xi[:3].min() > options.size_min_m * (1.0 + AT_FLOOR):
+    if not at_size_floor(xi, options):
         return None
     lowered = replace(options, size_min_m=FLOOR_RELEASE * options.size_min_m)
     runs = [minimise(rays, start, lowered, 0.0, shape_min=PLAIN_SHAPE_MIN)
@@ -270,6 +270,12 @@ def below_floor_fit(rays, xi, options):
     if best is None or best.x[3:5].max() >= BOX_SHAPE:
         return None
     return best
+
+
+def at_size_floor(xi, options):
+    """Whether a half-axis of ``xi`` ``(11,)`` sits at the size floor ``options.size_min_m`` (within
+    :data:`AT_FLOOR`, relative: the floor is a soft bound) or below it."""
+    return bool(np.abs(np.asarray(xi, dtype=np.float64)[:3]).min() <= options.size_min_m * (1.0 + AT_FLOOR))
 
 
 def sharp_start(xi):
@@ -288,9 +294,14 @@ def offset_from_plain(rays, x, options):
     """The outline offsets (px, one per group of :func:`sqfit.fitting.grazing.offset_groups`) that 3G
     estimates when started at the plain fit ``x`` (11 parameters) with its offsets at 0, and the run's
     evaluations: ``(offsets, nfev)``. No pose corrections; the plain runs' shape bound
-    :data:`PLAIN_SHAPE_MIN`, so square edges stay within reach. Used by 3H's idle test
-    (:mod:`sqfit.fitting.axis_screen`): whether an offset belongs to the masks or to the refinement's
-    basin."""
+    :data:`PLAIN_SHAPE_MIN`, so square edges stay within reach, and the plain fit's own size floor: where
+    ``x`` lies below ``options.size_min_m`` (a box below the floor, :func:`below_floor_fit`) the floor
+    lowered to :data:`FLOOR_RELEASE` times it, as there (at the floor, the offset would thin the outline of a
+    superquadric the floor holds too thick). Used by 3H's idle test (:mod:`sqfit.fitting.axis_screen`):
+    whether an offset belongs to the masks or to the refinement's basin."""
+    x = np.asarray(x, dtype=np.float64)
+    if np.abs(x[:3]).min() < options.size_min_m * (1.0 - AT_FLOOR):
+        options = replace(options, size_min_m=FLOOR_RELEASE * options.size_min_m)
     groups = offset_groups(rays, options)
     x0 = np.concatenate([np.asarray(x, dtype=np.float64), np.zeros(int(groups.max()) + 1)])
     res = minimise(rays, x0, options, 0.0, options.outline_offset_sigma_px, groups, shape_min=PLAIN_SHAPE_MIN)
