@@ -198,9 +198,10 @@ def plain_fit(rays, xi, options):
     if below is not None:
         nfev += below.nfev
         if below.cost < res.cost:
+            lowered = _floor_lowered(options)
             res, how = below, (f"{how}, then a box below the size floor ({options.size_min_m:g} m lowered to "
-                               f"{FLOOR_RELEASE * options.size_min_m:g} m)")
-            board = square_section_fit(rays, res.x, replace(options, size_min_m=FLOOR_RELEASE * options.size_min_m))
+                               f"{lowered.size_min_m:g} m)")
+            board = square_section_fit(rays, res.x, lowered)
             if board is not None:
                 nfev += board.nfev
                 if board.cost <= SQUARE_SECTION_KEEP * res.cost:
@@ -263,13 +264,18 @@ def below_floor_fit(rays, xi, options):
     xi = np.asarray(xi, dtype=np.float64)
     if not at_size_floor(xi, options):
         return None
-    lowered = replace(options, size_min_m=FLOOR_RELEASE * options.size_min_m)
+    lowered = _floor_lowered(options)
     runs = [minimise(rays, start, lowered, 0.0, shape_min=PLAIN_SHAPE_MIN)
             for start in (xi, sharp_start(xi)) if start is not None]
     best = _lowest(runs)  # both runs' evaluations counted
     if best is None or best.x[3:5].max() >= BOX_SHAPE:
         return None
     return best
+
+
+def _floor_lowered(options):
+    """``options`` with the size floor lowered to :data:`FLOOR_RELEASE` times it (a box below the floor)."""
+    return replace(options, size_min_m=FLOOR_RELEASE * options.size_min_m)
 
 
 def at_size_floor(xi, options):
@@ -301,8 +307,8 @@ def offset_from_plain(rays, x, options):
     whether an offset belongs to the masks or to the refinement's basin."""
     x = np.asarray(x, dtype=np.float64)
     if np.abs(x[:3]).min() < options.size_min_m * (1.0 - AT_FLOOR):
-        options = replace(options, size_min_m=FLOOR_RELEASE * options.size_min_m)
+        options = _floor_lowered(options)
     groups = offset_groups(rays, options)
-    x0 = np.concatenate([np.asarray(x, dtype=np.float64), np.zeros(int(groups.max()) + 1)])
+    x0 = np.concatenate([x, np.zeros(int(groups.max()) + 1)])
     res = minimise(rays, x0, options, 0.0, options.outline_offset_sigma_px, groups, shape_min=PLAIN_SHAPE_MIN)
     return res.x[len(x):], res.nfev
