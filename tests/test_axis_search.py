@@ -390,7 +390,10 @@ def test_pose_noise_at_the_size_floor_is_tested_against_the_plain_fit(household)
     below the floor) costs 0.46 times that refinement, whose cost counts its priors: the plain fit is taken, the
     given cameras kept (3D IoU 0.433 -> 0.954 when this was written)."""
     from sqfit.metrics import iou_3d_mesh
+    from sqfit.fitting.costs import ObservationSet
+    from sqfit.fitting.pipeline import FitOptions
     from sqfit.fitting.plain_run import AT_FLOOR
+    from sqfit.fitting.stages import STAGES, default_state
 
     book, obs = household("book", 14, 9)
     result = sqfit.fit(obs)
@@ -399,6 +402,13 @@ def test_pose_noise_at_the_size_floor_is_tested_against_the_plain_fit(household)
     assert min(result.superquadric.size) < 0.1 * (1 - AT_FLOOR)  # below the floor
     assert result.outline_offset_px is None
     assert iou_3d_mesh(result.superquadric, book.mesh) > 0.9
+    # 3H's state hands on the given cameras, not the refinement's corrections (which 3R would re-fit under)
+    observed = ObservationSet(list(obs))
+    state, options = default_state(observed), FitOptions()
+    with np.errstate(all="ignore"):  # as sqfit.fit runs its stages
+        for name in ("1", "2M", "3H"):
+            state = STAGES[name](state, observed, options)
+    assert "pose noise and outline offset were its basin's" in state.message and state.camera_corrections is None
     # without the offset (no 3G run from the plain fit with the offset freed) the test is the cost alone
     alone = sqfit.fit(obs, options={"outline_offset_sigma_px": 0})
     assert "the refinement's pose noise was its basin's" in stage(alone, "3H").message
