@@ -88,6 +88,19 @@ def stage(result, name):
     return [s for s in result.stages if s.name == name][-1]
 
 
+def through_3h(obs, options):
+    """The :class:`sqfit.fitting.stages.FitState` after stages 1, 2M and 3H on ``obs`` (an ObservationSet), run
+    as the chain runs them (numpy's floating-point warnings off): what 3H hands on, ``camera_corrections``
+    included, which :class:`sqfit.FitResult` does not carry."""
+    from sqfit.fitting.stages import STAGES, default_state
+
+    state = default_state(obs)
+    with np.errstate(all="ignore"):
+        for name in ("1", "2M", "3H"):
+            state = STAGES[name](state, obs, options)
+    return state
+
+
 def graph_values(poses, objects):
     """``gtsam.Values`` of a superquadric graph: ``X(i)`` at each of ``poses`` (camera -> world) and
     each object's landmark ``L(j)``, ``S(j)`` at ``objects`` (``{j: sqfit.Superquadric}``)."""

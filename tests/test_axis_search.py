@@ -10,7 +10,7 @@ from sqfit.metrics import iou_3d
 from sqfit.fitting.raycost import batch_log_gauge_jacobian, batch_ray_residuals, log_gauge_jacobian, ray_residuals
 from sqfit.views.rays import INSIDE, RaySet, contour_rays
 from sqfit.testing import paper_trial
-from _helpers import stage, turned_pose
+from _helpers import stage, through_3h, turned_pose
 
 
 @pytest.fixture(scope="module")
@@ -393,7 +393,6 @@ def test_pose_noise_at_the_size_floor_is_tested_against_the_plain_fit(household)
     from sqfit.fitting.costs import ObservationSet
     from sqfit.fitting.pipeline import FitOptions
     from sqfit.fitting.plain_run import AT_FLOOR
-    from sqfit.fitting.stages import STAGES, default_state
 
     book, obs = household("book", 14, 9)
     result = sqfit.fit(obs)
@@ -403,11 +402,7 @@ def test_pose_noise_at_the_size_floor_is_tested_against_the_plain_fit(household)
     assert result.outline_offset_px is None
     assert iou_3d_mesh(result.superquadric, book.mesh) > 0.9
     # 3H's state hands on the given cameras, not the refinement's corrections (which 3R would re-fit under)
-    observed = ObservationSet(list(obs))
-    state, options = default_state(observed), FitOptions()
-    with np.errstate(all="ignore"):  # as sqfit.fit runs its stages
-        for name in ("1", "2M", "3H"):
-            state = STAGES[name](state, observed, options)
+    state = through_3h(ObservationSet(list(obs)), FitOptions())
     assert "pose noise and outline offset were its basin's" in state.message and state.camera_corrections is None
     # without the offset (no 3G run from the plain fit with the offset freed) the test is the cost alone
     alone = sqfit.fit(obs, options={"outline_offset_sigma_px": 0})

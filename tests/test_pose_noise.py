@@ -15,12 +15,12 @@ from sqfit.fitting.grazing import (POSE_NOISE_TRIGGER_DEG, outline_rays, pose_no
                                    silhouette_fit)
 from sqfit.fitting.outline import TRIGGER_COST
 from sqfit.fitting.raycost import posed_ray_residuals, ray_residuals
-from sqfit.fitting.stages import STAGES, FitState, default_state, to_superquadric
+from sqfit.fitting.stages import STAGES, FitState, to_superquadric
 from sqfit.fitting.trimmed import TURN_MIN_DEG
 from sqfit.metrics import iou_3d, iou_3d_mesh
 from sqfit.testing import paper_trial
 from sqfit.views.rays import contour_rays
-from _helpers import stage, turned_pose
+from _helpers import stage, through_3h, turned_pose
 
 #: Per-view camera-frame rotation errors (degrees) of the "noisy" trial below.
 TURNS_DEG = [(1.0, -0.5, 0.3), (-0.8, 1.2, -0.4), (0.6, 0.9, 1.0)]
@@ -141,17 +141,9 @@ def test_no_corrections_where_no_superquadric_grazes_the_outline(household):
     # (cost above 3T's trigger) bends the cameras towards itself; its corrections are not handed on
     _, observations = household("table", 0, 0, pose_rotation_deg=1.0)
     obs = ObservationSet(observations)
-    state = _through_3h(obs, sqfit.FitOptions())
+    state = through_3h(obs, sqfit.FitOptions())
     assert "pose prior scaled" in state.message and state.cost > TRIGGER_COST
     assert state.camera_corrections is None
-
-
-def _through_3h(obs, options):
-    state = default_state(obs)
-    with np.errstate(all="ignore"):  # as the chain runs its stages
-        for name in ("1", "2M", "3H"):
-            state = STAGES[name](state, obs, options)
-    return state
 
 
 def test_3r_refits_on_the_pose_corrected_cameras_too(household):
@@ -160,7 +152,7 @@ def test_3r_refits_on_the_pose_corrected_cameras_too(household):
     # ones, where it fits the views' disagreement too (seed 0, trial 5: 0.77 -> 0.87 in the chain)
     gt, observations = household("bottle", 0, 5, pose_rotation_deg=1.0)
     obs, options = ObservationSet(observations), sqfit.FitOptions()
-    state = _through_3h(obs, options)
+    state = through_3h(obs, options)
     assert state.camera_corrections is not None
     both = STAGES["3R"](state, obs, options)
     given = STAGES["3R"](replace(state, camera_corrections=None), obs, options)
@@ -178,7 +170,7 @@ def test_3r_keeps_the_given_cameras_where_they_explain_the_outline(scene_trial):
     # the one on the turned cameras (0.84)
     gt, observations = scene_trial("cylinders", 0)
     obs, options = ObservationSet(observations), sqfit.FitOptions()
-    state = _through_3h(obs, options)
+    state = through_3h(obs, options)
     assert state.camera_corrections is not None
     new = STAGES["3R"](state, obs, options)
     assert ": kept it; not truncated cost" in new.message
@@ -193,7 +185,7 @@ def test_3r_leaves_small_corrections_alone(household):
     # the turned cameras (a second run for nothing on most clean mugs)
     _, observations = household("mug", 0, 2)
     obs, options = ObservationSet(observations), sqfit.FitOptions()
-    state = _through_3h(obs, options)
+    state = through_3h(obs, options)
     assert state.camera_corrections is not None
     assert pose_noise_estimate(state.camera_corrections.ravel()) < TURN_MIN_DEG
     new = STAGES["3R"](state, obs, options)
