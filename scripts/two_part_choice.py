@@ -6,7 +6,8 @@ Usage::
         [--kinds chair laptop monitor] [--trials 20] [--seed 0] [--records FILE]
 
 Stage 3U (:mod:`sqfit.fitting.two_parts`) fits the union of two superquadrics to an object's opened masks
-from twelve starts, polishes without the volume term those that ended near the lowest objective, keeps the
+from its starts (:func:`~sqfit.fitting.two_parts.starts`), polishes without the volume term those that
+ended near the lowest objective, keeps the
 union that then matches the masks best (:func:`~sqfit.fitting.two_parts.polish`) and of it the larger part, or
 the smaller where more of it lies inside the masks' visual hull (:func:`~sqfit.fitting.two_parts.pick_part`).
 This script repeats those steps from stage 3V's
@@ -45,8 +46,8 @@ from sqfit.fitting.costs import ObservationSet  # noqa: E402
 from sqfit.fitting.hull import object_hull  # noqa: E402
 from sqfit.fitting.least_volume import bulk_observations  # noqa: E402
 from sqfit.fitting.stages import to_superquadric  # noqa: E402
-from sqfit.fitting.two_parts import (MU, fit_union, hull_share, l_starts, near_best, passes_gate,  # noqa: E402
-                                     pick_part, union_ious)
+from sqfit.fitting.two_parts import (MU, fit_union, hull_share, near_best, passes_gate, pick_part,  # noqa: E402
+                                     starts as union_starts, union_ious)
 from sqfit.geometry.superquadric import contains, volume  # noqa: E402
 from sqfit.limit import interior_points  # noqa: E402
 from sqfit.metrics import iou_3d_mesh  # noqa: E402
@@ -76,7 +77,7 @@ def trial_row(scene, index, renderer, seed):
     xi, reference = base.to_vector(), volume(base)
     bulk = bulk_observations(obs) or obs
     singles = union_ious(xi[None, None], bulk)[0]
-    fits = [fit_union(start, bulk, MU, reference) for start in l_starts(xi)]
+    fits = [fit_union(start, bulk, MU, reference) for start in union_starts(xi)]
     best = int(np.argmin([fit[2] for fit in fits]))
     row = {"trial": index, "base": iou_3d_mesh(base, obj.mesh), "passes": passes_gate(singles, fits[best][1])}
     if not row["passes"]:

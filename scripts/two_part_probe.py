@@ -11,7 +11,7 @@ its union fit from. An open laptop or a chair's seat and back are two slabs at a
 single superquadric (the representation limit) is one slab, but chain ``whole``'s fit (the default
 before 3U joined it) fills the wedge between them. For each trial this fits the *union* of two
 superquadrics to the opened masks from ``whole``'s fit much as 3U does from 3V's
-(:func:`~sqfit.fitting.two_parts.fit_union` from each of :func:`~sqfit.fitting.two_parts.l_starts`;
+(:func:`~sqfit.fitting.two_parts.fit_union` from each of :func:`~sqfit.fitting.two_parts.starts`;
 ``--mu`` the weight of the parts' volume; ``--differences`` for the IoUs' Jacobian by forward
 differences), and reports what each rule would keep: the part of higher 3D IoU with the union, the
 larger (3U's :func:`~sqfit.fitting.two_parts.pick_part`), the part whose own silhouettes match the masks
@@ -42,7 +42,7 @@ import sqfit  # noqa: E402
 from sqfit.fitting.costs import ObservationSet  # noqa: E402
 from sqfit.fitting.least_volume import bulk_observations  # noqa: E402
 from sqfit.fitting.stages import to_superquadric  # noqa: E402
-from sqfit.fitting.two_parts import fit_union, l_starts, passes_gate, pick_part, union_ious  # noqa: E402
+from sqfit.fitting.two_parts import fit_union, passes_gate, pick_part, starts, union_ious  # noqa: E402
 from sqfit.geometry.superquadric import volume  # noqa: E402
 from sqfit.metrics import iou_3d_mesh  # noqa: E402
 from sqsim.imaging.render import get_renderer  # noqa: E402
@@ -60,7 +60,7 @@ def trial_row(scene, index, renderer, mu, cache, differences=False):
     t0 = time.process_time()
     bulk = bulk_observations(obs) or obs
     singles = union_ious(xi[None, None], bulk)[0]
-    best = min((fit_union(start, bulk, mu, volume(fit), differences) for start in l_starts(xi)), key=lambda t: t[2])
+    best = min((fit_union(start, bulk, mu, volume(fit), differences) for start in starts(xi)), key=lambda t: t[2])
     X, unions = best[0], best[1]
     passes = passes_gate(singles, unions)
     parts = [to_superquadric(x) for x in X]

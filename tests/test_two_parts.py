@@ -1,4 +1,4 @@
-"""Stage 3U (sqfit.fitting.two_parts): its L-shaped starts, the union's silhouette IoU, gradient and sample, its
+"""Stage 3U (sqfit.fitting.two_parts): its L- and V-shaped starts, the union's silhouette IoU, gradient and sample, its
 kernels, the stage on a true superquadric and on a chair (the `whole` chain's fit where it keeps no part);
 scripts/two_part_probe.py's arguments."""
 
@@ -45,6 +45,49 @@ def test_the_starts_are_slabs_on_two_adjacent_faces_of_the_fits_box():
         assert thin_axes[0][0] != thin_axes[1][0]  # two different faces, adjacent
         faces.add(tuple(sorted(thin_axes)))
     assert len(faces) == 12
+
+
+def test_the_v_starts_are_two_slabs_from_a_sides_midpoint_to_the_far_corners_across_the_thinnest_axis():
+    xi = np.r_[2.0, 0.5, 3.0, 1.0, 1.0, 0.5, -0.5, 2.0, 0.3, -0.2, 1.1]  # thinnest along y (axis 1)
+    starts = two_parts.v_starts(xi)
+    assert starts.shape == (4, 2, 11)
+    a, R, p = xi[0:3], euler_to_matrix(xi[8:11]), xi[5:8]
+    seen = set()
+    for pair in starts:
+        ends, hinge_axes = [], set()
+        for part in pair:
+            assert np.allclose(part[3:5], 0.2)
+            frame = euler_to_matrix(part[8:11])
+            assert np.isclose(np.linalg.det(frame), 1.0)
+            local = R.T @ frame  # the part's axes in the box's frame
+            hinge_axis = int(np.argmax(np.abs(local[:, 1])))
+            assert hinge_axis != 1 and np.isclose(abs(local[hinge_axis, 1]), 1.0)  # a longer axis is the hinge
+            assert np.isclose(part[1], a[hinge_axis]) and np.isclose(part[2], two_parts.THIN * a[1])
+            centre, arm = R.T @ (part[5:8] - p) / a, local[:, 0] * part[0] / a  # in box units
+            assert np.isclose(centre[hinge_axis], 0.0) and np.isclose(arm[hinge_axis], 0.0)
+            ends.append([centre - arm, centre + arm])
+            hinge_axes.add(hinge_axis)
+        assert len(hinge_axes) == 1
+        # the arms share one end, the midpoint of a side across the thinnest axis; their other ends are the two
+        # corners of the opposite side
+        shared = [e for e in ends[0] if any(np.allclose(e, f) for f in ends[1])]
+        assert len(shared) == 1
+        hinge = shared[0]
+        assert np.isclose(abs(hinge[1]), 1.0) and np.allclose(np.delete(hinge, 1), 0.0)
+        far = [e for end in ends for e in end if not np.allclose(e, hinge)]
+        fan = 3 - 1 - hinge_axes.pop()
+        assert sorted(np.round([f[fan] for f in far], 9)) == [-1.0, 1.0]
+        assert all(np.isclose(f[1], -hinge[1]) for f in far)
+        seen.add((fan, float(np.sign(hinge[1]))))
+    assert seen == {(0, -1.0), (0, 1.0), (2, -1.0), (2, 1.0)}
+
+
+@pytest.mark.parametrize("thinnest, with_v", [(0.5, True), (0.7 * 2.0, True), (0.71 * 2.0, False), (1.9, False)])
+def test_the_starts_add_the_v_shaped_ones_only_where_the_fits_box_is_flat(thinnest, with_v):
+    xi = np.r_[2.0, thinnest, 3.0, 1.0, 1.0, 0.5, -0.5, 2.0, 0.3, -0.2, 1.1]  # middle half-axis 2
+    assert two_parts.V_ASPECT == 0.7
+    expected = [two_parts.l_starts(xi)] + ([two_parts.v_starts(xi)] if with_v else [])
+    assert np.array_equal(two_parts.starts(xi), np.concatenate(expected))
 
 
 def test_the_unions_silhouette_iou_is_the_single_ones_for_one_part_or_the_same_part_twice():
@@ -259,6 +302,20 @@ def test_on_a_laptop_that_3t_leaves_alone_the_stage_keeps_a_part_closer_to_the_l
     assert iou_3d_mesh(default.superquadric, laptop.mesh) > iou_3d_mesh(whole.superquadric, laptop.mesh) + 0.3
 
 
+def test_on_a_laptop_along_its_wedges_bisector_the_v_starts_find_the_base_or_the_lid(household):
+    """Laptop 5 of seed 4: 3V's fit lies along the bisector of base and lid, so the slabs along its box's faces
+    (:func:`l_starts`) fit unions across the wedge (matching the opened masks at 0.92, every part 0.37 or less inside
+    the laptop) and 3U kept one at 0.096; from the V-shaped starts the union matches them at 0.98 and its part is
+    the base or the lid (0.609 when measured)."""
+    from sqfit.metrics import iou_3d_mesh
+
+    laptop, obs = household("laptop", 4, 5)
+    default = sqfit.fit(obs)
+    message = default.stages[-1].message
+    assert ": kept part" in message, message
+    assert iou_3d_mesh(default.superquadric, laptop.mesh) > 0.5
+
+
 def test_on_a_monitor_the_stage_keeps_a_part_for_a_gain_below_the_old_gate(household):
     """Monitor 15 of seed 0: the union gains 0.108 in mean silhouette IoU over 3V's fit, refused while
     :data:`GATE` was 0.12; the part kept, the screen, is the monitor's better fit (0.388 -> 0.758 when
@@ -365,14 +422,15 @@ def test_the_stage_keeps_the_smaller_slab_where_the_visual_hull_says_so(monkeypa
 
 def test_the_stage_polishes_the_near_best_unions_without_the_volume_term_and_keeps_the_best_matching(monkeypatch,
                                                                                                       chair_fits):
-    """The twelve starts are fitted with the volume term; those ending within POLISH_WITHIN of the lowest objective
+    """The starts are fitted with the volume term; those ending within POLISH_WITHIN of the lowest objective
     are fitted again without it (from where they ended), and the part kept comes from the polished union whose
     silhouettes match the masks best."""
     obs, three_v, _ = chair_fits
-    ends = [np.stack([three_v, three_v]) for _ in range(12)]
+    n = len(two_parts.starts(np.asarray(three_v)))
+    ends = [np.stack([three_v, three_v]) for _ in range(n)]
     for i, X in enumerate(ends):
         X[0, 0:3] *= 0.5 + 0.01 * i  # each start ends somewhere else
-    objectives = [0.5] * 12
+    objectives = [0.5] * n
     objectives[3], objectives[7] = 0.1, 0.1 + 0.9 * two_parts.POLISH_WITHIN  # two near-best ends, start 3 lowest
     polished = {3: np.stack([three_v, three_v]), 7: np.stack([three_v, three_v])}
     polished[3][1, 0:3], polished[7][1, 0:3] = [0.5, 0.05, 0.4], [0.6, 0.06, 0.5]  # slabs
@@ -389,7 +447,7 @@ def test_the_stage_polishes_the_near_best_unions_without_the_volume_term_and_kee
 
     _stub_union(monkeypatch, fit_union, part=1)
     fit = sqfit.fit(obs, chain="two-parts")
-    assert [mu for _, mu in calls] == [two_parts.MU] * 12 + [0.0, 0.0]
+    assert [mu for _, mu in calls] == [two_parts.MU] * n + [0.0, 0.0]
     assert np.array_equal(calls[-2][0], ends[3]) and np.array_equal(calls[-1][0], ends[7])
     assert np.array_equal(fit.superquadric.to_vector(), polished[7][1])
     assert "polished without the volume term" in fit.stages[-1].message
